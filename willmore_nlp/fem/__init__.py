@@ -1,0 +1,1 @@
+"""Finite elements: symbolic element kernels and numeric assembly."""

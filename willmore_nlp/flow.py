@@ -1,0 +1,293 @@
+"""The time loop: one NLP per step, warm starts, retries with smaller steps, energy checks."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from willmore_nlp import geometry
+from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.model.build import build_step
+from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.solvers import make_solver
+
+
+class FlowError(RuntimeError):
+    """The flow cannot go on: a step failed after every allowed retry."""
+
+
+@dataclass
+class StepResult:
+    """One accepted time step (or the initial state, with ``step == 0``).
+
+    Attributes
+    ----------
+    step : step number k (0 for the initial state)
+    t : time after the step
+    tau : step size actually taken (smaller than nominal after retries)
+    vertices : (N, m) positions X^k
+    Y : (N, m) inner mean-curvature-motion step Y[X^k]
+    objective : W at the solution
+    energy : discrete energy of the scheme, 1/(2 tt^2) M(Y-X).(Y-X) + lam A (what decreases)
+    willmore : independent discrete Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`)
+    measure : length or area
+    volume : enclosed area or volume (NaN for open meshes)
+    iterations : solver iterations
+    converged : solver success
+    status : solver status
+    wall_time : seconds for the step, retries included
+    quality : mesh-quality figures (:func:`willmore_nlp.geometry.quality`)
+    retries : how many times tau was halved
+    stats : solver statistics (evaluations, timings, KKT residual)
+    rejected : reasons of rejected attempts
+    """
+
+    step: int
+    t: float
+    tau: float
+    vertices: np.ndarray
+    Y: np.ndarray
+    objective: float
+    energy: float
+    willmore: float
+    measure: float
+    volume: float
+    iterations: int
+    converged: bool
+    status: str
+    wall_time: float
+    quality: dict[str, float]
+    retries: int = 0
+    stats: dict[str, Any] = field(default_factory=dict)
+    rejected: list[str] = field(default_factory=list)
+
+    def row(self) -> dict[str, Any]:
+        """Flat dict for history.csv."""
+        r = {
+            "step": self.step,
+            "t": self.t,
+            "tau": self.tau,
+            "objective": self.objective,
+            "energy": self.energy,
+            "willmore_energy": self.willmore,
+            "measure": self.measure,
+            "volume": self.volume,
+            "iterations": self.iterations,
+            "converged": int(self.converged),
+            "status": self.status,
+            "wall_time": self.wall_time,
+            "retries": self.retries,
+            "rejected": " | ".join(self.rejected),
+        }
+        r.update({f"q_{k}": v for k, v in self.quality.items()})
+        for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "n_eval_hess"):
+            if k in self.stats:
+                r[k] = self.stats[k]
+        return r
+
+
+class WillmoreFlow:
+    """Isotropic Willmore flow by the nested variational scheme (DESIGN.md section 1).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Initial curve or surface (closed).
+    tau : float
+        Outer time step (may be of the order of h).
+    tau_tilde : float
+        Inner mean-curvature step; keep it <= h^2 (larger values lose tangential convexity).
+    lam : float
+        Length/area energy weight (paper Sec. 5.2).
+    solver : str
+        Registered solver name (``"ipopt"`` default).
+    codegen : bool or None
+        Compile the element kernels to C (None: when a C compiler is found).
+    max_retries : int
+        How many times a failed step is retried with tau halved.
+    check_energy : bool
+        Reject steps that violate the discrete energy inequality W(X^{k+1}) <= W(X^k) = 2 tau e(X^k).
+    min_angle : float
+        Reject surface steps whose smallest triangle angle (degrees) drops below this.
+    max_edge_ratio : float
+        Reject steps whose longest/shortest edge ratio exceeds this.
+    **options
+        Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
+    """
+
+    def __init__(
+        self,
+        mesh: Mesh,
+        tau: float,
+        tau_tilde: float,
+        *,
+        lam: float = 0.0,
+        solver: str = "ipopt",
+        codegen: bool | None = False,
+        max_retries: int = 4,
+        check_energy: bool = True,
+        min_angle: float = 0.5,
+        max_edge_ratio: float = 1e3,
+        energy_rtol: float = 1e-8,
+        **options: Any,
+    ) -> None:
+        for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
+            if not (np.isfinite(val) and val > 0):
+                raise ValueError(f"{name} must be a positive number, got {val}")
+        if not (np.isfinite(lam) and lam >= 0):
+            raise ValueError(f"lam must be >= 0, got {lam}")
+        if not mesh.is_closed:
+            raise MeshError(
+                f"{mesh.source}: the mesh has a boundary ({len(mesh.boundary_facets)} boundary "
+                "facets) but closed-surface flow needs a closed mesh"
+            )
+        self.mesh = mesh
+        self.tau = float(tau)
+        self.tau_tilde = float(tau_tilde)
+        self.lam = float(lam)
+        self.max_retries = int(max_retries)
+        self.check_energy = check_energy
+        self.min_angle = float(min_angle)
+        self.max_edge_ratio = float(max_edge_ratio)
+        self.energy_rtol = float(energy_rtol)
+        t0 = time.perf_counter()
+        self.problem = build_step(mesh)
+        kernels = self.problem.kernels
+        if codegen:
+            from willmore_nlp.codegen import compile_kernels
+
+            kernels = compile_kernels(self.problem.kernels)
+        self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
+        self.solver_name = solver
+        self.solver = make_solver(solver, self.evaluator, options)
+        self.build_time = time.perf_counter() - t0
+        self.X = np.array(mesh.vertices, float)
+        self.t = 0.0
+        self.k = 0
+        self.Y = self._solve_y(self.X, self.tau)
+        self.lam_g: np.ndarray | None = None
+
+    # -- helpers -----------------------------------------------------------------------
+    def params(self, Xk: np.ndarray, tau: float) -> np.ndarray:
+        """Parameter vector of a step from Xk with step size tau."""
+        return self.problem.pack_p(Xk, tau, self.tau_tilde, self.lam)
+
+    def _solve_y(self, X: np.ndarray, tau: float, Y0: np.ndarray | None = None) -> np.ndarray:
+        return self.evaluator.solve_y(X, self.params(X, tau), Y0)
+
+    def discrete_energy(self, X: np.ndarray, Y: np.ndarray | None = None) -> float:
+        """e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X], the energy the scheme decreases."""
+        p = self.params(X, 1.0)
+        Y = self.evaluator.solve_y(X, p) if Y is None else Y
+        return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0
+
+    def state(self) -> StepResult:
+        """The current state as a StepResult (step 0 style, no solver data)."""
+        return self._result(self.X, self.Y, self.tau, float("nan"), None, 0.0, 0, [])
+
+    def _result(self, X: np.ndarray, Y: np.ndarray, tau: float, obj: float, res: Any,
+                wall: float, retries: int, rejected: list[str]) -> StepResult:
+        mesh = self.mesh.with_vertices(X)
+        return StepResult(
+            step=self.k,
+            t=self.t,
+            tau=tau,
+            vertices=X.copy(),
+            Y=Y.copy(),
+            objective=obj,
+            energy=self.discrete_energy(X, None),
+            willmore=geometry.willmore_energy(mesh),
+            measure=geometry.measure(mesh),
+            volume=geometry.enclosed_volume(mesh),
+            iterations=0 if res is None else res.iterations,
+            converged=True if res is None else res.converged,
+            status="initial" if res is None else res.status,
+            wall_time=wall,
+            quality=geometry.quality(mesh),
+            retries=retries,
+            stats={} if res is None else dict(res.stats),
+            rejected=rejected,
+        )
+
+    def _reject_reason(self, res: Any, f0: float, X: np.ndarray) -> str | None:
+        if not res.converged:
+            return f"solver did not converge ({res.status}, {res.iterations} iterations)"
+        if not np.all(np.isfinite(X)):
+            return "non-finite positions"
+        if self.check_energy and res.f > f0 + self.energy_rtol * abs(f0) + 1e-14:
+            return f"energy inequality violated: W = {res.f:.12g} > W(X^k) = {f0:.12g}"
+        try:
+            q = geometry.quality(self.mesh.with_vertices(X))
+        except MeshError as exc:
+            return f"mesh collapsed: {exc}"
+        if q["edge_ratio"] > self.max_edge_ratio:
+            return f"mesh quality: edge ratio {q['edge_ratio']:.3g} > {self.max_edge_ratio:g}"
+        if "min_angle" in q and q["min_angle"] < self.min_angle:
+            return f"mesh quality: min angle {q['min_angle']:.3g} deg < {self.min_angle:g}"
+        return None
+
+    # -- stepping ----------------------------------------------------------------------
+    def step(self) -> StepResult:
+        """Advance by one step of size tau; retry with tau/2 (at most ``max_retries`` times).
+
+        Raises
+        ------
+        FlowError
+            When every attempt was rejected; the flow's state is unchanged.
+        """
+        t0 = time.perf_counter()
+        tau = self.tau
+        rejected: list[str] = []
+        for attempt in range(self.max_retries + 1):
+            p = self.params(self.X, tau)
+            z0 = self.problem.pack_z(self.X, self.Y)
+            f0 = self.evaluator.f(z0, p)
+            res = self.solver.solve(z0, p, self.lam_g)
+            X, Y = self.problem.unpack_z(res.z, self.X)
+            reason = self._reject_reason(res, f0, X)
+            if reason is None:
+                self.X, self.t, self.k = X, self.t + tau, self.k + 1
+                self.Y = self._solve_y(X, tau, Y)
+                self.lam_g = res.lam_g
+                return self._result(X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
+            rejected.append(f"tau={tau:.6g}: {reason}")
+            tau /= 2
+        raise FlowError(
+            f"step {self.k + 1} at t={self.t:.6g} failed after {self.max_retries} retries: "
+            + "; ".join(rejected)
+        )
+
+    def run(
+        self,
+        t_end: float | None = None,
+        steps: int | None = None,
+        callback: Callable[[StepResult], None] | None = None,
+    ) -> list[StepResult]:
+        """Step until ``t_end`` (the last step is shortened to hit it) or for ``steps`` steps.
+
+        ``callback`` is called with every accepted StepResult. Returns the accepted steps.
+        """
+        if t_end is None and steps is None:
+            raise ValueError("run needs t_end or steps")
+        out: list[StepResult] = []
+        nominal = self.tau
+        try:
+            while True:
+                if steps is not None and len(out) >= steps:
+                    break
+                if t_end is not None:
+                    remaining = t_end - self.t
+                    if remaining <= 1e-12 * max(1.0, abs(t_end)):
+                        break
+                    self.tau = min(nominal, remaining)
+                r = self.step()
+                out.append(r)
+                if callback is not None:
+                    callback(r)
+        finally:
+            self.tau = nominal
+        return out

@@ -1,0 +1,119 @@
+"""The :class:`Mesh` value: vertices and simplices of a polygonal curve or a triangle surface."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+
+class MeshError(ValueError):
+    """A mesh failed validation; the message names the offending vertex, simplex or file."""
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A simplicial mesh: a polygonal curve (d = 1) or a triangulated surface (d = 2).
+
+    Parameters
+    ----------
+    vertices : (N, m) float array
+        Vertex positions in R^m, m = 2 or 3.
+    simplices : (K, d + 1) int array
+        Vertex indices of each segment (d = 1) or triangle (d = 2).
+    source : str, optional
+        Where the mesh came from (a file name), used in error messages.
+
+    The arrays are copied and made read-only. Construction validates shapes, indices,
+    finiteness, degenerate and duplicate simplices; manifoldness and orientation are
+    checked for every mesh (see :func:`willmore_nlp.mesh.topology.check_manifold`).
+    """
+
+    vertices: np.ndarray
+    simplices: np.ndarray
+    source: str = field(default="<array>", compare=False)
+
+    def __post_init__(self) -> None:
+        from willmore_nlp.mesh.validate import validate_arrays
+
+        V, S = validate_arrays(self.vertices, self.simplices, self.source)
+        V.setflags(write=False)
+        S.setflags(write=False)
+        object.__setattr__(self, "vertices", V)
+        object.__setattr__(self, "simplices", S)
+        from willmore_nlp.mesh.topology import check_manifold
+
+        check_manifold(self)
+
+    # -- sizes ---------------------------------------------------------------------------
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices N."""
+        return int(self.vertices.shape[0])
+
+    @property
+    def n_simplices(self) -> int:
+        """Number of simplices K."""
+        return int(self.simplices.shape[0])
+
+    @property
+    def m(self) -> int:
+        """Ambient dimension (2 or 3)."""
+        return int(self.vertices.shape[1])
+
+    @property
+    def d(self) -> int:
+        """Intrinsic dimension: 1 for curves, 2 for surfaces."""
+        return int(self.simplices.shape[1] - 1)
+
+    # -- topology ------------------------------------------------------------------------
+    @cached_property
+    def boundary_facets(self) -> np.ndarray:
+        """(B, d) int array: facets (vertices for curves, edges for surfaces) on one simplex only."""
+        from willmore_nlp.mesh.topology import boundary_facets
+
+        return boundary_facets(self.simplices)
+
+    @cached_property
+    def boundary_vertices(self) -> np.ndarray:
+        """(nb,) sorted int array of the vertices on the boundary."""
+        return np.unique(self.boundary_facets)
+
+    @property
+    def is_closed(self) -> bool:
+        """True when the mesh has no boundary."""
+        return self.boundary_facets.shape[0] == 0
+
+    @cached_property
+    def edges(self) -> np.ndarray:
+        """(E, 2) int array of unique edges (sorted vertex pairs)."""
+        S = self.simplices
+        if self.d == 1:
+            e = S
+        else:
+            e = np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
+        return np.unique(np.sort(e, axis=1), axis=0)
+
+    def edge_lengths(self, vertices: np.ndarray | None = None) -> np.ndarray:
+        """(E,) lengths of :attr:`edges` at ``vertices`` (default: the mesh's own)."""
+        V = self.vertices if vertices is None else np.asarray(vertices)
+        e = self.edges
+        return np.linalg.norm(V[e[:, 1]] - V[e[:, 0]], axis=1)
+
+    @property
+    def h(self) -> float:
+        """Mean edge length, the grid size h used in the paper's step-size choices."""
+        return float(np.mean(self.edge_lengths()))
+
+    def with_vertices(self, vertices: np.ndarray) -> Mesh:
+        """The same topology at new vertex positions (validated)."""
+        return Mesh(np.asarray(vertices, dtype=float), self.simplices, self.source)
+
+    def __repr__(self) -> str:
+        kind = "curve" if self.d == 1 else "surface"
+        closed = "closed" if self.is_closed else "with boundary"
+        return (
+            f"Mesh({kind} in R^{self.m}, {closed}, N={self.n_vertices}, "
+            f"K={self.n_simplices}, source={self.source!r})"
+        )

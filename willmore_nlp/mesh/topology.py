@@ -1,0 +1,137 @@
+"""Topology of simplicial meshes: boundary facets, manifoldness, orientation, components."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from willmore_nlp.mesh.core import MeshError
+
+if TYPE_CHECKING:
+    from willmore_nlp.mesh.core import Mesh
+
+
+def _facets(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directed facets of every simplex and the simplex each belongs to.
+
+    Returns
+    -------
+    F : (K * (d + 1), d) int array, facets with the orientation induced by their simplex
+        (for curves: the end vertex of a segment as +1 facet and its start as -1 facet,
+        encoded as a (K*2, 1) array with the sign in ``owner``'s companion; see below).
+    owner : (K * (d + 1),) int array
+    """
+    K, nv = S.shape
+    if nv == 2:
+        F = np.concatenate([S[:, [0]], S[:, [1]]])
+    else:
+        F = np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
+    owner = np.tile(np.arange(K), nv)
+    return F, owner
+
+
+def boundary_facets(S: np.ndarray) -> np.ndarray:
+    """(B, d) facets that belong to exactly one simplex (boundary of the mesh)."""
+    F, _ = _facets(S)
+    key = np.sort(F, axis=1)
+    uniq, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    once = counts[inv.ravel()] == 1
+    return F[once]
+
+
+def check_manifold(mesh: Mesh) -> None:
+    """Raise :class:`MeshError` unless ``mesh`` is a consistently oriented manifold.
+
+    Curves: every vertex lies on at most two segments, and where it lies on two it is the
+    end of one and the start of the other. Surfaces: every edge lies on at most two
+    triangles, and an interior edge is traversed in opposite directions by its two triangles.
+    """
+    S, src = mesh.simplices, mesh.source
+    if mesh.d == 1:
+        deg = np.bincount(S.ravel(), minlength=mesh.n_vertices)
+        bad = np.flatnonzero(deg > 2)
+        if bad.size:
+            raise MeshError(f"{src}: non-manifold curve: vertex {bad[0]} lies on {deg[bad[0]]} segments")
+        for col, what in ((0, "start"), (1, "end")):
+            c = np.bincount(S[:, col], minlength=mesh.n_vertices)
+            bad = np.flatnonzero(c > 1)
+            if bad.size:
+                raise MeshError(
+                    f"{src}: inconsistently oriented curve: vertex {bad[0]} is the {what} of "
+                    f"{c[bad[0]]} segments"
+                )
+        return
+    F, owner = _facets(S)
+    key = np.sort(F, axis=1)
+    uniq, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    if np.any(counts > 2):
+        e = uniq[np.argmax(counts > 2)]
+        tris = owner[np.flatnonzero((key == e).all(axis=1))]
+        raise MeshError(
+            f"{src}: non-manifold surface: edge {e.tolist()} lies on {len(tris)} triangles "
+            f"{tris.tolist()}"
+        )
+    directed, dcounts = np.unique(F, axis=0, return_counts=True)
+    if np.any(dcounts > 1):
+        e = directed[np.argmax(dcounts > 1)]
+        tris = owner[np.flatnonzero((F == e).all(axis=1))]
+        raise MeshError(
+            f"{src}: inconsistently oriented surface: triangles {tris.tolist()} both traverse "
+            f"edge {e.tolist()} in the same direction"
+        )
+    # vertex manifoldness: the triangles around a vertex form one fan
+    N = mesh.n_vertices
+    K = mesh.n_simplices
+    # triangles sharing an edge are adjacent; count fans per vertex via components of the
+    # graph on (vertex, triangle) incidences linked through shared edges at that vertex
+    shared = counts[inv] == 2
+    e_idx = inv[shared]
+    t = owner[shared]
+    order = np.argsort(e_idx, kind="stable")
+    pairs = t[order].reshape(-1, 2)
+    edges_of_pairs = uniq[e_idx[order][::2]]
+    inc_v = S.ravel()
+    inc_t = np.repeat(np.arange(K), 3)
+    node = np.arange(inc_v.size)
+    inc_id = sp.csr_matrix((node + 1, (inc_t, inc_v)), shape=(K, N))
+    rows, cols = [], []
+    for j in range(2):
+        v = edges_of_pairs[:, j]
+        a = np.asarray(inc_id[pairs[:, 0], v]).ravel() - 1
+        b = np.asarray(inc_id[pairs[:, 1], v]).ravel() - 1
+        rows.append(a)
+        cols.append(b)
+    r = np.concatenate(rows)
+    c = np.concatenate(cols)
+    G = sp.coo_matrix((np.ones(r.size), (r, c)), shape=(inc_v.size, inc_v.size))
+    _, labels = connected_components(G, directed=False)
+    fans = np.zeros(N, dtype=np.int64)
+    uniq_pairs = np.unique(np.stack([inc_v, labels], axis=1), axis=0)
+    np.add.at(fans, uniq_pairs[:, 0], 1)
+    bad = np.flatnonzero(fans > 1)
+    if bad.size:
+        raise MeshError(
+            f"{src}: non-manifold surface: the triangles around vertex {bad[0]} form "
+            f"{fans[bad[0]]} separate fans"
+        )
+
+
+def components(mesh: Mesh) -> tuple[int, np.ndarray]:
+    """Connected components of the vertex graph.
+
+    Returns
+    -------
+    n : int
+        Number of components.
+    labels : (N,) int array
+        Component of each vertex.
+    """
+    e = mesh.edges
+    N = mesh.n_vertices
+    A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(N, N))
+    n, labels = connected_components(A, directed=False)
+    return int(n), labels

@@ -1,0 +1,99 @@
+"""Validation of raw vertex/simplex arrays, with messages that name the problem."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from willmore_nlp.mesh.core import MeshError
+
+
+def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """Check and convert the arrays of a mesh.
+
+    Parameters
+    ----------
+    vertices : array_like, (N, m)
+    simplices : array_like, (K, d + 1)
+    source : str
+        Named in every message.
+
+    Returns
+    -------
+    V : (N, m) float64 array (a copy)
+    S : (K, d + 1) int64 array (a copy)
+
+    Raises
+    ------
+    MeshError
+        Wrong shapes, non-integer or out-of-range indices, NaN/inf coordinates,
+        unreferenced vertices, simplices with a repeated vertex or zero measure, and
+        duplicate simplices.
+    """
+    try:
+        V = np.array(vertices, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise MeshError(f"{source}: vertices are not a numeric array ({exc})") from exc
+    if V.ndim != 2 or V.shape[1] not in (2, 3):
+        raise MeshError(f"{source}: vertices must have shape (N, 2) or (N, 3), got {V.shape}")
+    if V.shape[0] == 0:
+        raise MeshError(f"{source}: the mesh has no vertices")
+    bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
+    if bad.size:
+        raise MeshError(f"{source}: vertex {bad[0]} has a non-finite coordinate {V[bad[0]].tolist()}")
+    S_raw = np.asarray(simplices)
+    if S_raw.ndim != 2 or S_raw.shape[1] not in (2, 3):
+        raise MeshError(
+            f"{source}: simplices must have shape (K, 2) (segments) or (K, 3) (triangles), "
+            f"got {S_raw.shape}"
+        )
+    if S_raw.shape[0] == 0:
+        raise MeshError(f"{source}: the mesh has no simplices")
+    if not (np.issubdtype(S_raw.dtype, np.integer)):
+        if not np.issubdtype(S_raw.dtype, np.number) or not np.all(np.isfinite(S_raw)) or np.any(
+            S_raw != np.round(S_raw)
+        ):
+            raise MeshError(f"{source}: simplex indices must be integers")
+    S = S_raw.astype(np.int64)
+    N, K, nv = V.shape[0], S.shape[0], S.shape[1]
+    d, m = nv - 1, V.shape[1]
+    if d == 2 and m != 3:
+        raise MeshError(f"{source}: triangle surfaces must live in R^3, got vertices in R^{m}")
+    out = np.flatnonzero((S < 0).any(axis=1) | (S >= N).any(axis=1))
+    if out.size:
+        raise MeshError(
+            f"{source}: simplex {out[0]} has vertex index out of range [0, {N}): {S[out[0]].tolist()}"
+        )
+    used = np.zeros(N, dtype=bool)
+    used[S.ravel()] = True
+    unused = np.flatnonzero(~used)
+    if unused.size:
+        raise MeshError(
+            f"{source}: vertex {unused[0]} is not used by any simplex "
+            f"({unused.size} unreferenced vertices)"
+        )
+    Ss = np.sort(S, axis=1)
+    rep = np.flatnonzero((np.diff(Ss, axis=1) == 0).any(axis=1))
+    if rep.size:
+        raise MeshError(f"{source}: simplex {rep[0]} repeats a vertex: {S[rep[0]].tolist()}")
+    _, first, counts = np.unique(Ss, axis=0, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        i = int(first[np.argmax(counts > 1)])
+        dup = np.flatnonzero((Ss == Ss[i]).all(axis=1))
+        raise MeshError(f"{source}: simplices {dup[0]} and {dup[1]} are duplicates: {S[i].tolist()}")
+    vol = simplex_volumes(V, S)
+    scale = max(float(np.ptp(V, axis=0).max()), np.finfo(float).tiny)
+    degenerate = np.flatnonzero(vol <= 1e-13 * scale**d)
+    if degenerate.size:
+        k = int(degenerate[0])
+        raise MeshError(f"{source}: simplex {k} is degenerate (zero {'length' if d == 1 else 'area'}): "
+                        f"vertices {S[k].tolist()}")
+    return V, S
+
+
+def simplex_volumes(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(K,) lengths (d = 1) or areas (d = 2) of the simplices ``S`` at vertex positions ``V``."""
+    if S.shape[1] == 2:
+        return np.linalg.norm(V[S[:, 1]] - V[S[:, 0]], axis=1)
+    e1 = V[S[:, 1]] - V[S[:, 0]]
+    e2 = V[S[:, 2]] - V[S[:, 0]]
+    return 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)

@@ -1,0 +1,71 @@
+"""What every step solver returns, and the registry of solver factories."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from willmore_nlp.model.evaluator import StepEvaluator
+
+
+@dataclass
+class SolveResult:
+    """Outcome of one step solve.
+
+    Attributes
+    ----------
+    z : (nx,) unknowns at the end of the solve
+    f : objective W at ``z``
+    lam_g : (ng,) constraint multipliers (the adjoint P up to sign and scale)
+    converged : True when the solver reports success to its tolerance
+    status : solver's own status string
+    iterations : outer iterations
+    stats : counts and timings (evaluations, linear solves, wall times, residuals)
+    """
+
+    z: np.ndarray
+    f: float
+    lam_g: np.ndarray
+    converged: bool
+    status: str
+    iterations: int
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+class StepSolver(Protocol):
+    """A solver built once per step problem; ``solve`` is called once per time step."""
+
+    name: str
+
+    def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
+        """Solve the step NLP from ``z0`` with parameters ``p``."""
+        ...
+
+
+SolverFactory = Callable[[StepEvaluator, dict[str, Any]], StepSolver]
+_SOLVERS: dict[str, SolverFactory] = {}
+
+
+def register_solver(name: str) -> Callable[[SolverFactory], SolverFactory]:
+    """Decorator: register a solver factory under ``name``."""
+
+    def deco(factory: SolverFactory) -> SolverFactory:
+        _SOLVERS[name] = factory
+        return factory
+
+    return deco
+
+
+def solver_names() -> list[str]:
+    """Registered solver names."""
+    return sorted(_SOLVERS)
+
+
+def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | None = None) -> StepSolver:
+    """Build the solver ``name`` for a step problem; ``options`` are solver-specific."""
+    if name not in _SOLVERS:
+        raise ValueError(f"unknown solver {name!r}; available: {', '.join(solver_names())}")
+    return _SOLVERS[name](evaluator, dict(options or {}))
