@@ -7,6 +7,16 @@ solved by IPOPT with exact element-assembled Hessians.
 from willmore_nlp.flow import FlowError, StepResult, WillmoreFlow
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import Mesh, MeshError
+from willmore_nlp.rundir import Run, load_run
 
-__all__ = ["FlowError", "Mesh", "MeshError", "StepResult", "WillmoreFlow", "willmore_energy"]
+__all__ = [
+    "FlowError",
+    "Mesh",
+    "MeshError",
+    "Run",
+    "StepResult",
+    "WillmoreFlow",
+    "load_run",
+    "willmore_energy",
+]
 __version__ = "0.1.0"

@@ -89,10 +89,7 @@ class Mesh:
     def edges(self) -> np.ndarray:
         """(E, 2) int array of unique edges (sorted vertex pairs)."""
         S = self.simplices
-        if self.d == 1:
-            e = S
-        else:
-            e = np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
+        e = S if self.d == 1 else np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
         return np.unique(np.sort(e, axis=1), axis=0)
 
     def edge_lengths(self, vertices: np.ndarray | None = None) -> np.ndarray:

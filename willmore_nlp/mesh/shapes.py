@@ -89,7 +89,7 @@ def torus(R: float = 1.0, r: float = 0.5, n_major: int = 24, n_minor: int = 12) 
 
     A regular (n_major x n_minor) grid in the two angles, each quad split into two triangles.
     """
-    if r <= 0 or R <= r:
+    if r <= 0 or r >= R:
         raise MeshError(f"torus: need 0 < r < R, got R={R}, r={r}")
     if n_major < 3 or n_minor < 3:
         raise MeshError(f"torus: n_major and n_minor must be >= 3, got {n_major}, {n_minor}")

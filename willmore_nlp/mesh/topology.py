@@ -37,7 +37,7 @@ def boundary_facets(S: np.ndarray) -> np.ndarray:
     """(B, d) facets that belong to exactly one simplex (boundary of the mesh)."""
     F, _ = _facets(S)
     key = np.sort(F, axis=1)
-    uniq, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     once = counts[inv.ravel()] == 1
     return F[once]
 
@@ -78,7 +78,7 @@ def check_manifold(mesh: Mesh) -> None:
     directed, dcounts = np.unique(F, axis=0, return_counts=True)
     if np.any(dcounts > 1):
         e = directed[np.argmax(dcounts > 1)]
-        tris = owner[np.flatnonzero((F == e).all(axis=1))]
+        tris = owner[np.flatnonzero((e == F).all(axis=1))]
         raise MeshError(
             f"{src}: inconsistently oriented surface: triangles {tris.tolist()} both traverse "
             f"edge {e.tolist()} in the same direction"
@@ -94,19 +94,16 @@ def check_manifold(mesh: Mesh) -> None:
     order = np.argsort(e_idx, kind="stable")
     pairs = t[order].reshape(-1, 2)
     edges_of_pairs = uniq[e_idx[order][::2]]
-    inc_v = S.ravel()
-    inc_t = np.repeat(np.arange(K), 3)
-    node = np.arange(inc_v.size)
-    inc_id = sp.csr_matrix((node + 1, (inc_t, inc_v)), shape=(K, N))
-    rows, cols = [], []
-    for j in range(2):
-        v = edges_of_pairs[:, j]
-        a = np.asarray(inc_id[pairs[:, 0], v]).ravel() - 1
-        b = np.asarray(inc_id[pairs[:, 1], v]).ravel() - 1
-        rows.append(a)
-        cols.append(b)
-    r = np.concatenate(rows)
-    c = np.concatenate(cols)
+    inc_v = S.ravel()  # incidence i = (triangle i // 3, vertex S.ravel()[i])
+    inc_key = np.repeat(np.arange(K, dtype=np.int64), 3) * N + inc_v
+    order_key = np.argsort(inc_key)
+    sorted_key = inc_key[order_key]
+
+    def incidence(tri: np.ndarray, vert: np.ndarray) -> np.ndarray:
+        return order_key[np.searchsorted(sorted_key, tri.astype(np.int64) * N + vert)]
+
+    r = np.concatenate([incidence(pairs[:, 0], edges_of_pairs[:, j]) for j in range(2)])
+    c = np.concatenate([incidence(pairs[:, 1], edges_of_pairs[:, j]) for j in range(2)])
     G = sp.coo_matrix((np.ones(r.size), (r, c)), shape=(inc_v.size, inc_v.size))
     _, labels = connected_components(G, directed=False)
     fans = np.zeros(N, dtype=np.int64)

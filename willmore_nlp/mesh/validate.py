@@ -48,13 +48,12 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
         )
     if S_raw.shape[0] == 0:
         raise MeshError(f"{source}: the mesh has no simplices")
-    if not (np.issubdtype(S_raw.dtype, np.integer)):
-        if not np.issubdtype(S_raw.dtype, np.number) or not np.all(np.isfinite(S_raw)) or np.any(
-            S_raw != np.round(S_raw)
-        ):
-            raise MeshError(f"{source}: simplex indices must be integers")
+    if not np.issubdtype(S_raw.dtype, np.integer) and (
+        not np.issubdtype(S_raw.dtype, np.number) or not np.all(np.isfinite(S_raw)) or np.any(S_raw != np.round(S_raw))
+    ):
+        raise MeshError(f"{source}: simplex indices must be integers")
     S = S_raw.astype(np.int64)
-    N, K, nv = V.shape[0], S.shape[0], S.shape[1]
+    N, nv = V.shape[0], S.shape[1]
     d, m = nv - 1, V.shape[1]
     if d == 2 and m != 3:
         raise MeshError(f"{source}: triangle surfaces must live in R^3, got vertices in R^{m}")

@@ -1,0 +1,142 @@
+"""Registry of named problems (the paper's scenarios and more).
+
+A problem factory is a function with keyword parameters (all with defaults) returning a
+:class:`Problem`. Factories are registered with :func:`register` from modules of the
+top-level ``problems`` package; :func:`load_all` imports them.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from willmore_nlp.mesh.core import Mesh
+
+
+class ProblemError(ValueError):
+    """Unknown problem or parameter, or a parameter of the wrong type."""
+
+
+@dataclass
+class Problem:
+    """A fully specified flow: initial mesh, step sizes, run length and flow options.
+
+    Attributes
+    ----------
+    mesh : initial Mesh
+    tau, tau_tilde, lam : step sizes and length/area energy weight
+    steps, t_end : default run length (either may be None)
+    flow_options : further keyword arguments of :class:`~willmore_nlp.WillmoreFlow`
+    description : one line shown by ``willmore-nlp problems``
+    """
+
+    mesh: Mesh
+    tau: float
+    tau_tilde: float
+    lam: float = 0.0
+    steps: int | None = None
+    t_end: float | None = None
+    flow_options: dict[str, Any] = field(default_factory=dict)
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A registered factory with its name, module and one-line description."""
+
+    name: str
+    factory: Callable[..., Problem]
+    module: str
+    description: str
+
+    def defaults(self) -> dict[str, Any]:
+        """The factory's keyword parameters and their defaults."""
+        return {
+            k: p.default
+            for k, p in inspect.signature(self.factory).parameters.items()
+            if p.default is not inspect.Parameter.empty
+        }
+
+
+_REGISTRY: dict[str, Entry] = {}
+
+
+def register(name: str) -> Callable[[Callable[..., Problem]], Callable[..., Problem]]:
+    """Decorator registering a problem factory under ``name`` (first docstring line = description)."""
+
+    def deco(factory: Callable[..., Problem]) -> Callable[..., Problem]:
+        if name in _REGISTRY and _REGISTRY[name].factory is not factory:
+            raise ProblemError(f"problem {name!r} is registered twice ({_REGISTRY[name].module}, {factory.__module__})")
+        doc = (inspect.getdoc(factory) or "").strip().splitlines()
+        _REGISTRY[name] = Entry(name, factory, factory.__module__, doc[0] if doc else "")
+        return factory
+
+    return deco
+
+
+def load_all() -> dict[str, Entry]:
+    """Import every module of the ``problems`` package and return the registry."""
+    import problems
+
+    for mod in pkgutil.iter_modules(problems.__path__):
+        importlib.import_module(f"problems.{mod.name}")
+    return dict(_REGISTRY)
+
+
+def get(name: str) -> Entry:
+    """The registry entry of ``name`` (loading the problems package first)."""
+    reg = load_all()
+    if name not in reg:
+        raise ProblemError(f"unknown problem {name!r}; known: {', '.join(sorted(reg))}")
+    return reg[name]
+
+
+def coerce(value: Any, default: Any, key: str) -> Any:
+    """Convert a string override (from ``--set key=value``) to the type of ``default``."""
+    if not isinstance(value, str) or isinstance(default, str):
+        return value
+    try:
+        if isinstance(default, bool):
+            low = value.strip().lower()
+            if low in ("1", "true", "yes", "on"):
+                return True
+            if low in ("0", "false", "no", "off"):
+                return False
+            raise ValueError(value)
+        if isinstance(default, int):
+            return int(value)
+        if isinstance(default, float) or default is None:
+            try:
+                return int(value) if default is None and value.strip().lstrip("-").isdigit() else float(value)
+            except ValueError:
+                if default is None:
+                    return value
+                raise
+    except ValueError as exc:
+        raise ProblemError(f"parameter {key}: cannot read {value!r} as {type(default).__name__}") from exc
+    return value
+
+
+def build(name: str, **params: Any) -> tuple[Problem, dict[str, Any]]:
+    """Call the factory of ``name`` with ``params`` (unknown keys are an error).
+
+    Returns
+    -------
+    problem : Problem
+    resolved : dict
+        Every factory parameter with the value used.
+    """
+    entry = get(name)
+    defaults = entry.defaults()
+    unknown = sorted(set(params) - set(defaults))
+    if unknown:
+        raise ProblemError(
+            f"problem {name!r} has no parameter {unknown[0]!r}; its parameters: {', '.join(sorted(defaults))}"
+        )
+    resolved = dict(defaults)
+    resolved.update({k: coerce(v, defaults[k], k) for k, v in params.items()})
+    return entry.factory(**resolved), resolved
