@@ -96,7 +96,7 @@ class WillmoreFlow:
     Parameters
     ----------
     mesh : Mesh
-        Initial curve or surface (closed).
+        Initial curve or surface (closed unless ``boundary`` is given).
     tau : float
         Outer time step (may be of the order of h).
     tau_tilde : float
@@ -115,6 +115,10 @@ class WillmoreFlow:
         Reject surface steps whose smallest triangle angle (degrees) drops below this.
     max_edge_ratio : float
         Reject steps whose longest/shortest edge ratio exceeds this.
+    boundary : optional
+        Clamped-boundary description (see :mod:`willmore_nlp.boundary`).
+    anisotropy : optional
+        Anisotropy gamma for the fully nonlinear anisotropic scheme.
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
     """
@@ -133,6 +137,8 @@ class WillmoreFlow:
         min_angle: float = 0.5,
         max_edge_ratio: float = 1e3,
         energy_rtol: float = 1e-8,
+        boundary: Any = None,
+        anisotropy: Any = None,
         **options: Any,
     ) -> None:
         for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
@@ -140,11 +146,6 @@ class WillmoreFlow:
                 raise ValueError(f"{name} must be a positive number, got {val}")
         if not (np.isfinite(lam) and lam >= 0):
             raise ValueError(f"lam must be >= 0, got {lam}")
-        if not mesh.is_closed:
-            raise MeshError(
-                f"{mesh.source}: the mesh has a boundary ({len(mesh.boundary_facets)} boundary "
-                "facets) but closed-surface flow needs a closed mesh"
-            )
         self.mesh = mesh
         self.tau = float(tau)
         self.tau_tilde = float(tau_tilde)
@@ -155,7 +156,8 @@ class WillmoreFlow:
         self.max_edge_ratio = float(max_edge_ratio)
         self.energy_rtol = float(energy_rtol)
         t0 = time.perf_counter()
-        self.problem = build_step(mesh)
+        self.setup = build_step(mesh, boundary=boundary, anisotropy=anisotropy)
+        self.problem = self.setup.problem
         kernels = self.problem.kernels
         if codegen:
             from willmore_nlp.codegen import compile_kernels
@@ -174,7 +176,7 @@ class WillmoreFlow:
     # -- helpers -----------------------------------------------------------------------
     def params(self, Xk: np.ndarray, tau: float) -> np.ndarray:
         """Parameter vector of a step from Xk with step size tau."""
-        return self.problem.pack_p(Xk, tau, self.tau_tilde, self.lam)
+        return self.setup.params(Xk, tau, self.tau_tilde, self.lam)
 
     def _solve_y(self, X: np.ndarray, tau: float, Y0: np.ndarray | None = None) -> np.ndarray:
         return self.evaluator.solve_y(X, self.params(X, tau), Y0)
