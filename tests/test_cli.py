@@ -1,0 +1,96 @@
+"""Command line, run directories, registry and the public API as a user meets them."""
+
+import csv
+import pkgutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import problems
+import willmore_nlp
+from willmore_nlp import load_run, registry
+
+CLI = [sys.executable, "-m", "willmore_nlp.cli"]
+
+
+def run_cli(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, cwd=cwd, timeout=600)
+
+
+def test_every_problem_module_registers_something() -> None:
+    reg = registry.load_all()
+    modules = {e.module for e in reg.values()}
+    for mod in pkgutil.iter_modules(problems.__path__):
+        assert f"problems.{mod.name}" in modules, f"problems/{mod.name}.py registers no problem"
+    for name in ("circle", "sphere", "hypocycloid", "hypocycloid3d", "torus"):
+        assert name in reg
+        entry = reg[name]
+        assert entry.description
+
+
+@pytest.mark.parametrize("name", ["circle", "sphere", "hypocycloid", "hypocycloid3d", "torus"])
+def test_closed_problems_build(name: str) -> None:
+    pb, resolved = registry.build(name)
+    assert pb.mesh.is_closed
+    assert pb.tau > 0 and pb.tau_tilde > 0
+    assert set(resolved) == set(registry.get(name).defaults())
+
+
+def test_public_api_names() -> None:
+    for n in ("Mesh", "WillmoreFlow", "StepResult", "willmore_energy", "load_run"):
+        assert hasattr(willmore_nlp, n)
+
+
+def test_cli_problems_lists_registry() -> None:
+    r = run_cli("problems")
+    assert r.returncode == 0
+    for name in ("circle", "sphere", "hypocycloid", "hypocycloid3d", "torus"):
+        assert name in r.stdout
+
+
+def test_cli_run_circle_writes_run_directory(tmp_path) -> None:
+    out = tmp_path / "run"
+    r = run_cli("run", "circle", "--out", str(out), "--steps", "3", "--set", "n=32", "--set", "tau=0.01",
+                "--quiet")
+    assert r.returncode == 0, r.stderr
+    with open(out / "history.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(x["step"]) for x in rows] == [0, 1, 2, 3]
+    for col in ("t", "tau", "objective", "willmore_energy", "measure", "volume", "iterations", "wall_time",
+                "q_edge_ratio"):
+        assert col in rows[0]
+    t = np.array([float(x["t"]) for x in rows])
+    np.testing.assert_allclose(t, [0, 0.01, 0.02, 0.03])
+    run = load_run(out)
+    assert len(run.states) == 4 and run.states[0].n_vertices == 32
+    assert run.config["params"]["n"] == 32 and run.config["tau"] == 0.01
+    # the circle grew: R(t) = (R0^4 + 2 t)^(1/4)
+    R = [np.linalg.norm(s.vertices, axis=1).mean() for s in run.states]
+    assert np.all(np.diff(R) > 0)
+    np.testing.assert_allclose(R[-1], (2.0**4 + 2 * 0.03) ** 0.25, rtol=1e-3)
+
+
+def test_cli_run_toml_config_with_mesh_file(tmp_path) -> None:
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.mesh.io import save_mesh
+
+    save_mesh(shapes.ellipse(24, 1.5, 1.0), tmp_path / "e.txt")
+    (tmp_path / "cfg.toml").write_text('mesh = "e.txt"\nsteps = 2\nlam = 0.5\ntol = 1e-10\n[ipopt]\nmax_iter = 100\n')
+    out = tmp_path / "run"
+    r = run_cli("run", str(tmp_path / "cfg.toml"), "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    run = load_run(out)
+    assert len(run.states) == 3
+    assert run.config["lam"] == 0.5 and run.config["flow_options"]["ipopt.max_iter"] == 100
+    e = [row["energy"] for row in run.history]
+    assert e[2] < e[1] < e[0]
+
+
+def test_cli_unknown_key_is_one_line_error(tmp_path) -> None:
+    out = tmp_path / "run"
+    r = run_cli("run", "circle", "--out", str(out), "--steps", "1", "--set", "nn=3")
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and "unknown key 'nn'" in r.stderr
+    assert not out.exists()

@@ -1,0 +1,105 @@
+"""Mesh value, validation basics, shapes, file round trips, reference Willmore energies."""
+
+import numpy as np
+import pytest
+
+from willmore_nlp import Mesh, MeshError, willmore_energy
+from willmore_nlp.analysis import fit_order
+from willmore_nlp.geometry import enclosed_volume, measure, quality
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.io import load_mesh, save_mesh
+
+
+def test_infers_dimensions_and_closedness() -> None:
+    c = shapes.regular_polygon(10)
+    assert (c.d, c.m, c.is_closed) == (1, 2, True)
+    s = shapes.icosphere(1)
+    assert (s.d, s.m, s.n_vertices, s.n_simplices, s.is_closed) == (2, 3, 42, 80, True)
+    arc = Mesh(np.array([[0.0, 0], [1, 0], [2, 1]]), np.array([[0, 1], [1, 2]]))
+    assert not arc.is_closed
+    np.testing.assert_array_equal(arc.boundary_vertices, [0, 2])
+    assert not c.vertices.flags.writeable
+
+
+@pytest.mark.parametrize(
+    ("V", "S", "match"),
+    [
+        (np.zeros((3, 4)), [[0, 1]], "shape"),
+        ([[0, 0], [1, 0], [1, 1]], [[0, 1], [1, 5]], "out of range"),
+        ([[0, 0], [1, np.nan], [1, 1]], [[0, 1], [1, 2], [2, 0]], "non-finite"),
+        ([[0, 0], [1, 0], [1, 1]], [[0, 1], [1, 1], [2, 0]], "repeats a vertex"),
+        ([[0, 0], [1, 0], [1, 1]], [[0, 1], [0, 1], [1, 2], [2, 0]], "duplicates"),
+        ([[0, 0], [1, 0], [1, 0]], [[0, 1], [1, 2], [2, 0]], "degenerate"),
+        ([[0, 0], [1, 0], [1, 1], [0, 1]], [[0, 1], [1, 2], [2, 0]], "not used"),
+        ([[0, 0], [1, 0], [1, 1]], [[0, 1], [2, 1], [2, 0]], "oriented"),
+        ([[0, 0], [1, 0], [1, 1], [0, 1], [2, 2]], [[0, 1], [0, 2], [0, 3], [1, 4]], "non-manifold"),
+    ],
+)
+def test_validation_messages(V, S, match: str) -> None:
+    with pytest.raises(MeshError, match=match):
+        Mesh(np.asarray(V, float), np.asarray(S))
+
+
+def test_surface_orientation_and_manifold_errors() -> None:
+    s = shapes.icosphere(1)
+    F = s.simplices.copy()
+    F[0] = F[0, ::-1]
+    with pytest.raises(MeshError, match="oriented"):
+        Mesh(s.vertices, F)
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0.5]], float)
+    with pytest.raises(MeshError, match="non-manifold"):  # three triangles on edge (0, 1)
+        Mesh(V, np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]))
+
+
+def test_torus_and_sphere_shapes_geometry() -> None:
+    vol_err, area_err, hs = [], [], []
+    for n in (16, 32, 64):
+        t = shapes.torus(2.0, 0.5, 2 * n, n)
+        hs.append(t.h)
+        vol_err.append(abs(enclosed_volume(t) - 2 * np.pi**2 * 2.0 * 0.25))
+        area_err.append(abs(measure(t) - 4 * np.pi**2 * 2.0 * 0.5))
+    assert fit_order(hs, vol_err) == pytest.approx(2.0, abs=0.1)
+    assert fit_order(hs, area_err) == pytest.approx(2.0, abs=0.1)
+    s = shapes.icosphere(4)
+    assert enclosed_volume(s) == pytest.approx(4 / 3 * np.pi, rel=5e-3)
+    assert quality(s)["min_angle"] > 50
+
+
+@pytest.mark.parametrize("ext", [".npz", ".obj", ".off", ".ply"])
+def test_surface_round_trip(tmp_path, ext: str) -> None:
+    s = shapes.torus(1.0, 0.4, 12, 6)
+    save_mesh(s, tmp_path / f"t{ext}")
+    s2 = load_mesh(tmp_path / f"t{ext}")
+    np.testing.assert_array_equal(s2.simplices, s.simplices)
+    np.testing.assert_allclose(s2.vertices, s.vertices, atol=1e-6 if ext == ".ply" else 1e-15)
+
+
+def test_curve_text_round_trip(tmp_path) -> None:
+    c = shapes.hypocycloid(30, 0.1)
+    save_mesh(c, tmp_path / "c.txt")
+    c2 = load_mesh(tmp_path / "c.txt")
+    np.testing.assert_allclose(c2.vertices, c.vertices, rtol=0, atol=0)
+    np.testing.assert_array_equal(c2.simplices, c.simplices)
+    (tmp_path / "bad.txt").write_text("0 0\n1 0\n1 x\n")
+    with pytest.raises(MeshError, match=r"bad.txt:3"):
+        load_mesh(tmp_path / "bad.txt")
+
+
+def test_willmore_energy_reference_values() -> None:
+    """Circle pi/R and sphere 8 pi, each converging at second order."""
+    for R in (0.5, 2.0):
+        hs, errs = [], []
+        for n in (32, 64, 128):
+            c = shapes.regular_polygon(n, R)
+            hs.append(c.h)
+            errs.append(abs(willmore_energy(c) - np.pi / R))
+        assert errs[-1] < 1e-3 * np.pi / R
+        assert fit_order(hs, errs) == pytest.approx(2.0, abs=0.1)
+    errs = [abs(willmore_energy(shapes.icosphere(s, 3.0)) - 8 * np.pi) for s in (2, 3, 4)]
+    assert np.all(np.diff(errs) < 0) and errs[-1] < 0.02 * 8 * np.pi
+    # k-fold circle: k pi / R
+    k, n = 3, 90
+    t = 2 * np.pi * k * np.arange(n) / n
+    P = np.stack([np.cos(t), np.sin(t)], 1) * (1 + 1e-9 * np.arange(n))[:, None]  # distinct points
+    S = np.stack([np.arange(n), (np.arange(n) + 1) % n], 1)
+    assert willmore_energy(Mesh(P, S)) == pytest.approx(k * np.pi, rel=2e-3)
