@@ -201,7 +201,7 @@ class WillmoreFlow:
             vertices=X.copy(),
             Y=Y.copy(),
             objective=obj,
-            energy=self.discrete_energy(X, None),
+            energy=self.discrete_energy(X, Y),
             willmore=geometry.willmore_energy(mesh),
             measure=geometry.measure(mesh),
             volume=geometry.enclosed_volume(mesh),
