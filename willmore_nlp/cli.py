@@ -104,6 +104,25 @@ def cmd_problems(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_cache(args: argparse.Namespace) -> int:
+    """Show or clear the cache of compiled kernels."""
+    from willmore_nlp import codegen
+
+    if args.action == "clear":
+        n = codegen.cache_clear()
+        print(f"removed {n} compiled librar{'y' if n == 1 else 'ies'} from {codegen.cache_dir()}")
+        return 0
+    info = codegen.cache_info()
+    cc = codegen.find_compiler()
+    print(f"cache directory: {info['directory']}")
+    print(f"entries: {info['entries']} ({info['bytes'] / 1e6:.1f} MB)")
+    for name in info["libraries"]:
+        print(f"  {name}")
+    print(f"C compiler: {cc or 'none found (kernels run in the CasADi virtual machine)'}")
+    print(f"flags: {' '.join(codegen.default_flags())}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``willmore-nlp``."""
     ap = argparse.ArgumentParser(prog="willmore-nlp", description=__doc__)
@@ -122,6 +141,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("problems", help="list registered problems")
     p.add_argument("-v", "--verbose", action="store_true", help="also list parameters and defaults")
     p.set_defaults(func=cmd_problems)
+
+    c = sub.add_parser("cache", help="show or clear the cache of compiled element kernels")
+    c.add_argument("action", choices=["info", "clear"])
+    c.set_defaults(func=cmd_cache)
     return ap
 
 

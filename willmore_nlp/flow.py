@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -10,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from willmore_nlp import geometry
+from willmore_nlp.codegen import compile_kernels, find_compiler
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
@@ -106,7 +108,8 @@ class WillmoreFlow:
     solver : str
         Registered solver name (``"ipopt"`` default).
     codegen : bool or None
-        Compile the element kernels to C (None: when a C compiler is found).
+        Compile the element kernels to C and cache the library (:mod:`willmore_nlp.codegen`).
+        None (default): when a C compiler is found, else CasADi's virtual machine with a warning.
     max_retries : int
         How many times a failed step is retried with tau halved.
     check_energy : bool
@@ -131,7 +134,7 @@ class WillmoreFlow:
         *,
         lam: float = 0.0,
         solver: str = "ipopt",
-        codegen: bool | None = False,
+        codegen: bool | None = None,
         max_retries: int = 4,
         check_energy: bool = True,
         min_angle: float = 0.5,
@@ -159,10 +162,15 @@ class WillmoreFlow:
         self.setup = build_step(mesh, boundary=boundary, anisotropy=anisotropy)
         self.problem = self.setup.problem
         kernels = self.problem.kernels
+        self.codegen_info: dict[str, Any] = {"enabled": False}
+        if codegen is None:
+            codegen = find_compiler() is not None
+            if not codegen:
+                warnings.warn("no C compiler found: element kernels run in CasADi's virtual machine "
+                              "(slower; set $CC or install gcc to compile them)", stacklevel=2)
         if codegen:
-            from willmore_nlp.codegen import compile_kernels
-
-            kernels = compile_kernels(self.problem.kernels)
+            self.codegen_info = {"enabled": True}
+            kernels = compile_kernels(self.problem.kernels, info=self.codegen_info)
         self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
         self.solver_name = solver
         self.solver = make_solver(solver, self.evaluator, options)

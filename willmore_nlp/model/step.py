@@ -105,10 +105,14 @@ def _scatter_add(values: ca.MX, emap: np.ndarray, n: int) -> ca.MX:
     """MX vector of length n with ``out[emap[i]] += values[i]``; entries mapped to n are dropped.
 
     Built as the gradient of a dot product with a gather, which CasADi represents by a
-    single scatter-add node (no 0/1 matrix, no per-entry graph nodes).
+    single scatter-add node (no 0/1 matrix, no per-entry graph nodes). It is wrapped in its own
+    Function of a free symbol so that CasADi never differentiates through ``values`` (which may
+    come from compiled kernels without derivatives).
     """
+    v = ca.MX.sym("v", emap.size)
     w = ca.MX.sym("w", n + 1)
-    return ca.gradient(ca.dot(w[emap.ravel().tolist()], values), w)[:n]
+    add = ca.Function("scatter_add", [v], [ca.gradient(ca.dot(w[emap.ravel().tolist()], v), w)[:n]])
+    return add(values)
 
 
 @dataclass
