@@ -15,7 +15,8 @@ IPOPT_DEFAULTS: dict[str, Any] = {
     "acceptable_tol": 1e-6,
     "max_iter": 200,
     "print_level": 0,
-    "mu_strategy": "adaptive",
+    "mu_strategy": "monotone",  # no inequalities or bounds: the barrier plays no role, adaptive costs time
+    "constr_mult_init_max": 0.0,  # start multipliers at 0: saves the least-squares factorisation (~25% per step)
     "linear_solver": "mumps",
     "mumps_pivot_order": 5,  # METIS: decisive at scale (DESIGN.md section 3)
     "sb": "yes",

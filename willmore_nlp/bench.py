@@ -1,0 +1,219 @@
+"""Scale benchmark of one time step (outside the test suite).
+
+    python -m willmore_nlp.bench [--spheres 3 4 5 6] [--torus 96x48] [--vm-max 10242] [--out reports/benchmark_scale]
+
+Every case runs in its own subprocess (so peak memory is per case) and measures: build time of the
+step problem and solver, compile time of the generated kernels cold (empty cache) and cached, the
+wall time of one step, IPOPT iterations, the time IPOPT spent in function evaluations and in its
+own algorithm (mostly MUMPS), one MUMPS factorisation of the step's KKT matrix at the solution
+(CasADi's MUMPS interface, symmetric indefinite mode), and peak resident memory. Cases with
+codegen off (CasADi's virtual machine) run up to ``--vm-max`` vertices. The summary fits the
+exponent of per-step time against N over the spheres and writes a Markdown table and a CSV.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _mesh(case: str) -> Any:
+    from willmore_nlp.mesh import shapes
+
+    kind, arg = case.split(":")
+    if kind == "sphere":
+        m = shapes.icosphere(int(arg))
+        return m.with_vertices(m.vertices * np.array([1.0, 1.0, 1.3]))  # not stationary
+    if kind == "torus":
+        a, b = (int(x) for x in arg.split("x"))
+        return shapes.torus(1.0, 0.5, a, b)
+    raise ValueError(f"unknown case {case!r}")
+
+
+def kkt_factorisation_time(flow: Any, X: np.ndarray, Y: np.ndarray, tau: float, lam_g: np.ndarray) -> float:
+    """Seconds for one MUMPS factorisation of [[H, J^T], [J, 0]] at the step's solution."""
+    import casadi as ca
+    import scipy.sparse as sp
+
+    ev, P = flow.evaluator, flow.problem
+    p = flow.params(flow.mesh.vertices, tau)
+    z = P.pack_z(X, Y)
+    H = ev.hess_lag(z, p, 1.0, lam_g)
+    J = ev.jac_g(z, p)
+    K = sp.bmat([[H, J.T], [J, None]]).tocsc()
+    K.sort_indices()
+    spy = ca.Sparsity(K.shape[0], K.shape[1], K.indptr.tolist(), K.indices.tolist())
+    A = ca.DM(spy, K.data)
+    ls = ca.Linsol("kkt", "mumps", spy, {"symmetric": True})
+    ls.sfact(A)
+    t0 = time.perf_counter()
+    ls.nfact(A)
+    return time.perf_counter() - t0
+
+
+def run_case(case: str, codegen: bool) -> dict[str, Any]:
+    """Measure one case in this process (called in a subprocess by :func:`main`)."""
+    from willmore_nlp import WillmoreFlow
+    from willmore_nlp import codegen as cgm
+
+    mesh = _mesh(case)
+    h = mesh.h
+    tau, tt = 0.2 * h, h * h / 100
+    row: dict[str, Any] = {"case": case, "N": mesh.n_vertices, "K": mesh.n_simplices, "codegen": codegen}
+    if codegen:
+        from willmore_nlp.model.build import build_step
+
+        kernels = build_step(mesh).problem.kernels
+        with tempfile.TemporaryDirectory() as cold:
+            info: dict[str, Any] = {}
+            t0 = time.perf_counter()
+            cgm.compile_kernels(kernels, directory=Path(cold), info=info)
+            row["compile_cold_s"] = time.perf_counter() - t0
+            row["source_bytes"] = info["source_bytes"]
+            t0 = time.perf_counter()
+            cgm.compile_kernels(kernels, directory=Path(cold), info=info)
+            row["compile_cached_s"] = time.perf_counter() - t0
+            assert info["cached"]
+    t0 = time.perf_counter()
+    flow = WillmoreFlow(mesh, tau, tt, codegen=codegen)
+    row["build_s"] = time.perf_counter() - t0 - flow.codegen_info.get("compile_time", 0.0)
+    r = flow.step()
+    st = r.stats
+    row.update(
+        step_s=r.wall_time,
+        iterations=r.iterations,
+        ipopt_s=st["t_wall_total"],
+        eval_s=st["t_wall_eval"],
+        solver_s=st["t_wall_solver"],
+        n_hess=st["n_eval_hess"],
+        eval_fraction=st["t_wall_eval"] / r.wall_time,
+    )
+    if codegen:
+        row["kkt_fact_s"] = kkt_factorisation_time(flow, r.vertices, r.Y, r.tau, flow.lam_g)
+        row["step_over_fact"] = r.wall_time / (r.iterations * row["kkt_fact_s"])
+    row["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    return row
+
+
+def _subprocess(case: str, codegen: bool, timeout: float) -> dict[str, Any]:
+    cmd = [sys.executable, "-m", "willmore_nlp.bench", "--one", case, "--codegen", str(int(codegen))]
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
+    if r.returncode != 0:
+        return {"case": case, "codegen": codegen, "error": r.stderr.strip().splitlines()[-1:],
+                "total_s": time.perf_counter() - t0}
+    row = json.loads(r.stdout.strip().splitlines()[-1])
+    row["total_s"] = time.perf_counter() - t0
+    return row
+
+
+COLUMNS = [
+    ("case", "case"), ("N", "N"), ("codegen", "codegen"), ("build_s", "build [s]"),
+    ("compile_cold_s", "compile cold [s]"), ("compile_cached_s", "compile cached [s]"), ("step_s", "step [s]"),
+    ("iterations", "IPOPT it"), ("eval_s", "f/g/J/H eval [s]"), ("solver_s", "IPOPT+MUMPS [s]"),
+    ("eval_fraction", "eval share"), ("kkt_fact_s", "1 KKT fact [s]"), ("step_over_fact", "step/(it x fact)"),
+    ("peak_rss_gb", "peak RSS [GB]"),
+]
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.3g}"
+    return str(v) if v is not None else ""
+
+
+def write_report(rows: list[dict[str, Any]], out: Path, command: str) -> str:
+    """Markdown table + CSV; returns the Markdown."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    keys = [k for k, _ in COLUMNS]
+    with open(out.with_suffix(".csv"), "w", newline="", encoding="utf-8") as fh:
+        wr = csv.DictWriter(fh, fieldnames=[*keys, "error", "total_s"], extrasaction="ignore")
+        wr.writeheader()
+        wr.writerows(rows)
+    import casadi
+
+    lines = [
+        "# Scale benchmark: one time step of the nested scheme",
+        "",
+        f"Command: `{command}`",
+        "",
+        f"Machine: {platform.platform()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
+        f"CasADi {casadi.__version__}, numpy {np.__version__}. Sphere = icosphere scaled 1:1:1.3 in z, "
+        "torus R = 1, r = 0.5; tau = 0.2 h, tau_tilde = h^2/100 (the library's default for surfaces), "
+        "IPOPT tol 1e-9, MUMPS with METIS ordering. '1 KKT fact' is one numeric MUMPS factorisation "
+        "(symmetric indefinite, CasADi's MUMPS interface) of the step's KKT matrix at the solution.",
+        "",
+        "| " + " | ".join(t for _, t in COLUMNS) + " |",
+        "|" + "---|" * len(COLUMNS),
+    ]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['case']} | | {r['codegen']} | failed: {r['error']} |")
+            continue
+        lines.append("| " + " | ".join(_fmt(r.get(k)) for k, _ in COLUMNS) + " |")
+    sph = [r for r in rows if r.get("codegen") and str(r["case"]).startswith("sphere") and "step_s" in r]
+    if len(sph) >= 2:
+        from willmore_nlp.analysis import fit_order
+
+        expo = fit_order([r["N"] for r in sph], [r["step_s"] for r in sph])
+        lines += ["", f"Fitted exponent of per-step wall time vs N (spheres, codegen): **{expo:.2f}**"]
+    on = {r["case"]: r for r in rows if r.get("codegen") and "eval_s" in r}
+    off = {r["case"]: r for r in rows if r.get("codegen") is False and "eval_s" in r}
+    sp_rows = [
+        f"| {c} | {off[c]['eval_s'] / off[c]['n_hess']:.3g} | {on[c]['eval_s'] / on[c]['n_hess']:.3g} | "
+        f"{(off[c]['eval_s'] / off[c]['n_hess']) / (on[c]['eval_s'] / on[c]['n_hess']):.1f}x |"
+        for c in on if c in off
+    ]
+    if sp_rows:
+        lines += ["", "Function evaluation per IPOPT iteration, virtual machine vs generated C:", "",
+                  "| case | VM [s/it] | C [s/it] | speed-up |", "|---|---|---|---|", *sp_rows]
+    text = "\n".join(lines) + "\n"
+    out.with_suffix(".md").write_text(text, encoding="utf-8")
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark grid (or one case with --one) and print/save the table."""
+    ap = argparse.ArgumentParser(prog="python -m willmore_nlp.bench", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spheres", type=int, nargs="*", default=[3, 4, 5, 6],
+                    help="icosphere subdivisions (3: 642, 4: 2562, 5: 10242, 6: 40962 vertices)")
+    ap.add_argument("--torus", nargs="*", default=["96x48"], help="torus grids n_major x n_minor")
+    ap.add_argument("--vm-max", type=int, default=10242, help="largest N also run without codegen")
+    ap.add_argument("--timeout", type=float, default=3600.0, help="seconds per case")
+    ap.add_argument("--out", default="reports/benchmark_scale", help="output path without suffix (.md, .csv)")
+    ap.add_argument("--one", help=argparse.SUPPRESS)
+    ap.add_argument("--codegen", type=int, default=1, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.one:
+        print(json.dumps(run_case(args.one, bool(args.codegen))))
+        return 0
+    cases = [f"sphere:{s}" for s in args.spheres] + [f"torus:{t}" for t in args.torus]
+    rows = []
+    for case in cases:
+        n_vert = _mesh(case).n_vertices
+        for cg in (True, False):
+            if not cg and n_vert > args.vm_max:
+                continue
+            row = _subprocess(case, cg, args.timeout)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    command = "python -m willmore_nlp.bench " + " ".join(sys.argv[1:] if argv is None else argv)
+    print(write_report(rows, Path(args.out), command.strip()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
