@@ -4,33 +4,35 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
 import tomllib
 
-from willmore_nlp.config import ConfigError, RunSpec, parse_overrides, resolve
-from willmore_nlp.flow import FlowError, WillmoreFlow
+from willmore_nlp import runner
+from willmore_nlp.config import ConfigError, parse_overrides, resolve
+from willmore_nlp.flow import FlowError
 from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import ProblemError
-from willmore_nlp.rundir import RunError, RunWriter
+from willmore_nlp.rundir import RunError
+from willmore_nlp.runner import flow_kwargs
+
+__all__ = ["build_parser", "flow_kwargs", "main"]
 
 USER_ERRORS = (ConfigError, MeshError, ProblemError, RunError, FlowError, ValueError, OSError,
                tomllib.TOMLDecodeError)
 
 
-def flow_kwargs(spec: RunSpec) -> dict[str, Any]:
-    """Keyword arguments of :class:`WillmoreFlow` from a resolved spec."""
-    kw: dict[str, Any] = dict(spec.problem.flow_options)
-    for k, v in spec.flow_options.items():
-        kw[k.removeprefix("ipopt.")] = v
-    if kw.get("codegen", "unset") is None:
-        kw.pop("codegen")
-    return kw
-
-
 def cmd_run(args: argparse.Namespace) -> int:
-    """Run a problem or config and write a run directory."""
+    """Run a problem or config into a new run directory, or continue one (``--resume DIR``)."""
+    if args.resume:
+        if args.target or args.out or args.set:
+            raise ConfigError("--resume DIR continues a run as configured: give no TARGET, --out or --set "
+                              "(--steps/--t-end set a new total length)")
+        return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet)
+    if not args.target or not args.out:
+        raise ConfigError("run needs a TARGET (problem name or .toml) and --out DIR, or --resume DIR")
     overrides: dict[str, Any] = parse_overrides(args.set or [])
     if args.steps is not None:
         overrides["steps"] = args.steps
@@ -39,57 +41,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     spec = resolve(args.target, overrides)
     if spec.steps is None and spec.t_end is None:
         raise ConfigError(f"{args.target}: give --steps or --t-end")
-    pb = spec.problem
-    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **flow_kwargs(spec))
-    writer = RunWriter(args.out, spec.config(), pb.mesh)
-    writer.add(flow.state())
-    bar = _progress(spec, args.quiet)
-    status = 0
-    try:
-        def on_step(r: Any) -> None:
-            writer.add(r)
-            bar.update(r.t if spec.t_end is not None else 1)
-            bar.set_postfix(step=r.step, t=f"{r.t:.4g}", it=r.iterations, W=f"{r.willmore:.5g}")
-
-        flow.run(t_end=spec.t_end, steps=spec.steps, callback=on_step)
-    except FlowError as exc:
-        print(f"willmore-nlp: {exc}\n  accepted steps are kept in {args.out}", file=sys.stderr)
-        status = 1
-    finally:
-        bar.close()
-    if status == 0 and not args.quiet:
-        print(f"wrote {args.out} ({len(writer.rows) - 1} steps)")
-    return status
+    return runner.start(spec, args.out, quiet=args.quiet)
 
 
-class _Bar:
-    """Progress display: steps or simulated time (tqdm; silent with --quiet)."""
-
-    def __init__(self, total: float | None, unit: str, quiet: bool) -> None:
-        from tqdm import tqdm
-
-        self.by_time = unit == "t"
-        self.bar = tqdm(total=total, unit="" if self.by_time else "step", disable=quiet,
-                        bar_format="{l_bar}{bar}| {n:.4g}/{total:.4g} [{elapsed}<{remaining}{postfix}]"
-                        if self.by_time else None)
-
-    def update(self, v: float) -> None:
-        if self.by_time:
-            self.bar.update(v - self.bar.n)
-        else:
-            self.bar.update(v)
-
-    def set_postfix(self, **kw: Any) -> None:
-        self.bar.set_postfix(**kw)
-
-    def close(self) -> None:
-        self.bar.close()
-
-
-def _progress(spec: RunSpec, quiet: bool) -> _Bar:
-    if spec.t_end is not None:
-        return _Bar(spec.t_end, "t", quiet)
-    return _Bar(spec.steps, "step", quiet)
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                      file: Any = None, line: str | None = None) -> None:
+    """Show a warning as one line ``willmore-nlp: warning: ...`` on stderr."""
+    print(f"willmore-nlp: warning: {message}", file=sys.stderr)
 
 
 def cmd_problems(args: argparse.Namespace) -> int:
@@ -130,9 +88,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="run a problem (registry name or TOML config) into a run directory")
-    r.add_argument("target", help="problem name (see 'willmore-nlp problems') or a .toml config")
-    r.add_argument("--out", required=True, help="run directory to write (must be new or empty)")
-    r.add_argument("--steps", type=int, help="number of steps")
+    r.add_argument("target", nargs="?", help="problem name (see 'willmore-nlp problems') or a .toml config")
+    r.add_argument("--out", help="run directory to write (must be new or empty)")
+    r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its last checkpoint "
+                   "(after an interruption, a crash or a failure)")
+    r.add_argument("--steps", type=int, help="number of steps (total, counting from the initial state)")
     r.add_argument("--t-end", type=float, dest="t_end", help="final time")
     r.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a parameter (repeatable)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -151,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; user errors print one line and exit non-zero (traceback with --debug)."""
     args = build_parser().parse_args(argv)
+    shown = warnings.showwarning
+    warnings.showwarning = _one_line_warning
     try:
         return int(args.func(args))
     except USER_ERRORS as exc:
@@ -161,6 +123,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("willmore-nlp: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = shown
 
 
 if __name__ == "__main__":

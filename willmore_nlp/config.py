@@ -4,11 +4,16 @@ A TOML file is flat: ``problem = "NAME"`` (a registered problem) or ``mesh = "FI
 (shorthand for problem ``file`` with ``path = FILE``, relative to the TOML file), then
 any parameter of that problem, flow options (:data:`FLOW_KEYS`), run length (``steps``,
 ``t_end``) and IPOPT options in an ``[ipopt]`` table or as ``ipopt.NAME`` keys.
-Unknown keys are errors, so a typo is never silently ignored.
+A run target may also be a mesh file itself (:data:`MESH_SUFFIXES`).
+Unknown keys are errors, so a typo is never silently ignored, and values are range-checked
+(:func:`check_spec`) with messages naming the file or ``--set`` that gave them.
 """
 
 from __future__ import annotations
 
+import difflib
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,6 +21,7 @@ from typing import Any
 import tomllib
 
 from willmore_nlp import registry
+from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import Problem, ProblemError, coerce
 
 FLOW_KEYS: dict[str, Any] = {
@@ -29,10 +35,14 @@ FLOW_KEYS: dict[str, Any] = {
     "tol": 1e-9,
     "max_iter": 200,
     "warm_start": False,
+    "allow_components": False,
 }
 """Flow and solver options accepted in configs, with their defaults."""
 
 RUN_KEYS: dict[str, Any] = {"steps": None, "t_end": None}
+
+MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".npz", ".txt", ".curve", ".xy", ".xyz")
+"""A run target with one of these suffixes is a mesh file: problem ``file`` with ``path = TARGET``."""
 
 
 class ConfigError(ValueError):
@@ -120,6 +130,9 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
         path = Path(target)
         base = read_toml(path)
         where = str(path)
+    elif Path(target).suffix.lower() in MESH_SUFFIXES:
+        base = {"problem": "file", "path": target}
+        where = target
     else:
         base = {"problem": target}
         where = source
@@ -129,7 +142,7 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
     try:
         entry = registry.get(name)
     except ProblemError as exc:
-        raise ConfigError(f"{where}: {exc}") from exc
+        raise ConfigError(f"{where}: {exc}" if target.endswith(".toml") else str(exc)) from exc
     fparams = entry.defaults()
     factory_kw: dict[str, Any] = {}
     flow: dict[str, Any] = {}
@@ -145,22 +158,191 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
             flow[k] = _auto(v)
         else:
             known = sorted({*fparams, *FLOW_KEYS, *RUN_KEYS})
-            raise ConfigError(f"{src}: unknown key {k!r} for problem {name!r}; known keys: {', '.join(known)}")
+            close = difflib.get_close_matches(k, known, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise ConfigError(f"{src}: unknown key {k!r} for problem {name!r}; {hint}known keys: {', '.join(known)}")
     for k in ("steps", "t_end"):
         if k in fparams and k in factory_kw:
             run.setdefault(k, _auto(factory_kw[k]))
+    _check_types(merged, fparams, name)
     try:
         problem, resolved = registry.build(name, **factory_kw)
     except ProblemError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
+    except MeshError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{where}: problem {name!r}: {exc}") from exc
     steps = run.get("steps", problem.steps)
     t_end = run.get("t_end", problem.t_end)
     if steps is not None and t_end is not None and "steps" in run and "t_end" not in run:
         t_end = None
     if t_end is not None and steps is not None and "t_end" in run and "steps" not in run:
         steps = None
-    return RunSpec(name, problem, resolved, flow, None if steps is None else int(steps),
-                   None if t_end is None else float(t_end))
+    spec = RunSpec(name, problem, resolved, flow, steps, t_end)
+    check_spec(spec, {k: src for k, (_, src) in merged.items()})
+    spec.steps = None if steps is None else int(steps)
+    spec.t_end = None if t_end is None else float(t_end)
+    return spec
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check_types(merged: dict[str, tuple[Any, str]], fparams: dict[str, Any], name: str) -> None:
+    """Problem parameters given as a number where the factory expects one (TOML values are not coerced)."""
+    for k, (v, src) in merged.items():
+        if k not in fparams:
+            continue
+        num = _auto(v) if isinstance(v, str) else v
+        if k in ("tau", "tau_tilde", "lam", "steps", "t_end") and v is not None and not _is_number(num):
+            raise ConfigError(f"{src}: {k} must be a number, got {v!r}")
+        if isinstance(v, str):
+            continue
+        d = fparams[k]
+        if isinstance(d, bool) and not isinstance(v, bool):
+            raise ConfigError(f"{src}: {k} must be true or false, got {v!r}")
+        if isinstance(d, int) and not isinstance(d, bool) and not (
+                _is_number(v) and float(v).is_integer()):
+            raise ConfigError(f"{src}: {k} must be an integer, got {v!r}")
+        if isinstance(d, float) and not _is_number(v):
+            raise ConfigError(f"{src}: {k} must be a number, got {v!r}")
+
+
+RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "tau": ("a number > 0", lambda v: _is_number(v) and math.isfinite(v) and v > 0),
+    "tau_tilde": ("a number > 0", lambda v: _is_number(v) and math.isfinite(v) and v > 0),
+    "lam": ("a number >= 0", lambda v: _is_number(v) and math.isfinite(v) and v >= 0),
+    "steps": ("an integer >= 1", lambda v: _is_number(v) and float(v).is_integer() and v >= 1),
+    "t_end": ("a number > 0", lambda v: _is_number(v) and math.isfinite(v) and v > 0),
+    "max_retries": ("an integer >= 0", lambda v: _is_number(v) and float(v).is_integer() and v >= 0),
+    "check_energy": ("true or false", lambda v: isinstance(v, bool)),
+    "warm_start": ("true or false", lambda v: isinstance(v, bool)),
+    "allow_components": ("true or false", lambda v: isinstance(v, bool)),
+    "codegen": ("true, false or unset", lambda v: v is None or isinstance(v, bool)),
+    "min_angle": ("a number in [0, 60)", lambda v: _is_number(v) and 0 <= v < 60),
+    "max_edge_ratio": ("a number >= 1", lambda v: _is_number(v) and v >= 1),
+    "energy_rtol": ("a number >= 0", lambda v: _is_number(v) and math.isfinite(v) and v >= 0),
+    "tol": ("a number > 0", lambda v: _is_number(v) and math.isfinite(v) and v > 0),
+    "max_iter": ("an integer >= 0", lambda v: _is_number(v) and float(v).is_integer() and v >= 0),
+}
+"""Allowed values of the numeric and boolean configuration keys: (description, test)."""
+
+
+def check_spec(spec: RunSpec, sources: dict[str, str] | None = None) -> None:
+    """Reject out-of-range step sizes, run lengths, flow options and IPOPT options.
+
+    Parameters
+    ----------
+    spec : RunSpec
+    sources : dict, optional
+        Where each key was given (a file or ``--set``), named in the message; keys not
+        given come from the problem's defaults.
+
+    Raises
+    ------
+    ConfigError
+        Naming the source, the key, the allowed range and the value.
+    """
+    sources = sources or {}
+    pb = spec.problem
+    values: dict[str, Any] = {"tau": pb.tau, "tau_tilde": pb.tau_tilde, "lam": pb.lam}
+    if spec.steps is not None:
+        values["steps"] = spec.steps
+    if spec.t_end is not None:
+        values["t_end"] = spec.t_end
+    values.update({k: v for k, v in spec.flow_options.items() if not k.startswith("ipopt.")})
+    for k, v in values.items():
+        if k in RANGES:
+            what, ok = RANGES[k]
+            if not ok(v):
+                src = sources.get(k, f"problem {spec.problem_name!r}")
+                raise ConfigError(f"{src}: {k} must be {what}, got {v!r}")
+    solver = spec.flow_options.get("solver", pb.flow_options.get("solver", "ipopt"))
+    from willmore_nlp.solvers import solver_names
+
+    if solver not in solver_names():
+        raise ConfigError(f"{sources.get('solver', 'solver')}: unknown solver {solver!r}; "
+                          f"available: {', '.join(solver_names())}")
+    if solver == "ipopt":
+        opts = {k: v for k, v in spec.flow_options.items() if k.startswith("ipopt.")}
+        check_ipopt_options(opts, sources)
+
+
+def check_ipopt_options(options: dict[str, Any], sources: dict[str, str] | None = None) -> None:
+    """Let IPOPT itself check ``{"ipopt.NAME": value}`` options on a one-variable problem.
+
+    Raises
+    ------
+    ConfigError
+        Naming the source and option: unknown options, wrong types, values out of
+        IPOPT's range or not among its valid settings, unavailable linear solvers.
+    """
+    if not options:
+        return
+    sources = sources or {}
+    if _ipopt_problem(dict(options)) is None:
+        return
+    for key, val in options.items():
+        err = _ipopt_problem({key: val})
+        if err is not None:
+            name = key.removeprefix("ipopt.")
+            raise ConfigError(f"{sources.get(key, '--set')}: IPOPT option {name} = {val!r}: {err}")
+    raise ConfigError(f"{', '.join(sorted(set(sources.get(k, '--set') for k in options)))}: "
+                      f"the IPOPT options {sorted(options)} are rejected together")
+
+
+def _ipopt_problem(options: dict[str, Any]) -> str | None:
+    """None when IPOPT accepts ``options`` on a trivial problem, else what it complained about."""
+    import contextlib
+    import io
+    import os
+    import re
+    import sys
+    import tempfile
+
+    import casadi as ca
+
+    opts = {k.removeprefix("ipopt."): v for k, v in options.items()}
+    opts.update({"print_level": 0, "sb": "yes", "max_iter": opts.get("max_iter", 3)})
+    x = ca.MX.sym("x")
+    py_out = io.StringIO()
+    sys.stdout.flush()
+    with tempfile.TemporaryFile(mode="w+b") as cap, contextlib.redirect_stdout(py_out):
+        saved = os.dup(1)
+        try:
+            os.dup2(cap.fileno(), 1)  # IPOPT's diagnostics go to CasADi's stream (sys.stdout) or the C stdout
+            try:
+                s = ca.nlpsol("check_options", "ipopt", {"x": x, "f": x**2},
+                              {"ipopt": opts, "print_time": False, "error_on_fail": False})
+                s(x0=1.0)
+                status = str(s.stats().get("return_status", ""))
+                err = None if status != "Invalid_Option" else "not usable in this IPOPT build"
+            except RuntimeError as exc:
+                err = str(exc).strip().splitlines()[-1]
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+        cap.seek(0)
+        out = cap.read().decode("utf-8", "replace") + py_out.getvalue()
+    if err is None:
+        return None
+    m = re.search(r"No such IPOPT option: (\S+)", err)
+    if m:
+        return "unknown option"
+    if "type mismatch" in err:
+        return "wrong type"
+    detail = [ln.strip() for ln in out.splitlines() if "is not a valid setting" in ln]
+    rng = [ln.strip() for ln in out.splitlines() if re.match(r"^\s*[-+0-9.e]+ <=? \(", ln)
+           or re.match(r"^-inf <", ln.strip())]
+    valid = [ln.strip().split(" ", 1)[0] for ln in out.splitlines() if ln.startswith("\t")]
+    msg = "not a valid setting" if detail else err
+    if rng:
+        msg += f" (range: {re.sub(r'[(][^)]*[)]', 'value', rng[0])})"
+    elif valid:
+        msg += f" (valid: {', '.join(valid)})"
+    return msg
 
 
 def _auto(v: Any) -> Any:

@@ -19,7 +19,29 @@ from willmore_nlp.solvers import make_solver
 
 
 class FlowError(RuntimeError):
-    """The flow cannot go on: a step failed after every allowed retry."""
+    """The flow cannot go on: a step failed after every allowed retry.
+
+    Attributes
+    ----------
+    step : the step that failed
+    t : time of the last accepted state
+    rejected : reasons of the rejected attempts, ``"tau=...: reason"``
+    """
+
+    def __init__(self, message: str, *, step: int = -1, t: float = float("nan"),
+                 rejected: list[str] | None = None) -> None:
+        super().__init__(message)
+        self.step = step
+        self.t = t
+        self.rejected = list(rejected or [])
+
+
+class StepSizeWarning(UserWarning):
+    """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (DESIGN.md section 1)."""
+
+
+TAU_TILDE_WARN_FACTOR = 2.0
+"""WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde > this factor times h^2 (h = mean edge)."""
 
 
 @dataclass
@@ -118,6 +140,9 @@ class WillmoreFlow:
         Reject surface steps whose smallest triangle angle (degrees) drops below this.
     max_edge_ratio : float
         Reject steps whose longest/shortest edge ratio exceeds this.
+    allow_components : bool
+        Accept a mesh of several separate curves or surfaces (default: one is expected,
+        :func:`willmore_nlp.mesh.topology.check_connected`).
     boundary : optional
         Clamped-boundary description (see :mod:`willmore_nlp.boundary`).
     anisotropy : optional
@@ -140,6 +165,7 @@ class WillmoreFlow:
         min_angle: float = 0.5,
         max_edge_ratio: float = 1e3,
         energy_rtol: float = 1e-8,
+        allow_components: bool = False,
         boundary: Any = None,
         anisotropy: Any = None,
         **options: Any,
@@ -149,6 +175,17 @@ class WillmoreFlow:
                 raise ValueError(f"{name} must be a positive number, got {val}")
         if not (np.isfinite(lam) and lam >= 0):
             raise ValueError(f"lam must be >= 0, got {lam}")
+        if not allow_components:
+            from willmore_nlp.mesh.topology import check_connected
+
+            check_connected(mesh, "set allow_components=true to flow them together")
+        h = mesh.h
+        if tau_tilde > TAU_TILDE_WARN_FACTOR * h * h:
+            warnings.warn(StepSizeWarning(
+                f"tau_tilde = {tau_tilde:.3g} is {tau_tilde / (h * h):.3g} h^2 (h = {h:.3g}, the mean edge "
+                f"length): above about h^2 the step loses tangential convexity and the optimiser clusters "
+                f"nodes (DESIGN.md section 1); use tau_tilde <= h^2 and take large steps in tau instead"),
+                stacklevel=2)
         self.mesh = mesh
         self.tau = float(tau)
         self.tau_tilde = float(tau_tilde)
@@ -244,6 +281,10 @@ class WillmoreFlow:
     def step(self) -> StepResult:
         """Advance by one step of size tau; retry with tau/2 (at most ``max_retries`` times).
 
+        An attempt is rejected when the solver fails (raises, does not converge or returns
+        non-finite values), the energy inequality is violated, the mesh collapses or its
+        quality drops below the thresholds, or the inner equation Y[X] cannot be solved.
+
         Raises
         ------
         FlowError
@@ -256,20 +297,56 @@ class WillmoreFlow:
             p = self.params(self.X, tau)
             z0 = self.problem.pack_z(self.X, self.Y)
             f0 = self.evaluator.f(z0, p)
-            res = self.solver.solve(z0, p, self.lam_g)
-            X, Y = self.problem.unpack_z(res.z, self.X)
-            reason = self._reject_reason(res, f0, X)
+            try:
+                res = self.solver.solve(z0, p, self.lam_g)
+            except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
+                reason: str | None = f"solver error: {str(exc).strip().splitlines()[-1]}"
+            else:
+                X, Y = self.problem.unpack_z(res.z, self.X)
+                reason = self._reject_reason(res, f0, X)
             if reason is None:
-                self.X, self.t, self.k = X, self.t + tau, self.k + 1
-                self.Y = self._solve_y(X, tau, Y)
+                try:
+                    Y = self._solve_y(X, tau, Y)
+                except (RuntimeError, ValueError, ArithmeticError) as exc:
+                    reason = f"inner equation Y[X] failed: {exc}"
+                else:
+                    if not np.all(np.isfinite(Y)):
+                        reason = "inner equation Y[X] gave non-finite values"
+            if reason is None:
+                self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
                 self.lam_g = res.lam_g
                 return self._result(X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
             rejected.append(f"tau={tau:.6g}: {reason}")
             tau /= 2
         raise FlowError(
             f"step {self.k + 1} at t={self.t:.6g} failed after {self.max_retries} retries: "
-            + "; ".join(rejected)
+            + "; ".join(rejected),
+            step=self.k + 1, t=self.t, rejected=rejected,
         )
+
+    def restart(self, X: np.ndarray, Y: np.ndarray, t: float, k: int,
+                lam_g: np.ndarray | None = None) -> None:
+        """Continue from a saved state (X^k, Y[X^k], t, k), e.g. a run directory's checkpoint.
+
+        With the ``Y`` and multipliers ``lam_g`` that the flow held at that state (both are in
+        every checkpoint), the following steps are bit-identical to those of a flow that was
+        never interrupted.
+
+        Parameters
+        ----------
+        X, Y : (N, m) positions and inner step of the state
+        t : its time
+        k : its step number
+        lam_g : constraint multipliers of the step that produced it (warm starts), optional
+        """
+        X = np.array(X, dtype=float)
+        Y = np.array(Y, dtype=float)
+        if X.shape != self.X.shape or Y.shape != self.X.shape:
+            raise ValueError(f"restart: state has shape {X.shape}/{Y.shape}, the mesh has {self.X.shape}")
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+            raise ValueError("restart: the state has non-finite values")
+        self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
+        self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
 
     def run(
         self,

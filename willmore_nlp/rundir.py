@@ -1,14 +1,25 @@
-"""Run directories: resolved config, history.csv and one npz per accepted state.
+"""Run directories: resolved config, history.csv, one npz per accepted state, and the run's status.
 
 Layout::
 
     RUN/config.json          resolved configuration (problem, parameters, flow options, versions)
     RUN/mesh.npz             simplices and initial vertices
-    RUN/history.csv          one row per state (step 0 = initial), appended as steps are accepted
-    RUN/states/state_KKKKKK.npz   vertices, Y, t, step of every accepted state
+    RUN/states/state_KKKKKK.npz   vertices, Y, t, step, tau, multipliers and history row of every
+                                  accepted state (step 0 = initial)
+    RUN/history.csv          one row per state, appended as steps are accepted
+    RUN/status.json          running / completed / interrupted / abandoned / failed, with the
+                             sessions (start and resumes) and, for a failure, the rejected attempts
+    RUN/run.lock             held (flock) by the process writing the directory, so that a second
+                             writer (e.g. a resume while the run goes on) is refused; the kernel
+                             releases it when that process ends, however it ends
 
-Every file is written atomically (temporary file + rename), so an interrupted run leaves
-only complete files; :func:`load_run` reads them back.
+Crash safety. Every file except history.csv is written atomically (a hidden temporary file
+``.NAME.XXXX`` beside it, then a rename), so a process killed at any moment leaves either the
+old or the new version of a file, plus perhaps a stray temporary file. The states are the
+record: each holds its own history row, and history.csv (appended one line per state, since
+rewriting it would cost O(steps) per step) is rebuilt from them when a run is resumed. A reader
+(:func:`load_run`, :meth:`RunWriter.resume`) trusts the states ``0, 1, ..., k`` that load and
+match the mesh, stopping at the first gap or damaged file, and ignores temporary files.
 """
 
 from __future__ import annotations
@@ -17,22 +28,28 @@ import csv
 import io
 import json
 import os
-from dataclasses import dataclass
+import re
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from willmore_nlp.flow import StepResult
-from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.mesh.io import atomic_write
+
+STATE_RE = re.compile(r"^state_(\d{6,})\.npz$")
+"""File names of accepted states."""
 
 
 class RunError(ValueError):
     """A run directory is missing, incomplete or inconsistent."""
 
 
-def _write_text(path: Path, text: str) -> None:
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temporary file, fsync, rename)."""
     def w(t: Path) -> None:
         with open(t, "w", encoding="utf-8") as fh:
             fh.write(text)
@@ -52,38 +69,312 @@ def _write_npz(path: Path, **arrays: Any) -> None:
     atomic_write(path, w)
 
 
+def _csv_text(rows: list[dict[str, Any]], keys: list[str], header: bool) -> str:
+    buf = io.StringIO()
+    wr = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n", restval="")
+    if header:
+        wr.writeheader()
+    wr.writerows(rows)
+    return buf.getvalue()
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    return str(o)
+
+
+@dataclass
+class Checkpoint:
+    """The last trusted state of a run directory (what a resume continues from).
+
+    Attributes
+    ----------
+    step, t : step number and time
+    vertices, Y : (N, m) positions and inner step
+    lam_g : constraint multipliers of the step that produced it (None for step 0 or old runs)
+    row : its history row
+    """
+
+    step: int
+    t: float
+    vertices: np.ndarray
+    Y: np.ndarray
+    lam_g: np.ndarray | None
+    row: dict[str, Any]
+
+
+def _parse(v: str | None) -> Any:
+    if v is None:
+        return None
+    try:
+        return int(v)
+    except ValueError:
+        try:
+            return float(v)
+        except ValueError:
+            return v
+
+
+def read_history_csv(path: Path) -> dict[int, dict[str, Any]]:
+    """Rows of a history.csv by step; a partial last line (a crash mid-append) is dropped."""
+    if not path.is_file():
+        return {}
+    text = path.read_text(encoding="utf-8", errors="replace")
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    rows: dict[int, dict[str, Any]] = {}
+    for row in csv.DictReader(io.StringIO(text)):
+        if None in row or any(v is None for v in row.values()):
+            continue  # wrong number of fields
+        try:
+            step = int(row["step"])
+        except (KeyError, ValueError):
+            continue
+        rows[step] = {k: _parse(v) for k, v in row.items()}
+    return rows
+
+
+def _load_state(f: Path, step: int, shape: tuple[int, ...]) -> Checkpoint:
+    """Read and check one state file; RunError when it cannot be trusted."""
+    try:
+        with np.load(f, allow_pickle=False) as s:
+            V = np.array(s["vertices"], dtype=float)
+            Y = np.array(s["Y"], dtype=float)
+            t = float(s["t"])
+            k = int(s["step"])
+            lam_g = np.array(s["lam_g"], dtype=float) if "lam_g" in s.files else None
+            row = json.loads(str(s["row"])) if "row" in s.files else None
+    except Exception as exc:  # np.load/zipfile raise many types for damaged archives
+        raise RunError(f"{f}: unreadable state ({type(exc).__name__}: {exc})") from exc
+    if k != step:
+        raise RunError(f"{f}: holds step {k}, expected {step}")
+    if V.shape != shape or Y.shape != shape:
+        raise RunError(f"{f}: vertices have shape {V.shape}, the mesh has {shape}")
+    if not (np.all(np.isfinite(V)) and np.all(np.isfinite(Y)) and np.isfinite(t)):
+        raise RunError(f"{f}: non-finite values")
+    if lam_g is not None and lam_g.size == 0:
+        lam_g = None
+    return Checkpoint(k, t, V, Y, lam_g, row if isinstance(row, dict) else {})
+
+
+def scan_states(run_dir: Path, shape: tuple[int, ...]) -> tuple[list[Checkpoint], list[tuple[Path, str]]]:
+    """Trusted states 0..k of a run directory and the files that cannot be trusted.
+
+    Returns
+    -------
+    trusted : list of Checkpoint, step 0 first, without gaps
+    untrusted : list of (file, reason): damaged states, states after a gap or a damaged one,
+        and stray temporary files left by a crash
+    """
+    sdir = run_dir / "states"
+    files: dict[int, Path] = {}
+    untrusted: list[tuple[Path, str]] = []
+    if sdir.is_dir():
+        for f in sorted(sdir.iterdir()):
+            m = STATE_RE.match(f.name)
+            if m:
+                files[int(m[1])] = f
+            elif f.name.startswith("."):
+                untrusted.append((f, "temporary file left by an interrupted write"))
+            else:
+                untrusted.append((f, "not a state file"))
+    trusted: list[Checkpoint] = []
+    broken: str | None = None
+    for step in sorted(files):
+        f = files[step]
+        if broken is None and step != len(trusted):
+            broken = f"after the missing state {len(trusted)}"
+        if broken is None:
+            try:
+                trusted.append(_load_state(f, step, shape))
+                continue
+            except RunError as exc:
+                broken = f"after the damaged state {step}"
+                untrusted.append((f, str(exc)))
+                continue
+        untrusted.append((f, broken))
+    for f in run_dir.iterdir():
+        if f.name.startswith(".") and f.is_file():
+            untrusted.append((f, "temporary file left by an interrupted write"))
+    return trusted, untrusted
+
+
+def read_mesh_npz(d: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Initial vertices and simplices of a run directory."""
+    try:
+        with np.load(d / "mesh.npz", allow_pickle=False) as mz:
+            return np.array(mz["vertices"]), np.array(mz["simplices"])
+    except Exception as exc:  # np.load/zipfile raise many types for damaged archives
+        raise RunError(f"{d / 'mesh.npz'}: unreadable ({type(exc).__name__}: {exc})") from exc
+
+
+def read_config(d: Path) -> dict[str, Any]:
+    """The stored configuration of a run directory (RunError when it is not one)."""
+    for name in ("config.json", "mesh.npz"):
+        if not (d / name).is_file():
+            raise RunError(f"{d}: not a run directory (missing {name})")
+    try:
+        cfg = json.loads((d / "config.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise RunError(f"{d / 'config.json'}: unreadable ({exc})") from exc
+    if not isinstance(cfg, dict):
+        raise RunError(f"{d / 'config.json'}: not a JSON object")
+    return cfg
+
+
+def lock_run_dir(d: Path) -> Any:
+    """Hold an exclusive advisory lock on ``d/run.lock`` (RunError when another process holds it)."""
+    try:
+        import fcntl
+    except ImportError:  # not on POSIX: no locking
+        return None
+    fh = open(d / "run.lock", "a+")  # noqa: SIM115 (held open for the writer's lifetime)
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        fh.seek(0)
+        holder = fh.read().strip() or "another process"
+        fh.close()
+        raise RunError(f"{d}: is being written by {holder}; wait for it or stop it first") from exc
+    fh.seek(0)
+    fh.truncate()
+    fh.write(f"pid {os.getpid()}\n")
+    fh.flush()
+    return fh
+
+
 class RunWriter:
     """Writes a run directory as a flow advances.
 
     Parameters
     ----------
-    out : path of the run directory (created; must be empty or absent unless ``resume``)
+    out : path of the run directory (created; must be empty or absent)
     config : resolved configuration, stored as JSON
     mesh : initial mesh
+
+    Use :meth:`resume` to continue writing an existing run directory.
     """
 
     def __init__(self, out: str | os.PathLike[str], config: dict[str, Any], mesh: Mesh) -> None:
         self.out = Path(out)
+        if self.out.exists() and not self.out.is_dir():
+            raise RunError(f"{self.out}: exists and is not a directory")
         if self.out.exists() and any(self.out.iterdir()):
-            raise RunError(f"{self.out}: output directory exists and is not empty")
+            raise RunError(f"{self.out}: output directory exists and is not empty (use --resume to continue a run)")
         (self.out / "states").mkdir(parents=True, exist_ok=True)
-        _write_text(self.out / "config.json", json.dumps(config, indent=2, sort_keys=True, default=str))
+        self._lock = lock_run_dir(self.out)
+        write_text_atomic(self.out / "config.json", json.dumps(config, indent=2, sort_keys=True, default=_json_default))
         _write_npz(self.out / "mesh.npz", vertices=mesh.vertices, simplices=mesh.simplices)
         self.rows: list[dict[str, Any]] = []
+        self.keys: list[str] = []
+        self.status: dict[str, Any] = {"state": "new", "sessions": []}
 
-    def add(self, r: StepResult) -> None:
-        """Write the state of ``r`` and append its row to history.csv (both atomically)."""
+    @classmethod
+    def resume(cls, out: str | os.PathLike[str]) -> tuple[RunWriter, dict[str, Any], Checkpoint | None, list[str]]:
+        """Open an existing run directory to continue it.
+
+        Trusts the states 0..k that load and match the mesh (see :func:`scan_states`),
+        deletes the untrusted files (damaged or stray temporary files, and states after
+        them, which the resumed run writes again), and rewrites history.csv from the
+        trusted states.
+
+        Returns
+        -------
+        writer : RunWriter
+        config : the stored configuration
+        checkpoint : the last trusted state, or None when not even step 0 was written
+        notes : one line per removed file
+        """
+        d = Path(out)
+        if not d.is_dir():
+            raise RunError(f"{d}: no such run directory")
+        config = read_config(d)
+        V0, _ = read_mesh_npz(d)
+        lock = lock_run_dir(d)
+        trusted, untrusted = scan_states(d, V0.shape)
+        notes = []
+        for f, why in untrusted:
+            if f.is_file():
+                f.unlink()
+                notes.append(f"removed {f} ({why})")
+        csv_rows = read_history_csv(d / "history.csv")
+        self = cls.__new__(cls)
+        self.out = d
+        self._lock = lock
+        self.rows = []
+        self.keys = []
+        for ck in trusted:
+            row = ck.row or csv_rows.get(ck.step) or {"step": ck.step, "t": ck.t}
+            self.rows.append(row)
+            self.keys.extend(k for k in row if k not in self.keys)
+        self._rewrite_history()
+        try:
+            status = json.loads((d / "status.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            status = {}
+        if not isinstance(status, dict) or not isinstance(status.get("sessions"), list):
+            status = {"sessions": []}
+        self.status = status
+        return self, config, (trusted[-1] if trusted else None), notes
+
+    def close(self) -> None:
+        """Release the directory's lock (also released when the process ends)."""
+        if self._lock is not None:
+            self._lock.close()
+            self._lock = None
+
+    # -- states and history ------------------------------------------------------------------
+    def _rewrite_history(self) -> None:
+        write_text_atomic(self.out / "history.csv", _csv_text(self.rows, self.keys, header=True))
+
+    def add(self, r: StepResult, lam_g: np.ndarray | None = None) -> None:
+        """Write the state of ``r`` (atomically), then append its row to history.csv.
+
+        Parameters
+        ----------
+        r : the accepted state
+        lam_g : the flow's constraint multipliers after it (needed for bit-identical resumes
+            with warm starts)
+        """
+        row = r.row()
+        extra = {} if lam_g is None else {"lam_g": np.asarray(lam_g, dtype=float)}
         _write_npz(self.out / "states" / f"state_{r.step:06d}.npz",
-                   vertices=r.vertices, Y=r.Y, t=r.t, step=r.step, tau=r.tau)
-        self.rows.append(r.row())
-        keys: list[str] = []
-        for row in self.rows:
-            keys.extend(k for k in row if k not in keys)
-        buf = io.StringIO()
-        wr = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
-        wr.writeheader()
-        wr.writerows(self.rows)
-        _write_text(self.out / "history.csv", buf.getvalue())
+                   vertices=r.vertices, Y=r.Y, t=r.t, step=r.step, tau=r.tau,
+                   row=np.array(json.dumps(row, default=_json_default)), **extra)
+        self.rows.append(row)
+        new = [k for k in row if k not in self.keys]
+        if new or len(self.rows) == 1:
+            self.keys.extend(new)
+            self._rewrite_history()
+        else:
+            with open(self.out / "history.csv", "a", encoding="utf-8") as fh:
+                fh.write(_csv_text([row], self.keys, header=False))
+
+    # -- status ------------------------------------------------------------------------------
+    def set_status(self, state: str, **info: Any) -> None:
+        """Record the run's state in status.json (atomically).
+
+        Parameters
+        ----------
+        state : ``running`` (starts a session), ``completed``, ``interrupted``, ``abandoned``
+            or ``failed`` (ends it)
+        **info : further JSON-able fields (message, signal, rejected attempts ...)
+        """
+        now = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+        last = self.rows[-1] if self.rows else {}
+        sessions = self.status.setdefault("sessions", [])
+        if state == "running":
+            if sessions and "ended" not in sessions[-1]:
+                sessions[-1].update({"ended": "unknown", "state": "died (no clean exit)"})
+            sessions.append({"started": now, "pid": os.getpid(), "from_step": last.get("step", 0)})
+        elif sessions:
+            sessions[-1].update({"ended": now, "state": state, "to_step": last.get("step")})
+        self.status.update({"state": state, "step": last.get("step"), "t": last.get("t"), "updated": now})
+        for k in ("message", "signal", "rejected", "failed_step"):
+            self.status.pop(k, None)
+        self.status.update(info)
+        write_text_atomic(self.out / "status.json", json.dumps(self.status, indent=2, default=_json_default))
 
 
 @dataclass
@@ -97,6 +388,8 @@ class Run:
     states : accepted states as Meshes (same topology), step 0 first
     times : (len(states),) times of the states
     Y : list of (N, m) inner steps Y of the states
+    status : content of status.json (empty for runs written before it existed)
+    ignored : files that were not trusted (damaged or temporary files, states after a gap)
     """
 
     path: Path
@@ -105,47 +398,38 @@ class Run:
     states: list[Mesh]
     times: np.ndarray
     Y: list[np.ndarray]
-
-
-def _parse(v: str) -> Any:
-    try:
-        return int(v)
-    except ValueError:
-        try:
-            return float(v)
-        except ValueError:
-            return v
+    status: dict[str, Any] = field(default_factory=dict)
+    ignored: list[str] = field(default_factory=list)
 
 
 def load_run(run_dir: str | os.PathLike[str]) -> Run:
     """Read a run directory written by :class:`RunWriter`.
 
+    Only trusted states are returned (see :func:`scan_states`); the history rows are those of
+    history.csv, or stored in the states when history.csv lacks them (a crash between writing a
+    state and appending its row).
+
     Raises
     ------
     RunError
-        Missing files, unreadable states, or states that do not match the mesh.
+        Missing config.json or mesh.npz, or no readable state at all.
     """
     d = Path(run_dir)
-    for name in ("config.json", "mesh.npz", "history.csv"):
-        if not (d / name).is_file():
-            raise RunError(f"{d}: not a run directory (missing {name})")
-    config = json.loads((d / "config.json").read_text(encoding="utf-8"))
-    with np.load(d / "mesh.npz") as mz:
-        simplices = mz["simplices"]
-        n = mz["vertices"].shape
-    with open(d / "history.csv", encoding="utf-8") as fh:
-        history = [{k: _parse(v) for k, v in row.items()} for row in csv.DictReader(fh)]
-    states, times, Ys = [], [], []
-    for row in history:
-        f = d / "states" / f"state_{int(row['step']):06d}.npz"
-        try:
-            with np.load(f) as s:
-                V, Y, t = s["vertices"], s["Y"], float(s["t"])
-        except (OSError, KeyError, ValueError) as exc:
-            raise RunError(f"{f}: unreadable state ({exc})") from exc
-        if V.shape != n:
-            raise RunError(f"{f}: vertices have shape {V.shape}, the mesh has {n}")
-        states.append(Mesh(V, simplices, str(f)))
-        times.append(t)
-        Ys.append(Y)
-    return Run(d, config, history, states, np.array(times), Ys)
+    config = read_config(d)
+    V0, simplices = read_mesh_npz(d)
+    trusted, untrusted = scan_states(d, V0.shape)
+    if not trusted:
+        reason = f" ({untrusted[0][0]}: {untrusted[0][1]})" if untrusted else ""
+        raise RunError(f"{d}: no readable state in {d / 'states'}{reason}")
+    csv_rows = read_history_csv(d / "history.csv")
+    try:
+        states = [Mesh(ck.vertices, simplices, str(d / "states" / f"state_{ck.step:06d}.npz")) for ck in trusted]
+    except MeshError as exc:
+        raise RunError(str(exc)) from exc
+    history = [csv_rows.get(ck.step) or ck.row or {"step": ck.step, "t": ck.t} for ck in trusted]
+    try:
+        status = json.loads((d / "status.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        status = {}
+    return Run(d, config, history, states, np.array([ck.t for ck in trusted]), [ck.Y for ck in trusted],
+               status if isinstance(status, dict) else {}, [f"{f}: {why}" for f, why in untrusted])

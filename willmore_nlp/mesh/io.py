@@ -1,105 +1,368 @@
 """Reading and writing meshes.
 
-Surfaces: OBJ, PLY, OFF, STL through trimesh (no merging or repair: what is in the file is
-what gets validated). Curves and any mesh: ``.npz`` with arrays ``vertices`` (N, m) and
-``simplices`` (K, d+1). Curves also as text (``.txt``, ``.curve``, ``.xy``, ``.xyz``):
+Every reader validates what it reads (:class:`~willmore_nlp.mesh.core.Mesh`) and raises
+:class:`~willmore_nlp.mesh.core.MeshError` only, with a message naming the file, the line
+where the problem is (text formats) and the problem.
 
-    # willmore_nlp curve            (comment lines start with '#')
-    # closed                        (or '# open'; closed is the default)
-    x y                             (one vertex per line: 2 or 3 numbers)
-    ...
+Formats
+-------
+``.obj``, ``.off``
+    Read and written here (strict, line-numbered errors; 17 significant digits, so a
+    round trip is exact). Polygons with more than three corners are split into a fan of
+    triangles from their first corner. No merging or repair: what is in the file is what
+    gets validated.
+``.ply``, ``.stl``
+    Through trimesh (STL stores every triangle with its own corners, so equal positions
+    are joined).
+``.npz``
+    Any mesh: arrays ``vertices`` (N, m) and ``simplices`` (K, d+1).
+``.txt``, ``.curve``, ``.xy``, ``.xyz``
+    Curves as text::
 
-Vertices are joined in file order; a closed curve also joins the last vertex to the first.
+        # willmore_nlp curve            (comment lines start with '#')
+        # closed                        (or '# open'; closed is the default)
+        x y                             (one vertex per line: 2 or 3 numbers)
+        ...
+
+    Vertices are joined in file order; a closed curve also joins the last vertex to the
+    first (so the first vertex must not be repeated at the end).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import tempfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from willmore_nlp.mesh.core import Mesh, MeshError
 
 SURFACE_FORMATS = (".obj", ".ply", ".off", ".stl")
 CURVE_FORMATS = (".txt", ".curve", ".xy", ".xyz")
 
+_OBJ_IGNORED = frozenset({
+    "vt", "vn", "vp", "g", "o", "s", "mg", "usemtl", "mtllib", "l", "p", "lod", "bevel", "c_interp",
+    "d_interp", "shadow_obj", "trace_obj", "maplib", "usemap", "cstype", "deg", "bmat", "step", "curv",
+    "curv2", "surf", "parm", "trim", "hole", "scrv", "sp", "end", "con", "ctech", "stech", "call", "csh",
+})
+"""OBJ statements that carry nothing a triangle mesh needs; they are skipped."""
 
+
+# -- helpers -------------------------------------------------------------------------------
+def _read_text(path: Path) -> list[str]:
+    """Lines of a UTF-8 text file; decoding errors become a MeshError naming the byte."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise MeshError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise MeshError(f"{path}:{line}: not a UTF-8 text file (byte {exc.start}: {exc.reason})") from exc
+    if "\x00" in text:
+        line = text[: text.index("\x00")].count("\n") + 1
+        raise MeshError(f"{path}:{line}: not a text file (contains a NUL byte)")
+    return text.splitlines()
+
+
+def _number(tok: str, path: Path, lineno: int, what: str) -> float:
+    try:
+        v = float(tok)
+    except ValueError as exc:
+        raise MeshError(f"{path}:{lineno}: {what}: {tok!r} is not a number") from exc
+    if not np.isfinite(v):
+        raise MeshError(f"{path}:{lineno}: {what}: non-finite value {tok!r}")
+    return v
+
+
+def _integer(tok: str, path: Path, lineno: int, what: str) -> int:
+    try:
+        return int(tok)
+    except ValueError as exc:
+        raise MeshError(f"{path}:{lineno}: {what}: {tok!r} is not an integer") from exc
+
+
+def _fan(corners: Sequence[int]) -> list[list[int]]:
+    return [[corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)]
+
+
+def _locate(exc: MeshError, vlines: Sequence[int], slines: Sequence[int]) -> str:
+    """Append source line numbers to the vertex/simplex indices named in a validation message."""
+    msg = str(exc)
+
+    def vline(i: str) -> str:
+        k = int(i)
+        return f"{i} (line {vlines[k]})" if 0 <= k < len(vlines) else i
+
+    def sline(i: str) -> str:
+        k = int(i)
+        return f"{i} (line {slines[k]})" if 0 <= k < len(slines) else i
+
+    msg = re.sub(r"\bvertices (\d+) and (\d+)", lambda m: f"vertices {vline(m[1])} and {vline(m[2])}", msg)
+    msg = re.sub(r"\bvertex (\d+)", lambda m: f"vertex {vline(m[1])}", msg)
+    msg = re.sub(r"\b(simplices|segments) (\d+) and (\d+)",
+                 lambda m: f"{m[1]} {sline(m[2])} and {sline(m[3])}", msg)
+    msg = re.sub(r"\bsimplex (\d+)", lambda m: f"simplex {sline(m[1])}", msg)
+    msg = re.sub(r"\btriangles \[([\d, ]+)\]",
+                 lambda m: "triangles [" + ", ".join(sline(x.strip()) for x in m[1].split(",")) + "]", msg)
+    return msg
+
+
+def _mesh(V: object, S: object, path: Path, vlines: Sequence[int], slines: Sequence[int]) -> Mesh:
+    try:
+        return Mesh(V, S, str(path))  # type: ignore[arg-type]
+    except MeshError as exc:
+        raise MeshError(_locate(exc, vlines, slines)) from exc
+
+
+# -- readers -------------------------------------------------------------------------------
 def _read_curve_text(path: Path) -> Mesh:
     closed = True
     rows: list[list[float]] = []
-    with open(path, encoding="utf-8") as fh:
-        for lineno, line in enumerate(fh, start=1):
-            s = line.strip()
-            if not s:
-                continue
-            if s.startswith("#"):
-                word = s[1:].strip().lower()
-                if word == "open":
-                    closed = False
-                elif word == "closed":
-                    closed = True
-                continue
-            parts = s.replace(",", " ").split()
-            try:
-                vals = [float(x) for x in parts]
-            except ValueError as exc:
-                raise MeshError(f"{path}:{lineno}: not a list of numbers: {s!r}") from exc
-            if len(vals) not in (2, 3):
-                raise MeshError(f"{path}:{lineno}: a vertex needs 2 or 3 coordinates, got {len(vals)}")
-            if rows and len(vals) != len(rows[0]):
-                raise MeshError(
-                    f"{path}:{lineno}: vertex has {len(vals)} coordinates, earlier ones have {len(rows[0])}"
-                )
-            rows.append(vals)
+    lines: list[int] = []
+    for lineno, line in enumerate(_read_text(path), start=1):
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            word = s[1:].strip().lower()
+            if word in ("open", "closed"):
+                if rows:
+                    raise MeshError(f"{path}:{lineno}: '# {word}' must come before the first vertex")
+                closed = word == "closed"
+            continue
+        parts = s.replace(",", " ").split()
+        vals = [_number(x, path, lineno, "vertex coordinate") for x in parts]
+        if len(vals) not in (2, 3):
+            raise MeshError(f"{path}:{lineno}: a vertex needs 2 or 3 coordinates, got {len(vals)}: {s!r}")
+        if rows and len(vals) != len(rows[0]):
+            raise MeshError(
+                f"{path}:{lineno}: vertex has {len(vals)} coordinates, the one on line {lines[0]} has "
+                f"{len(rows[0])}"
+            )
+        rows.append(vals)
+        lines.append(lineno)
     n = len(rows)
     if n < (3 if closed else 2):
-        raise MeshError(f"{path}: a {'closed' if closed else 'open'} curve needs more vertices, got {n}")
+        raise MeshError(
+            f"{path}: a{' closed' if closed else 'n open'} curve needs at least {3 if closed else 2} vertices, got {n}"
+        )
+    if closed and rows[0] == rows[-1]:
+        raise MeshError(
+            f"{path}:{lines[-1]}: the last vertex repeats the first (line {lines[0]}); a closed curve is "
+            f"closed automatically: remove the last vertex"
+        )
     idx = np.arange(n)
     S = np.stack([idx, (idx + 1) % n], 1) if closed else np.stack([idx[:-1], idx[1:]], 1)
-    return Mesh(np.array(rows), S, str(path))
+    seg_lines = lines if closed else lines[:-1]
+    return _mesh(np.array(rows), S, path, lines, seg_lines)
+
+
+def _read_obj(path: Path) -> Mesh:
+    verts: list[list[float]] = []
+    vlines: list[int] = []
+    tris: list[list[int]] = []
+    tlines: list[int] = []
+    pending: list[tuple[int, int, int]] = []  # (triangle, corner, line) with a positive index to check later
+    n_lines = 0
+    for lineno, raw in enumerate(_read_text(path), start=1):
+        s = raw.split("#", 1)[0].strip()
+        if not s:
+            continue
+        tok = s.split()
+        kw = tok[0]
+        if kw == "v":
+            if len(tok) - 1 not in (3, 4, 6, 7):
+                raise MeshError(
+                    f"{path}:{lineno}: a vertex needs 3 coordinates (x y z, optionally w or r g b), "
+                    f"got {len(tok) - 1}: {s!r}"
+                )
+            verts.append([_number(x, path, lineno, "vertex coordinate") for x in tok[1:4]])
+            for x in tok[4:]:
+                _number(x, path, lineno, "vertex weight/colour")
+            vlines.append(lineno)
+        elif kw == "f":
+            if len(tok) < 4:
+                raise MeshError(f"{path}:{lineno}: a face needs at least 3 corners, got {len(tok) - 1}: {s!r}")
+            corners: list[int] = []
+            for t in tok[1:]:
+                i = _integer(t.split("/", 1)[0], path, lineno, "face corner")
+                if i == 0:
+                    raise MeshError(f"{path}:{lineno}: face corner 0: OBJ indices start at 1")
+                if i < 0:
+                    j = len(verts) + i
+                    if j < 0:
+                        raise MeshError(
+                            f"{path}:{lineno}: relative face index {i} points before the first vertex "
+                            f"({len(verts)} vertices so far)"
+                        )
+                    corners.append(j)
+                else:
+                    corners.append(i - 1)
+            if len(set(corners)) != len(corners):
+                raise MeshError(f"{path}:{lineno}: face repeats a vertex: {s!r}")
+            for tri in _fan(corners):
+                for c, v in enumerate(tri):
+                    if v >= len(verts):
+                        pending.append((len(tris), c, lineno))
+                tris.append(tri)
+                tlines.append(lineno)
+        elif kw in _OBJ_IGNORED:
+            if kw == "l":
+                n_lines += 1
+        else:
+            raise MeshError(f"{path}:{lineno}: unknown OBJ statement {kw!r}")
+    for t, c, lineno in pending:
+        if tris[t][c] >= len(verts):
+            raise MeshError(
+                f"{path}:{lineno}: face index {tris[t][c] + 1} is out of range (the file has {len(verts)} vertices)"
+            )
+    if not tris:
+        extra = f" (it has {n_lines} 'l' polyline statements: save curves as .npz or text)" if n_lines else ""
+        raise MeshError(f"{path}: no faces ('f' statements) found{extra}")
+    V = np.array(verts, dtype=float) if verts else np.zeros((0, 3))
+    return _mesh(V, np.array(tris, dtype=np.int64), path, vlines, tlines)
+
+
+def _read_off(path: Path) -> Mesh:
+    rows: list[tuple[int, list[str]]] = []
+    for lineno, raw in enumerate(_read_text(path), start=1):
+        s = raw.split("#", 1)[0].strip()
+        if s:
+            rows.append((lineno, s.split()))
+    if not rows:
+        raise MeshError(f"{path}: empty file (expected an 'OFF' header)")
+    lineno, head = rows[0]
+    if not head[0].upper().endswith("OFF"):
+        raise MeshError(f"{path}:{lineno}: missing 'OFF' header, found {head[0]!r}")
+    variant = head[0].upper()
+    if variant not in ("OFF", "COFF", "NOFF", "CNOFF", "STOFF", "STCOFF", "STNOFF", "STCNOFF"):
+        raise MeshError(f"{path}:{lineno}: unsupported OFF variant {head[0]!r} (3-D OFF with optional "
+                        f"colours, normals or texture coordinates only)")
+    pos = 1
+    counts = head[1:]
+    if not counts:
+        if len(rows) < 2:
+            raise MeshError(f"{path}: the file ends after the header (expected vertex and face counts)")
+        lineno, counts = rows[1]
+        pos = 2
+    if len(counts) not in (2, 3):
+        raise MeshError(f"{path}:{lineno}: expected 'n_vertices n_faces [n_edges]', got {' '.join(counts)!r}")
+    nv = _integer(counts[0], path, lineno, "vertex count")
+    nf = _integer(counts[1], path, lineno, "face count")
+    if nv < 0 or nf < 0:
+        raise MeshError(f"{path}:{lineno}: negative vertex or face count")
+    if len(rows) < pos + nv + nf:
+        got_v = min(nv, len(rows) - pos)
+        got_f = max(0, len(rows) - pos - nv)
+        raise MeshError(
+            f"{path}: the header (line {lineno}) promises {nv} vertices and {nf} faces, the file ends after "
+            f"{got_v} vertices and {got_f} faces"
+        )
+    verts: list[list[float]] = []
+    vlines: list[int] = []
+    for lineno, tok in rows[pos : pos + nv]:
+        if len(tok) < 3 or (variant == "OFF" and len(tok) != 3):
+            raise MeshError(f"{path}:{lineno}: a vertex needs 3 coordinates, got {len(tok)}: {' '.join(tok)!r}")
+        verts.append([_number(x, path, lineno, "vertex coordinate") for x in tok[:3]])
+        vlines.append(lineno)
+    tris: list[list[int]] = []
+    tlines: list[int] = []
+    for lineno, tok in rows[pos + nv : pos + nv + nf]:
+        k = _integer(tok[0], path, lineno, "face corner count")
+        if k < 3 or len(tok) < k + 1:
+            raise MeshError(f"{path}:{lineno}: a face needs a count >= 3 and that many indices: {' '.join(tok)!r}")
+        corners = [_integer(x, path, lineno, "face index") for x in tok[1 : k + 1]]
+        for c in corners:
+            if not 0 <= c < nv:
+                raise MeshError(f"{path}:{lineno}: face index {c} is out of range [0, {nv})")
+        if len(set(corners)) != k:
+            raise MeshError(f"{path}:{lineno}: face repeats a vertex: {' '.join(tok)!r}")
+        for tri in _fan(corners):
+            tris.append(tri)
+            tlines.append(lineno)
+    if len(rows) > pos + nv + nf:
+        lineno = rows[pos + nv + nf][0]
+        raise MeshError(f"{path}:{lineno}: unexpected data after the {nf} faces the header promises")
+    if not tris:
+        raise MeshError(f"{path}: no faces found")
+    V = np.array(verts, dtype=float) if verts else np.zeros((0, 3))
+    return _mesh(V, np.array(tris, dtype=np.int64), path, vlines, tlines)
+
+
+def _read_npz(path: Path) -> Mesh:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in ("vertices", "simplices") if k not in data.files]
+            if missing:
+                raise MeshError(f"{path}: npz mesh lacks array(s) {missing}; it has {data.files}")
+            V, S = data["vertices"], data["simplices"]
+    except MeshError:
+        raise
+    except Exception as exc:  # np.load and zipfile raise many types for damaged archives
+        raise MeshError(f"{path}: not a readable npz file ({type(exc).__name__}: {exc})") from exc
+    return Mesh(V, S, str(path))
+
+
+def _read_trimesh(path: Path) -> Mesh:
+    import trimesh
+
+    ext = path.suffix.lower()
+    try:
+        tm = trimesh.load(path, force="mesh", process=False, validate=False)
+    except Exception as exc:  # trimesh raises many types for malformed files
+        raise MeshError(f"{path}: cannot be read as {ext[1:].upper()} ({type(exc).__name__}: {exc})") from exc
+    if ext == ".stl":  # STL stores every triangle with its own corners: join equal positions
+        tm.merge_vertices()
+    faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))))
+    if faces.size == 0:
+        raise MeshError(f"{path}: no triangles found")
+    return Mesh(np.asarray(tm.vertices), faces, str(path))
 
 
 def load_mesh(path: str | os.PathLike[str]) -> Mesh:
-    """Read a mesh file (format from the extension); errors name the file and the problem."""
+    """Read a mesh file (format from the extension).
+
+    Raises
+    ------
+    MeshError
+        The only exception raised for a bad file; the message names the file, the line
+        (text formats) and the problem.
+    """
     p = Path(path)
+    if p.is_dir():
+        raise MeshError(f"{p}: is a directory, not a mesh file")
     if not p.is_file():
         raise MeshError(f"{p}: no such file")
     ext = p.suffix.lower()
     if ext == ".npz":
-        try:
-            with np.load(p, allow_pickle=False) as data:
-                missing = [k for k in ("vertices", "simplices") if k not in data.files]
-                if missing:
-                    raise MeshError(f"{p}: npz mesh lacks array(s) {missing}; it has {data.files}")
-                return Mesh(data["vertices"], data["simplices"], str(p))
-        except (OSError, ValueError) as exc:
-            if isinstance(exc, MeshError):
-                raise
-            raise MeshError(f"{p}: not a readable npz file ({exc})") from exc
+        return _read_npz(p)
     if ext in CURVE_FORMATS:
         return _read_curve_text(p)
+    if ext == ".obj":
+        return _read_obj(p)
+    if ext == ".off":
+        return _read_off(p)
     if ext in SURFACE_FORMATS:
-        try:
-            tm = trimesh.load(p, force="mesh", process=False, validate=False)
-        except Exception as exc:  # trimesh raises many types for malformed files
-            raise MeshError(f"{p}: cannot be read as {ext[1:].upper()} ({type(exc).__name__}: {exc})") from exc
-        if ext == ".stl":  # STL stores every triangle with its own corners: join equal positions
-            tm.merge_vertices()
-        faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))))
-        if faces.size == 0:
-            raise MeshError(f"{p}: no triangles found")
-        return Mesh(np.asarray(tm.vertices), faces, str(p))
+        return _read_trimesh(p)
     raise MeshError(
         f"{p}: unknown mesh format {ext!r}; use one of "
         + ", ".join((*SURFACE_FORMATS, ".npz", *CURVE_FORMATS))
     )
 
 
-def atomic_write(path: Path, write: callable) -> None:  # type: ignore[valid-type]
-    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it into place."""
+# -- writers -------------------------------------------------------------------------------
+def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
+    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it into place.
+
+    The temporary file is named ``.NAME.XXXX.SUFFIX`` (hidden, never matching ``NAME``); it is
+    removed when ``write`` fails. A process killed meanwhile leaves at most such a stray
+    temporary file, never a partial ``path``.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
     os.close(fd)
@@ -111,8 +374,23 @@ def atomic_write(path: Path, write: callable) -> None:  # type: ignore[valid-typ
             os.unlink(tmp)
 
 
+def _text_writer(text: str) -> Callable[[Path], None]:
+    def w(t: Path) -> None:
+        with open(t, "w", encoding="utf-8") as fh:
+            fh.write(text)
+
+    return w
+
+
+def _fmt_rows(A: np.ndarray, prefix: str = "") -> str:
+    return "".join(prefix + " ".join(f"{x:.17g}" for x in row) + "\n" for row in A)
+
+
 def save_mesh(mesh: Mesh, path: str | os.PathLike[str]) -> None:
-    """Write a mesh atomically: npz for anything, text for curves, trimesh formats for surfaces."""
+    """Write a mesh atomically: npz for anything, text for curves, OBJ/OFF/PLY/STL for surfaces.
+
+    npz, text curves, OBJ and OFF round-trip exactly through :func:`load_mesh`.
+    """
     p = Path(path)
     ext = p.suffix.lower()
     if ext == ".npz":
@@ -126,19 +404,24 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike[str]) -> None:
             raise MeshError(f"{p}: the text curve format holds curves only")
         order = _curve_order(mesh)
         header = "# willmore_nlp curve\n# " + ("closed" if mesh.is_closed else "open") + "\n"
-
-        def w(t: Path) -> None:
-            with open(t, "w", encoding="utf-8") as fh:
-                fh.write(header)
-                np.savetxt(fh, mesh.vertices[order], fmt="%.17g")
-
-        atomic_write(p, w)
+        atomic_write(p, _text_writer(header + _fmt_rows(mesh.vertices[order])))
     elif ext in SURFACE_FORMATS:
         if mesh.d != 2:
             raise MeshError(f"{p}: {ext} holds triangle surfaces only")
-        tm = trimesh.Trimesh(mesh.vertices, mesh.simplices, process=False)
-        kw = {"digits": 17} if ext == ".obj" else {"encoding": "binary"} if ext == ".ply" else {}
-        atomic_write(p, lambda t: tm.export(t, file_type=ext[1:], **kw))
+        if ext == ".obj":
+            text = ("# willmore_nlp\n" + _fmt_rows(mesh.vertices, "v ")
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.simplices))
+            atomic_write(p, _text_writer(text))
+        elif ext == ".off":
+            text = (f"OFF\n{mesh.n_vertices} {mesh.n_simplices} 0\n" + _fmt_rows(mesh.vertices)
+                    + "".join(f"3 {a} {b} {c}\n" for a, b, c in mesh.simplices))
+            atomic_write(p, _text_writer(text))
+        else:
+            import trimesh
+
+            tm = trimesh.Trimesh(mesh.vertices, mesh.simplices, process=False)
+            kw = {"encoding": "binary"} if ext == ".ply" else {}
+            atomic_write(p, lambda t: tm.export(t, file_type=ext[1:], **kw))
     else:
         raise MeshError(f"{p}: unknown mesh format {ext!r}")
 

@@ -132,3 +132,24 @@ def components(mesh: Mesh) -> tuple[int, np.ndarray]:
     A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(N, N))
     n, labels = connected_components(A, directed=False)
     return int(n), labels
+
+
+def check_connected(mesh: Mesh, hint: str = "") -> None:
+    """Raise :class:`MeshError` unless ``mesh`` is one connected curve or surface.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    hint : str, optional
+        Appended to the message (e.g. how to allow several components).
+    """
+    n, labels = components(mesh)
+    if n == 1:
+        return
+    sizes = np.bincount(labels)
+    kind = "curves" if mesh.d == 1 else "surfaces"
+    shown = ", ".join(str(int(s)) for s in sizes[:6]) + (", ..." if n > 6 else "")
+    raise MeshError(
+        f"{mesh.source}: the mesh consists of {n} separate {kind} (vertex counts {shown}) where one "
+        f"is expected" + (f"; {hint}" if hint else "")
+    )

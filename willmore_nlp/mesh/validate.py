@@ -26,8 +26,9 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
     ------
     MeshError
         Wrong shapes, non-integer or out-of-range indices, NaN/inf coordinates,
-        unreferenced vertices, simplices with a repeated vertex or zero measure, and
-        duplicate simplices.
+        unreferenced vertices, simplices with a repeated vertex or zero measure,
+        duplicate simplices, and duplicate vertices (two vertices at the same position,
+        up to :data:`DUPLICATE_RTOL` times the bounding-box size).
     """
     try:
         V = np.array(vertices, dtype=float)
@@ -86,7 +87,42 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
         k = int(degenerate[0])
         raise MeshError(f"{source}: simplex {k} is degenerate (zero {'length' if d == 1 else 'area'}): "
                         f"vertices {S[k].tolist()}")
+    dup_v = duplicate_vertices(V, DUPLICATE_RTOL * scale)
+    if dup_v.size:
+        i, j = (int(x) for x in dup_v[0])
+        raise MeshError(
+            f"{source}: vertices {i} and {j} are duplicates (both at {V[i].tolist()}; "
+            f"{len(dup_v)} duplicate pair(s)): merge them, or perturb a curve that passes twice "
+            f"through a point"
+        )
     return V, S
+
+
+DUPLICATE_RTOL = 1e-12
+"""Two vertices closer than this times the largest bounding-box side are duplicates."""
+
+
+def duplicate_vertices(V: np.ndarray, tol: float) -> np.ndarray:
+    """Pairs of vertices at distance <= ``tol``.
+
+    Parameters
+    ----------
+    V : (N, m) float array
+    tol : float
+        Distance below which two vertices count as one position (0 finds exact duplicates).
+
+    Returns
+    -------
+    (P, 2) int array
+        Index pairs ``i < j``, sorted.
+    """
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(V).query_pairs(max(tol, 0.0), output_type="ndarray")
+    if pairs.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    pairs = np.sort(pairs, axis=1)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))].astype(np.int64)
 
 
 def simplex_volumes(V: np.ndarray, S: np.ndarray) -> np.ndarray:

@@ -1,0 +1,359 @@
+"""Interruption, crash and resume; solver failures and retries; determinism (issue 7).
+
+The interruption tests run the CLI in a subprocess on a 24-node circle, signal it mid-run,
+resume it, and require the resumed run directory to hold exactly (bit for bit) the states of
+an uninterrupted run. No test asserts wall-clock times.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from willmore_nlp import cli, load_run
+from willmore_nlp.flow import FlowError, WillmoreFlow
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.io import save_mesh
+from willmore_nlp.rundir import lock_run_dir, read_history_csv
+from willmore_nlp.solvers.base import SolveResult
+
+CLI = [sys.executable, "-m", "willmore_nlp.cli"]
+STEPS = 150
+ARGS = ["circle", "--set", "n=24", "--set", "tau=0.01", "--quiet"]
+TIMING = {"wall_time", "t_wall_eval", "t_wall_solver", "t_wall_total"}
+
+
+def run_cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=600)
+
+
+def start_cli(*args: str | Path) -> subprocess.Popen[str]:
+    return subprocess.Popen([*CLI, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(path: Path, proc: subprocess.Popen[str], timeout: float = 300.0) -> None:
+    """Poll until ``path`` exists; fail if the process ends first."""
+    t0 = time.monotonic()
+    while not path.exists():
+        if proc.poll() is not None:
+            _, err = proc.communicate()
+            pytest.fail(f"process ended (rc {proc.returncode}) before {path} appeared: {err}")
+        if time.monotonic() - t0 > timeout:
+            proc.kill()
+            pytest.fail(f"{path} did not appear")
+        time.sleep(0.005)
+
+
+def state_arrays(run_dir: Path) -> dict[int, dict[str, bytes]]:
+    """Raw bytes of every array of every state file (bit-identity check)."""
+    out = {}
+    for f in sorted((run_dir / "states").glob("state_*.npz")):
+        with np.load(f) as z:
+            out[int(f.stem[6:])] = {k: z[k].tobytes() for k in z.files if k != "row"}
+    return out
+
+
+def comparable(row: dict[str, object]) -> dict[str, object]:
+    return {k: repr(v) for k, v in row.items() if k not in TIMING}  # repr: NaN == NaN
+
+
+def assert_same_run(ref: Path, other: Path, steps: int = STEPS) -> None:
+    """Same states (bit for bit), same history except timings, history.csv consistent with the states."""
+    a, b = state_arrays(ref), state_arrays(other)
+    assert sorted(a) == sorted(b) == list(range(steps + 1))
+    for k in a:
+        assert a[k] == b[k], f"state {k} differs"
+    ha, hb = read_history_csv(ref / "history.csv"), read_history_csv(other / "history.csv")
+    assert sorted(hb) == list(range(steps + 1))
+    for k in ha:
+        assert comparable(ha[k]) == comparable(hb[k]), f"history row {k} differs"
+    run = load_run(other)
+    assert run.ignored == [] and len(run.states) == steps + 1
+    assert not [p for p in other.rglob(".*")], "stray temporary files left"
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An uninterrupted run."""
+    out = tmp_path_factory.mktemp("ref") / "run"
+    r = run_cli("run", *ARGS, "--steps", STEPS, "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert json.loads((out / "status.json").read_text())["state"] == "completed"
+    return out
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_mid_run_then_resume_is_bit_identical(tmp_path: Path, reference: Path, sig: int) -> None:
+    out = tmp_path / "run"
+    p = start_cli("run", *ARGS, "--steps", STEPS, "--out", out)
+    wait_for(out / "states" / "state_000005.npz", p)
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 128 + sig, err
+    name = signal.Signals(sig).name
+    assert f"interrupted by {name} after step" in err and "Traceback" not in err
+    status = json.loads((out / "status.json").read_text())
+    assert status["state"] == "interrupted" and status["signal"] == name
+    run = load_run(out)  # a valid run directory: states 0..k, one history row each
+    k = len(run.states) - 1
+    assert 5 <= k < STEPS and status["step"] == k and run.ignored == []
+    assert sorted(read_history_csv(out / "history.csv")) == list(range(k + 1))
+    r = run_cli("run", "--resume", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert_same_run(reference, out)
+    status = json.loads((out / "status.json").read_text())
+    assert status["state"] == "completed"
+    assert [s["state"] for s in status["sessions"]] == ["interrupted", "completed"]
+    assert status["sessions"][1]["from_step"] == k
+
+
+def test_sigkill_with_write_debris_then_resume_is_bit_identical(tmp_path: Path, reference: Path) -> None:
+    out = tmp_path / "run"
+    p = start_cli("run", *ARGS, "--steps", STEPS, "--out", out)
+    wait_for(out / "states" / "state_000010.npz", p)
+    p.kill()
+    p.wait(timeout=60)
+    assert p.returncode == -signal.SIGKILL
+    assert json.loads((out / "status.json").read_text())["state"] == "running"
+    k = max(int(f.stem[6:]) for f in (out / "states").glob("state_*.npz"))
+    # what a crash in the middle of writes could leave, made worse than atomic writes allow:
+    sdir = out / "states"
+    (sdir / f".state_{k + 1:06d}.npz.x7f3q.npz").write_bytes(b"PK\x03\x04 partial")  # stray temporary file
+    (out / ".history.csv.abc12.csv").write_text("step,t\n")
+    good = (sdir / f"state_{k:06d}.npz").read_bytes()
+    (sdir / f"state_{k + 1:06d}.npz").write_bytes(good[: len(good) // 2])  # truncated state
+    (sdir / f"state_{k + 2:06d}.npz").write_bytes(good)  # a state after the damaged one
+    with open(out / "history.csv", "a") as fh:
+        fh.write(f"{k + 1},0.5,0.0")  # partial last line
+    run = load_run(out)
+    assert len(run.states) == k + 1  # the damaged state and what follows are not trusted
+    assert len(run.ignored) == 4 and sorted(h["step"] for h in run.history) == list(range(k + 1))
+    r = run_cli("run", "--resume", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    notes = [ln for ln in r.stderr.splitlines() if ln.startswith("willmore-nlp: note: removed")]
+    assert len(notes) == 4 and any("unreadable state" in n for n in notes), r.stderr
+    assert_same_run(reference, out)
+    sessions = json.loads((out / "status.json").read_text())["sessions"]
+    assert [s["state"] for s in sessions] == ["died (no clean exit)", "completed"]
+
+
+def test_repeated_sigkill_at_random_moments(tmp_path: Path, reference: Path) -> None:
+    """kill -9 at arbitrary moments (start-up, solve, writes), resume each time; same result."""
+    rng = random.Random(7)
+    out = tmp_path / "run"
+    p = start_cli("run", *ARGS, "--steps", STEPS, "--out", out)
+    wait_for(out / "states" / "state_000000.npz", p)
+    for _ in range(3):
+        time.sleep(rng.uniform(0.0, 0.6))
+        p.kill()
+        p.wait(timeout=60)
+        load_run(out)  # always readable
+        p = start_cli("run", "--resume", out, "--quiet")
+    _, err = p.communicate(timeout=600)
+    assert p.returncode == 0, err
+    assert_same_run(reference, out)
+
+
+def test_double_signal_abandons_step_and_resume_continues(tmp_path: Path, reference: Path,
+                                                          monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """A second signal while the step is under way abandons it; the directory stays valid."""
+    step = WillmoreFlow.step
+    calls = []
+
+    def step_with_two_signals(self: WillmoreFlow) -> object:
+        calls.append(self.k)
+        if len(calls) == 4:
+            os.kill(os.getpid(), signal.SIGINT)  # first: finish this step, then stop
+            os.kill(os.getpid(), signal.SIGINT)  # second, before the step is done: abandon it
+        return step(self)
+
+    monkeypatch.setattr(WillmoreFlow, "step", step_with_two_signals)
+    out = tmp_path / "run"
+    rc = cli.main(["run", *ARGS, "--steps", str(STEPS), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 130
+    assert "abandoned step 4 on a second SIGINT" in err and "holds steps 0..3" in err
+    status = json.loads((out / "status.json").read_text())
+    assert status["state"] == "abandoned" and status["step"] == 3
+    assert len(load_run(out).states) == 4
+    monkeypatch.setattr(WillmoreFlow, "step", step)
+    assert cli.main(["run", "--resume", str(out), "--quiet"]) == 0
+    assert_same_run(reference, out)
+
+
+def test_resume_extends_and_completed_resume_is_a_no_op(tmp_path: Path, reference: Path) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["run", *ARGS, "--steps", "100", "--out", str(out)]) == 0
+    assert cli.main(["run", "--resume", str(out), "--quiet"]) == 0  # already complete
+    assert len(load_run(out).states) == 101
+    assert cli.main(["run", "--resume", str(out), "--steps", str(STEPS), "--quiet"]) == 0
+    assert_same_run(reference, out)
+    assert json.loads((out / "config.json").read_text())["steps"] == STEPS
+
+
+def test_resume_refuses_a_changed_input_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    save_mesh(shapes.ellipse(16, 2.0, 1.0), tmp_path / "e.txt")
+    out = tmp_path / "run"
+    assert cli.main(["run", str(tmp_path / "e.txt"), "--out", str(out), "--steps", "4", "--quiet"]) == 0
+    (out / "states" / "state_000004.npz").unlink()
+    save_mesh(shapes.ellipse(16, 2.0, 1.1), tmp_path / "e.txt")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert cli.main(["run", "--resume", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "different initial mesh" in err and "was an input file changed?" in err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+def test_a_second_writer_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["run", *ARGS, "--steps", "3", "--out", str(out)]) == 0
+    held = lock_run_dir(out)  # as a run still going on would hold it
+    try:
+        capsys.readouterr()
+        assert cli.main(["run", "--resume", str(out), "--steps", "5", "--quiet"]) == 2
+        assert f"is being written by pid {os.getpid()}" in capsys.readouterr().err
+        assert len(load_run(out).states) == 4
+    finally:
+        held.close()
+    assert cli.main(["run", "--resume", str(out), "--steps", "5", "--quiet"]) == 0
+    assert len(load_run(out).states) == 6
+
+
+# -- solver failures -------------------------------------------------------------------------
+def _ellipse_toml(tmp_path: Path, max_iter: int) -> Path:
+    save_mesh(shapes.ellipse(24, 2.0, 1.0), tmp_path / "e.txt")
+    cfg = tmp_path / f"e{max_iter}.toml"
+    cfg.write_text(f'mesh = "e.txt"\ntau = 0.05\n[ipopt]\nmax_iter = {max_iter}\n')
+    return cfg
+
+
+def test_tight_iteration_limit_retries_and_records(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    r = run_cli("run", _ellipse_toml(tmp_path, 3), "--out", out, "--steps", "2")
+    assert r.returncode == 0, r.stderr
+    h = read_history_csv(out / "history.csv")
+    for k in (1, 2):
+        assert h[k]["retries"] == 3 and h[k]["tau"] == 0.05 / 8 and h[k]["converged"] == 1
+        rejected = h[k]["rejected"].split(" | ")
+        assert [x.split(":")[0] for x in rejected] == ["tau=0.05", "tau=0.025", "tau=0.0125"]
+        assert all("solver did not converge (Maximum_Iterations_Exceeded, 3 iterations)" in x for x in rejected)
+    assert h[2]["t"] == 2 * 0.05 / 8
+
+
+def test_solver_failure_stops_cleanly_and_is_recorded(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    r = run_cli("run", _ellipse_toml(tmp_path, 1), "--out", out, "--steps", "2", "--quiet")
+    assert r.returncode == 1
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr
+    assert lines[0].startswith("willmore-nlp: error: step 1 at t = 0 failed after 5 attempts (last: tau=0.003125")
+    assert "status.json" in lines[0]
+    status = json.loads((out / "status.json").read_text())
+    assert status["state"] == "failed" and status["failed_step"] == 1 and len(status["rejected"]) == 5
+    assert all("Maximum_Iterations_Exceeded" in x for x in status["rejected"])
+    assert sorted(read_history_csv(out / "history.csv")) == [0]
+    assert len(load_run(out).states) == 1
+
+
+def _fake_solver(flow: WillmoreFlow, bad: list[str]) -> None:
+    """Make the first len(bad) solves fail in the given ways, then solve for real."""
+    solve = flow.solver.solve
+
+    def fake(z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
+        if not bad:
+            return solve(z0, p, lam_g0)
+        how = bad.pop(0)
+        if how == "raise":
+            raise RuntimeError("Error in Function::call for 'willmore_step'\nnlp_hess_l failed: NaN detected")
+        res = solve(z0, p, lam_g0)
+        z = res.z.copy()
+        nX = flow.X.size
+        if how == "nan":
+            z[3] = np.nan
+        elif how == "energy":
+            z[:nX] += 0.3 * np.sin(np.arange(nX))
+            res.f = flow.evaluator.f(z, p)
+        elif how == "collapse":
+            X = z[:nX].reshape(flow.X.shape)
+            X[1] = X[0]
+            z[:nX] = X.ravel()
+        res.z = z
+        return res
+
+    flow.solver.solve = fake  # type: ignore[method-assign]
+
+
+@pytest.mark.parametrize(("how", "reason"), [
+    ("nan", "non-finite positions"),
+    ("raise", "solver error: nlp_hess_l failed: NaN detected"),
+    ("energy", "energy inequality violated"),
+    ("collapse", "mesh collapsed"),
+])
+def test_bad_solves_are_rejected_and_retried(how: str, reason: str) -> None:
+    mesh = shapes.regular_polygon(16)
+    flow = WillmoreFlow(mesh, 0.01, mesh.h**2, check_energy=how != "collapse")
+    _fake_solver(flow, [how])
+    r = flow.step()
+    assert r.retries == 1 and r.tau == 0.005 and len(r.rejected) == 1
+    assert r.rejected[0].startswith("tau=0.01: " + reason)
+    assert "| " not in r.row()["rejected"] and reason in r.row()["rejected"]
+
+
+def test_flow_error_after_max_retries_leaves_state_unchanged() -> None:
+    mesh = shapes.regular_polygon(16)
+    flow = WillmoreFlow(mesh, 0.01, mesh.h**2, max_retries=2)
+    X, Y = flow.X.copy(), flow.Y.copy()
+    _fake_solver(flow, ["nan", "raise", "nan"])
+    with pytest.raises(FlowError) as ei:
+        flow.step()
+    assert ei.value.step == 1 and len(ei.value.rejected) == 3 and ei.value.t == 0.0
+    assert np.array_equal(flow.X, X) and np.array_equal(flow.Y, Y) and flow.k == 0 and flow.t == 0.0
+    assert flow.step().step == 1  # and it can go on
+
+
+# -- determinism -------------------------------------------------------------------------------
+def _flow(mesh_name: str, **kw: object) -> WillmoreFlow:
+    if mesh_name == "sphere":
+        m = shapes.icosphere(1)
+        m = m.with_vertices(m.vertices * [1.0, 1.0, 1.3])
+        return WillmoreFlow(m, 0.05 * m.h, m.h**2 / 4, **kw)
+    m = shapes.ellipse(24, 2.0, 1.0)
+    return WillmoreFlow(m, m.h, m.h**2, lam=0.1, **kw)
+
+
+@pytest.mark.parametrize("warm_start", [False, True], ids=["cold", "warm"])
+@pytest.mark.parametrize("mesh_name", ["curve", "sphere"])
+def test_identical_runs_and_restart_are_bit_identical(mesh_name: str, warm_start: bool) -> None:
+    a = [(r.vertices, r.Y, r.t) for r in _flow(mesh_name, warm_start=warm_start).run(steps=6)]
+    b = [(r.vertices, r.Y, r.t) for r in _flow(mesh_name, warm_start=warm_start).run(steps=6)]
+    first = _flow(mesh_name, warm_start=warm_start)
+    first.run(steps=3)
+    resumed = _flow(mesh_name, warm_start=warm_start)
+    resumed.restart(first.X, first.Y, first.t, first.k, first.lam_g)
+    c = [(r.vertices, r.Y, r.t) for r in resumed.run(steps=3)]
+    for (xa, ya, ta), (xb, yb, tb) in zip(a, b, strict=True):
+        assert xa.tobytes() == xb.tobytes() and ya.tobytes() == yb.tobytes() and ta == tb
+    for (xa, ya, ta), (xc, yc, tc) in zip(a[3:], c, strict=True):
+        assert xa.tobytes() == xc.tobytes() and ya.tobytes() == yc.tobytes() and ta == tc
+
+
+def test_two_processes_give_bit_identical_states(tmp_path: Path) -> None:
+    outs = [tmp_path / "a", tmp_path / "b"]
+    procs = [start_cli("run", "sphere", "--set", "subdivisions=1", "--steps", "3", "--out", o, "--quiet")
+             for o in outs]
+    for p in procs:
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err
+    a, b = state_arrays(outs[0]), state_arrays(outs[1])
+    assert sorted(a) == [0, 1, 2, 3] and a == b

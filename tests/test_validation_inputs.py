@@ -1,0 +1,300 @@
+"""Malformed inputs through the CLI: one readable line naming file, line/field and problem; nothing written.
+
+Every case runs ``willmore-nlp run ...`` in-process (plus two cases in a subprocess, for the
+exit code and the absence of a traceback). Each asserts exit code 2, a single stderr line
+``willmore-nlp: error: ...`` containing the expected fragments, and that the output directory
+was not created.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from willmore_nlp import cli
+from willmore_nlp.flow import StepSizeWarning, WillmoreFlow
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.io import save_mesh
+
+CLI = [sys.executable, "-m", "willmore_nlp.cli"]
+
+
+def _circle_txt(n: int = 8) -> str:
+    t = 2 * np.pi * np.arange(n) / n
+    return "".join(f"{np.cos(a):.17g} {np.sin(a):.17g}\n" for a in t)
+
+
+def _ico_obj(flip: int | None = None, extra: str = "") -> str:
+    s = shapes.icosphere(0)
+    F = s.simplices.copy()
+    if flip is not None:
+        F[flip] = F[flip, ::-1]
+    return ("".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in s.vertices)
+            + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F) + extra)
+
+
+def _npz(path: Path, **arrays: object) -> None:
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def _write(name: str, content: str | bytes) -> Callable[[Path], list[str]]:
+    """A case whose input is one file, run as the target."""
+
+    def make(d: Path) -> list[str]:
+        p = d / name
+        if isinstance(content, bytes):
+            p.write_bytes(content)
+        else:
+            p.write_text(content, encoding="utf-8")
+        return [str(p)]
+
+    return make
+
+
+def _npz_case(name: str, **arrays: object) -> Callable[[Path], list[str]]:
+    def make(d: Path) -> list[str]:
+        _npz(d / name, **arrays)
+        return [str(d / name)]
+
+    return make
+
+
+def _two_circles(d: Path) -> list[str]:
+    a, b = shapes.regular_polygon(8), shapes.regular_polygon(8, 0.5)
+    V = np.concatenate([a.vertices, b.vertices + np.array([3.0, 0.0])])
+    S = np.concatenate([a.simplices, b.simplices + 8])
+    _npz(d / "two.npz", vertices=V, simplices=S)
+    return [str(d / "two.npz")]
+
+
+def _two_spheres(d: Path) -> list[str]:
+    s = shapes.icosphere(0)
+    V = np.concatenate([s.vertices, s.vertices + np.array([3.0, 0.0, 0.0])])
+    F = np.concatenate([s.simplices, s.simplices + s.n_vertices])
+    save_mesh_raw(d / "two.off", V, F)
+    return [str(d / "two.off")]
+
+
+def save_mesh_raw(p: Path, V: np.ndarray, F: np.ndarray) -> None:
+    """An OFF file of arbitrary (unvalidated) arrays."""
+    p.write_text(f"OFF\n{len(V)} {len(F)} 0\n" + "".join(" ".join(f"{x:.17g}" for x in v) + "\n" for v in V)
+                 + "".join("3 " + " ".join(str(int(i)) for i in f) + "\n" for f in F))
+
+
+def _seam(d: Path) -> list[str]:
+    """An icosphere whose vertex 0 is split into two copies at the same position (an unmerged seam)."""
+    s = shapes.icosphere(0)
+    V = np.concatenate([s.vertices, s.vertices[:1]])
+    F = s.simplices.copy()
+    first = np.flatnonzero((F == 0).any(axis=1))[:2]
+    F[first] = np.where(F[first] == 0, len(V) - 1, F[first])
+    save_mesh_raw(d / "seam.off", V, F)
+    return [str(d / "seam.off")]
+
+
+def _bowtie(d: Path) -> list[str]:
+    """Two triangle fans sharing only vertex 0."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 0, 0.5], [0, -1, 0.5]], float)
+    (d / "bowtie.obj").write_text("".join(f"v {a} {b} {c}\n" for a, b, c in V) + "f 1 2 3\nf 1 4 5\n")
+    return [str(d / "bowtie.obj")]
+
+
+def _toml(text: str, name: str = "cfg.toml") -> Callable[[Path], list[str]]:
+    def make(d: Path) -> list[str]:
+        (d / "c.txt").write_text(_circle_txt(12))
+        (d / name).write_text(text)
+        return [str(d / name)]
+
+    return make
+
+
+def _circle_with(*sets: str) -> Callable[[Path], list[str]]:
+    def make(d: Path) -> list[str]:
+        out = ["circle", "--set", "n=12"]
+        for s in sets:
+            out += ["--set", s]
+        return out
+
+    return make
+
+
+OBJ_BAD_INDEX = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"
+CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
+    # -- curve text files --------------------------------------------------------------------
+    ("curve-not-a-number", _write("c.txt", "0 0\n1 0\n1 x\n"), ["c.txt:3", "'x' is not a number"]),
+    ("curve-4-coordinates", _write("c.txt", "0 0 0 0\n1 0 0 0\n0 1 0 0\n"),
+     ["c.txt:1", "a vertex needs 2 or 3 coordinates, got 4"]),
+    ("curve-mixed-dimension", _write("c.txt", "0 0\n1 0\n0 1 2\n"),
+     ["c.txt:3", "vertex has 3 coordinates, the one on line 1 has 2"]),
+    ("curve-nan", _write("c.txt", "0 0\nnan 0\n0 1\n"), ["c.txt:2", "non-finite value 'nan'"]),
+    ("curve-inf", _write("c.txt", "0 0\n1 0\n0 -inf\n"), ["c.txt:3", "non-finite value '-inf'"]),
+    ("curve-too-few", _write("c.txt", "# closed\n0 0\n1 0\n"),
+     ["c.txt", "closed curve needs at least 3 vertices, got 2"]),
+    ("curve-empty", _write("c.txt", ""), ["c.txt", "needs at least 3 vertices, got 0"]),
+    ("curve-first-repeated", _write("c.txt", "0 0\n1 0\n0 1\n0 0\n"),
+     ["c.txt:4", "the last vertex repeats the first (line 1)"]),
+    ("curve-duplicate-vertex", _write("c.txt", "0 0\n1 0\n1 1\n0 1\n1 0\n2 -1\n"),
+     ["c.txt", "vertices 1 (line 2) and 4 (line 5) are duplicates"]),
+    ("curve-zero-length-segment", _write("c.txt", "0 0\n1 0\n1 0\n0 1\n"),
+     ["c.txt", "simplex 1 (line 2) is degenerate (zero length)"]),
+    ("curve-binary", _write("c.txt", b"\x89PNG\r\n\x1a\n\xff\xfe"), ["c.txt:1", "not a UTF-8 text file"]),
+    ("curve-late-open", _write("c.txt", "0 0\n1 0\n# open\n0 1\n"), ["c.txt:3", "must come before the first vertex"]),
+    # -- npz --------------------------------------------------------------------------------
+    ("npz-missing-array", _npz_case("m.npz", vertices=np.zeros((3, 2))), ["m.npz", "lacks array(s) ['simplices']"]),
+    ("npz-corrupt", _write("m.npz", b"PK\x03\x04 this is not a zip archive"), ["m.npz", "not a readable npz file"]),
+    ("npz-unreferenced-vertex",
+     _npz_case("m.npz", vertices=[[0, 0], [1, 0], [0, 1], [5, 5]], simplices=[[0, 1], [1, 2], [2, 0]]),
+     ["m.npz", "vertex 3 is not used by any simplex"]),
+    ("npz-index-out-of-range",
+     _npz_case("m.npz", vertices=[[0, 0], [1, 0], [0, 1]], simplices=[[0, 1], [1, 2], [2, 7]]),
+     ["m.npz", "simplex 2 has vertex index out of range [0, 3)"]),
+    ("npz-wrong-dimension", _npz_case("m.npz", vertices=np.eye(4), simplices=[[0, 1], [1, 2], [2, 3], [3, 0]]),
+     ["m.npz", "vertices must have shape (N, 2) or (N, 3), got (4, 4)"]),
+    ("npz-triangles-in-plane", _npz_case("m.npz", vertices=[[0, 0], [1, 0], [0, 1]], simplices=[[0, 1, 2]]),
+     ["m.npz", "triangle surfaces must live in R^3"]),
+    ("npz-float-indices",
+     _npz_case("m.npz", vertices=[[0, 0], [1, 0], [0, 1]], simplices=[[0, 1], [1, 2.5], [2, 0]]),
+     ["m.npz", "simplex indices must be integers"]),
+    ("npz-non-manifold-curve",
+     _npz_case("m.npz", vertices=[[0, 0], [1, 0], [1, 1], [0, 1], [2, 2]], simplices=[[0, 1], [0, 2], [0, 3], [1, 4]]),
+     ["m.npz", "non-manifold curve: vertex 0 lies on 3 segments"]),
+    ("npz-flipped-segment",
+     _npz_case("m.npz", vertices=[[0, 0], [1, 0], [1, 1], [0, 1]], simplices=[[0, 1], [2, 1], [2, 3], [3, 0]]),
+     ["m.npz", "inconsistently oriented curve"]),
+    ("npz-two-curves", _two_circles, ["two.npz", "2 separate curves", "where one is expected",
+                                      "allow_components=true"]),
+    # -- OBJ / OFF / PLY ----------------------------------------------------------------------
+    ("obj-flipped-triangle", _write("s.obj", _ico_obj(flip=5)),
+     ["s.obj", "inconsistently oriented surface: triangles", "(line 18)"]),
+    ("obj-non-manifold-edge", _write("s.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 0 -1 0.5\n"
+                                     "f 1 2 3\nf 2 1 4\nf 1 2 5\n"),
+     ["s.obj", "non-manifold surface: edge [0, 1] lies on 3 triangles"]),
+    ("obj-bowtie-vertex", _bowtie, ["bowtie.obj", "non-manifold surface", "vertex 0 (line 1)", "2 separate fans"]),
+    ("obj-index-out-of-range", _write("s.obj", OBJ_BAD_INDEX), ["s.obj:4", "face index 9 is out of range"]),
+    ("obj-2d-vertex", _write("s.obj", "v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n"),
+     ["s.obj:1", "a vertex needs 3 coordinates", "got 2"]),
+    ("obj-degenerate", _write("s.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n"),
+     ["s.obj", "simplex 0 (line 4) is degenerate (zero area)"]),
+    ("obj-unknown-statement", _write("s.obj", "hello world\n"), ["s.obj:1", "unknown OBJ statement 'hello'"]),
+    ("obj-duplicate-triangle", _write("s.obj", _ico_obj(extra="f 1 12 6\n")),
+     ["s.obj", "simplices 0 (line 13) and 20 (line 33) are duplicates"]),
+    ("obj-nan", _write("s.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n"), ["s.obj:2", "non-finite value 'nan'"]),
+    ("off-seam-duplicate-vertices", _seam, ["seam.off", "vertices 0 (line 3) and 12 (line 15) are duplicates"]),
+    ("off-two-surfaces", _two_spheres, ["two.off", "2 separate surfaces", "where one is expected"]),
+    ("off-no-header", _write("s.off", "3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"), ["s.off:1", "missing 'OFF' header"]),
+    ("off-truncated", _write("s.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n"),
+     ["s.off", "promises 3 vertices and 1 faces, the file ends after 2 vertices"]),
+    ("ply-junk", _write("s.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n2\n"),
+     ["s.ply", "cannot be read as PLY"]),
+    ("mesh-missing-file", lambda d: [str(d / "nothere.obj")], ["nothere.obj", "no such file"]),
+    ("mesh-unknown-format", lambda d: [*_write("m.vtk", "# vtk DataFile\n")(d)[:0], "file", "--set",
+                                       f"path={d / 'm.vtk'}"], ["m.vtk", "unknown mesh format '.vtk'"]),
+    # -- configs ------------------------------------------------------------------------------
+    ("toml-syntax", _toml('mesh = "c.txt"\nsteps = \n'), ["cfg.toml", "invalid TOML"]),
+    ("toml-typo-key", _toml('mesh = "c.txt"\nmax_retires = 3\n'),
+     ["cfg.toml", "unknown key 'max_retires'", "did you mean 'max_retries'?"]),
+    ("toml-tau-zero", _toml('mesh = "c.txt"\ntau = 0.0\n'), ["cfg.toml", "tau must be a number > 0, got 0.0"]),
+    ("toml-tau-string", _toml('mesh = "c.txt"\ntau = "fast"\n'), ["cfg.toml", "tau must be a number, got 'fast'"]),
+    ("toml-lam-negative", _toml('mesh = "c.txt"\nlam = -1\n'), ["cfg.toml", "lam must be a number >= 0, got -1"]),
+    ("toml-unknown-table", _toml('mesh = "c.txt"\n[solver]\nname = "x"\n'), ["cfg.toml", "unknown table [solver]"]),
+    ("toml-mesh-and-problem", _toml('mesh = "c.txt"\nproblem = "circle"\n'),
+     ["cfg.toml", "give either 'problem' or 'mesh'"]),
+    ("toml-int-param-float", _toml('problem = "circle"\nn = 12.5\n'), ["cfg.toml", "n must be an integer, got 12.5"]),
+    ("toml-ipopt-unknown", _toml('mesh = "c.txt"\n[ipopt]\nfoo = 1\n'),
+     ["cfg.toml", "IPOPT option foo = 1: unknown option"]),
+    ("toml-ipopt-bad-setting", _toml('mesh = "c.txt"\n[ipopt]\nmu_strategy = "bogus"\n'),
+     ["cfg.toml", "mu_strategy = 'bogus': not a valid setting (valid: monotone, adaptive)"]),
+    ("toml-missing-file", lambda d: [str(d / "none.toml")], ["none.toml", "no such config file"]),
+    ("toml-mesh-bad", _toml('mesh = "bad.txt"\n'), ["bad.txt", "no such file"]),
+    ("set-tau-tilde-zero", _circle_with("tau_tilde=0"), ["--set", "tau_tilde must be a number > 0, got 0"]),
+    ("set-tau-negative", _circle_with("tau=-0.1"), ["--set", "tau must be a number > 0, got -0.1"]),
+    ("set-lam-negative", _circle_with("lam=-2"), ["--set", "lam must be a number >= 0"]),
+    ("set-no-equals", _circle_with("tau"), ["--set 'tau'", "expected key=value"]),
+    ("set-max-retries", _circle_with("max_retries=-1"), ["--set", "max_retries must be an integer >= 0, got -1"]),
+    ("set-min-angle", _circle_with("min_angle=75"), ["--set", "min_angle must be a number in [0, 60)"]),
+    ("set-unknown-solver", _circle_with("solver=newton"), ["unknown solver 'newton'"]),
+    ("set-bool", _circle_with("check_energy=maybe"), ["check_energy", "cannot read 'maybe' as bool"]),
+    ("unknown-problem", lambda d: ["spheroid"], ["unknown problem 'spheroid'"]),
+]
+
+
+@pytest.mark.parametrize(("make", "expect"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_bad_input_is_one_line_and_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                  make: Callable[[Path], list[str]], expect: list[str]) -> None:
+    argv = make(tmp_path)
+    out = tmp_path / "run"
+    before = sorted(p.name for p in tmp_path.iterdir())
+    rc = cli.main(["run", *argv, "--out", str(out), "--steps", "2", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("willmore-nlp: error: ")
+    for frag in expect:
+        assert frag in lines[0], f"{frag!r} not in {lines[0]!r}"
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_enough_cases() -> None:
+    kinds = {name.split("-")[0] for name, _, _ in CASES}
+    assert len(CASES) >= 20 and {"curve", "npz", "obj", "off", "toml", "set"} <= kinds
+
+
+def test_existing_output_and_resume_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    assert cli.main(["run", "circle", "--set", "n=12", "--out", str(out), "--steps", "1", "--quiet"]) == 2
+    assert "output directory exists and is not empty" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
+    assert cli.main(["run", "--resume", str(out), "--quiet"]) == 2
+    assert "not a run directory (missing config.json)" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
+    assert cli.main(["run", "--resume", str(out), "circle", "--quiet"]) == 2
+    assert "give no TARGET" in capsys.readouterr().err
+    assert cli.main(["run", "circle", "--quiet"]) == 2
+    assert "needs a TARGET" in capsys.readouterr().err
+
+
+def test_subprocess_no_traceback_unless_debug(tmp_path: Path) -> None:
+    (tmp_path / "s.obj").write_text(OBJ_BAD_INDEX)
+    args = ["run", str(tmp_path / "s.obj"), "--out", str(tmp_path / "run"), "--steps", "1"]
+    r = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"willmore-nlp: error: {tmp_path / 's.obj'}:4: face index 9 is out of range " \
+                               f"(the file has 3 vertices)"
+    r = subprocess.run([*CLI, "--debug", *args], capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "Traceback" in r.stderr and "MeshError" in r.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_tau_tilde_far_above_h2_warns(tmp_path: Path) -> None:
+    mesh = shapes.regular_polygon(16)
+    with pytest.warns(StepSizeWarning, match=r"h\^2 .*DESIGN.md section 1"):
+        WillmoreFlow(mesh, mesh.h, 10 * mesh.h**2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StepSizeWarning)
+        WillmoreFlow(mesh, mesh.h, mesh.h**2)  # the problems' default tau_tilde = h^2: no warning
+    save_mesh(mesh, tmp_path / "c.txt")
+    r = subprocess.run([*CLI, "run", str(tmp_path / "c.txt"), "--out", str(tmp_path / "run"), "--steps", "1",
+                        "--set", f"tau_tilde={10 * mesh.h**2}", "--quiet"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    warn = [ln for ln in r.stderr.splitlines() if "warning" in ln]
+    assert len(warn) == 1 and warn[0].startswith("willmore-nlp: warning: tau_tilde = ") and "10 h^2" in warn[0]
+
+
+def test_several_components_allowed_on_request(tmp_path: Path) -> None:
+    _two_circles(tmp_path)
+    out = tmp_path / "run"
+    rc = cli.main(["run", str(tmp_path / "two.npz"), "--set", "allow_components=true", "--out", str(out),
+                   "--steps", "1", "--quiet"])
+    assert rc == 0 and (out / "states" / "state_000001.npz").is_file()

@@ -1,0 +1,302 @@
+"""Running a flow into a run directory: start, resume, signals, status, progress display.
+
+This is the engine of ``willmore-nlp run``. A run writes every accepted state atomically
+(:class:`~willmore_nlp.rundir.RunWriter`) and records its state in ``status.json``:
+
+- ``completed``: the configured steps or final time were reached (exit 0);
+- ``failed``: a step was rejected after every retry (:class:`~willmore_nlp.flow.FlowError`);
+  the rejected attempts are in status.json (exit 1);
+- ``interrupted``: SIGINT or SIGTERM arrived; the step under way was finished and written
+  (exit 128 + signal number: 130 or 143);
+- ``abandoned``: a second signal arrived while finishing that step; it was dropped (same
+  exit codes);
+- ``crashed``: an internal error (a bug; its traceback is shown); ``running`` with no live
+  process means the process was killed (kill -9, power loss).
+
+Every outcome leaves a valid run directory that :func:`resume` continues. A resumed run
+gives bit-identical states to an uninterrupted one: it restarts the flow from the last
+trusted checkpoint with the stored Y and multipliers, and restores the BLAS thread settings
+recorded at the start (the thread count changes the last bits of MUMPS' factorisation).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import sys
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import numpy as np
+
+from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
+from willmore_nlp.flow import FlowError, StepResult, WillmoreFlow
+from willmore_nlp.rundir import RunError, RunWriter, read_config, read_mesh_npz, write_text_atomic
+
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+"""Environment variables that set BLAS/OpenMP thread counts (recorded in config.json)."""
+
+EXIT_FAILED = 1
+
+
+def flow_kwargs(spec: RunSpec) -> dict[str, Any]:
+    """Keyword arguments of :class:`WillmoreFlow` from a resolved spec."""
+    kw: dict[str, Any] = dict(spec.problem.flow_options)
+    for k, v in spec.flow_options.items():
+        kw[k.removeprefix("ipopt.")] = v
+    if kw.get("codegen", "unset") is None:
+        kw.pop("codegen")
+    return kw
+
+
+def thread_environment() -> dict[str, Any]:
+    """The thread settings that decide the last bits of the linear algebra."""
+    env: dict[str, Any] = {v: os.environ.get(v) for v in THREAD_VARS}
+    env["cpu_count"] = os.cpu_count()
+    return env
+
+
+def restore_thread_environment(saved: dict[str, Any]) -> list[str]:
+    """Set the :data:`THREAD_VARS` as recorded; returns one note per change.
+
+    Effective for CasADi's own OpenBLAS (loaded with the IPOPT plugin, i.e. when the first
+    solver is built), which is what MUMPS uses.
+    """
+    notes = []
+    for v in THREAD_VARS:
+        want, have = saved.get(v), os.environ.get(v)
+        if want == have:
+            continue
+        if want is None:
+            os.environ.pop(v, None)
+        else:
+            os.environ[v] = str(want)
+        notes.append(f"{v}: {have!r} -> {want!r} (as when the run started)")
+    if saved.get("cpu_count") not in (None, os.cpu_count()):
+        warnings.warn(f"the run started on a machine with {saved['cpu_count']} CPUs, this one has "
+                      f"{os.cpu_count()}: resumed states may differ in the last bits", stacklevel=2)
+    return notes
+
+
+# -- signals -------------------------------------------------------------------------------
+class _StopRequestedError(Exception):
+    """Raised from the step callback after a first signal, once the step is written."""
+
+
+class SignalGuard:
+    """First SIGINT/SIGTERM: finish the current step, then stop. Second: abandon it at once.
+
+    Use as a context manager; the previous handlers are restored on exit.
+    """
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._old: dict[int, Any] = {}
+
+    def _handler(self, signum: int, frame: FrameType | None) -> None:
+        if self.signum is None:
+            self.signum = signum
+            print(f"\nwillmore-nlp: {signal.Signals(signum).name} received: stopping after the current step "
+                  f"(send it again to abandon the step)", file=sys.stderr, flush=True)
+            return
+        raise KeyboardInterrupt
+
+    def __enter__(self) -> SignalGuard:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            self._old[s] = signal.signal(s, self._handler)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for s, h in self._old.items():
+            signal.signal(s, h)
+
+
+# -- progress ------------------------------------------------------------------------------
+class _Bar:
+    """Progress display: steps or simulated time (tqdm; silent with ``quiet``)."""
+
+    def __init__(self, total: float | None, unit: str, quiet: bool, initial: float = 0.0) -> None:
+        from tqdm import tqdm
+
+        self.by_time = unit == "t"
+        self.bar = tqdm(total=total, unit="" if self.by_time else "step", disable=quiet, initial=initial,
+                        bar_format="{l_bar}{bar}| {n:.4g}/{total:.4g} [{elapsed}<{remaining}{postfix}]"
+                        if self.by_time else None)
+
+    def update(self, r: StepResult) -> None:
+        if self.by_time:
+            self.bar.update(r.t - self.bar.n)
+        else:
+            self.bar.update(1)
+        self.bar.set_postfix(step=r.step, t=f"{r.t:.4g}", it=r.iterations, W=f"{r.willmore:.5g}",
+                             **({"retries": r.retries} if r.retries else {}))
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+# -- the loop ------------------------------------------------------------------------------
+def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: float | None,
+             guard: SignalGuard, quiet: bool) -> int:
+    """Step to ``steps`` (total) or ``t_end``, writing every state; returns the exit code."""
+    out = writer.out
+    again = f"continue with 'willmore-nlp run --resume {out}'"
+    remaining = None if steps is None else steps - flow.k
+    bar = _Bar(t_end if t_end is not None else steps, "t" if t_end is not None else "step", quiet,
+               initial=flow.t if t_end is not None else flow.k)
+
+    def on_step(r: StepResult) -> None:
+        writer.add(r, flow.lam_g)
+        bar.update(r)
+        if guard.signum is not None:
+            raise _StopRequestedError
+
+    try:
+        if guard.signum is None and (remaining is None or remaining > 0):
+            flow.run(t_end=t_end, steps=remaining, callback=on_step)
+        if guard.signum is None:
+            writer.set_status("completed")
+            if not quiet:
+                bar.close()
+                print(f"wrote {out} ({flow.k} steps, t = {flow.t:.6g})")
+            return 0
+        raise _StopRequestedError
+    except _StopRequestedError:
+        name = signal.Signals(guard.signum or signal.SIGINT).name
+        writer.set_status("interrupted", signal=name, message=f"stopped by {name} after step {flow.k}")
+        bar.close()
+        print(f"willmore-nlp: interrupted by {name} after step {flow.k} (t = {flow.t:.6g}); {out} is a valid "
+              f"run directory: {again}", file=sys.stderr)
+        return 128 + int(guard.signum or signal.SIGINT)
+    except KeyboardInterrupt:
+        signum = int(guard.signum or signal.SIGINT)
+        name = signal.Signals(signum).name
+        writer.set_status("abandoned", signal=name, message=f"step {flow.k + 1} abandoned on a second {name}")
+        bar.close()
+        print(f"willmore-nlp: abandoned step {flow.k + 1} on a second {name}; {out} holds steps 0..{flow.k}: "
+              f"{again}", file=sys.stderr)
+        return 128 + signum
+    except FlowError as exc:
+        writer.set_status("failed", message=str(exc), failed_step=exc.step, rejected=exc.rejected)
+        bar.close()
+        last = exc.rejected[-1] if exc.rejected else str(exc)
+        print(f"willmore-nlp: error: step {exc.step} at t = {exc.t:.6g} failed after {len(exc.rejected)} "
+              f"attempts (last: {last}); all attempts are in {out / 'status.json'}; steps 0..{flow.k} are kept",
+              file=sys.stderr)
+        return EXIT_FAILED
+    except Exception as exc:  # an internal error: record it, then let the traceback show
+        writer.set_status("crashed", message=f"{type(exc).__name__}: {exc}")
+        raise
+    finally:
+        bar.close()
+
+
+def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False) -> int:
+    """Run ``spec`` into the new run directory ``out``; returns the exit code.
+
+    Nothing is written when the flow cannot be built (bad mesh or options).
+    """
+    if spec.steps is None and spec.t_end is None:
+        raise ConfigError("give --steps or --t-end")
+    o = Path(out)
+    if o.exists() and (not o.is_dir() or any(o.iterdir())):
+        raise RunError(f"{o}: output directory exists and is not empty (use --resume to continue a run)")
+    pb = spec.problem
+    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **flow_kwargs(spec))
+    cfg = spec.config()
+    cfg["cwd"] = os.getcwd()
+    cfg["environment"] = thread_environment()
+    with SignalGuard() as guard:
+        writer = RunWriter(out, cfg, pb.mesh)
+        try:
+            writer.set_status("running")
+            writer.add(flow.state(), flow.lam_g)
+            return _advance(flow, writer, spec.steps, spec.t_end, guard, quiet)
+        finally:
+            writer.close()
+
+
+@contextlib.contextmanager
+def _chdir(path: str | None) -> Iterator[None]:
+    old = os.getcwd()
+    if path and Path(path).is_dir():
+        os.chdir(path)
+    try:
+        yield
+    finally:
+        os.chdir(old)
+
+
+def spec_from_config(cfg: dict[str, Any], where: str) -> RunSpec:
+    """Rebuild the RunSpec of a stored configuration (relative paths as seen from its ``cwd``)."""
+    for k in ("problem", "params"):
+        if k not in cfg:
+            raise RunError(f"{where}: no {k!r} entry")
+    overrides = {**cfg["params"], **cfg.get("flow_options", {})}
+    with _chdir(cfg.get("cwd")):
+        spec = resolve(str(cfg["problem"]), overrides, source=where)
+    spec.steps = cfg.get("steps")
+    spec.t_end = cfg.get("t_end")
+    return spec
+
+
+def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: float | None = None,
+           quiet: bool = False) -> int:
+    """Continue the run in ``run_dir`` from its last trusted state; returns the exit code.
+
+    Parameters
+    ----------
+    run_dir : a directory written by :func:`start` (interrupted, killed, failed or completed)
+    steps, t_end : a new total length (extends the run; stored in config.json); default: as configured
+    quiet : no progress bar
+
+    The problem is rebuilt from config.json and must reproduce the stored initial mesh and
+    step sizes exactly; otherwise nothing is changed and :class:`RunError` names the difference.
+    """
+    d = Path(run_dir)
+    if not d.is_dir():
+        raise RunError(f"{d}: no such run directory")
+    where = str(d / "config.json")
+    cfg = read_config(d)
+    for note in restore_thread_environment(cfg.get("environment", {})):
+        print(f"willmore-nlp: note: {note}", file=sys.stderr)
+    spec = spec_from_config(cfg, where)
+    if steps is not None or t_end is not None:
+        spec.steps, spec.t_end = steps, t_end
+        check_spec(spec, {"steps": "--steps", "t_end": "--t-end"})
+    if spec.steps is None and spec.t_end is None:
+        raise RunError(f"{where}: neither steps nor t_end is set")
+    pb = spec.problem
+    V0, S0 = read_mesh_npz(d)
+    if not (np.array_equal(V0, pb.mesh.vertices) and np.array_equal(S0, pb.mesh.simplices)):
+        raise RunError(f"{d}: cannot resume: the problem rebuilt from config.json has a different initial mesh "
+                       f"than {d / 'mesh.npz'} (was an input file changed?)")
+    for k in ("tau", "tau_tilde", "lam"):
+        if cfg.get(k) != getattr(pb, k):
+            raise RunError(f"{where}: cannot resume: {k} = {cfg.get(k)!r} but the problem now gives "
+                           f"{getattr(pb, k)!r}")
+    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **flow_kwargs(spec))
+    with SignalGuard() as guard:
+        writer, _, ck, notes = RunWriter.resume(d)
+        try:
+            for note in notes:
+                print(f"willmore-nlp: note: {note}", file=sys.stderr)
+            if (spec.steps, spec.t_end) != (cfg.get("steps"), cfg.get("t_end")):
+                cfg.update({"steps": spec.steps, "t_end": spec.t_end})
+                write_text_atomic(d / "config.json", json.dumps(cfg, indent=2, sort_keys=True, default=str))
+            if ck is None:
+                writer.set_status("running")
+                writer.add(flow.state(), flow.lam_g)
+            else:
+                flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g)
+                writer.set_status("running")
+            if not quiet:
+                print(f"resuming {d} at step {flow.k} (t = {flow.t:.6g})")
+            return _advance(flow, writer, spec.steps, spec.t_end, guard, quiet)
+        finally:
+            writer.close()
