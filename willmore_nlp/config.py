@@ -151,7 +151,10 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
         if k in fparams:
             factory_kw[k] = v
         elif k in FLOW_KEYS:
-            flow[k] = coerce(v, FLOW_KEYS[k], k) if FLOW_KEYS[k] is not None else _auto(v)
+            try:
+                flow[k] = coerce(v, FLOW_KEYS[k], k) if FLOW_KEYS[k] is not None else _auto(v)
+            except ProblemError as exc:
+                raise ConfigError(f"{src}: {exc}") from exc
         elif k in RUN_KEYS:
             run[k] = _auto(v)
         elif k.startswith("ipopt."):

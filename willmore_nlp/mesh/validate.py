@@ -92,8 +92,9 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
         i, j = (int(x) for x in dup_v[0])
         raise MeshError(
             f"{source}: vertices {i} and {j} are duplicates (both at {V[i].tolist()}; "
-            f"{len(dup_v)} duplicate pair(s)): merge them, or perturb a curve that passes twice "
-            f"through a point"
+            f"{len(dup_v)} duplicate pair(s)): "
+            + ("merge them, or perturb a curve that passes twice through a point" if d == 1
+               else "merge them (unmerged copies split the surface along a seam)")
         )
     return V, S
 
