@@ -144,9 +144,10 @@ class WillmoreFlow:
         Accept a mesh of several separate curves or surfaces (default: one is expected,
         :func:`willmore_nlp.mesh.topology.check_connected`).
     boundary : optional
-        Clamped-boundary description (see :mod:`willmore_nlp.boundary`).
+        Clamped-boundary description. Reserved: the boundary variants (issue 3) are not
+        implemented yet and any value other than None raises NotImplementedError.
     anisotropy : optional
-        Anisotropy gamma for the fully nonlinear anisotropic scheme.
+        Anisotropy gamma for the fully nonlinear anisotropic scheme. Reserved likewise (issue 4).
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
     """
