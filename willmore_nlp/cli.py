@@ -81,6 +81,15 @@ def cmd_cache(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    """Export a run directory as VTU files with a PVD time index."""
+    from willmore_nlp.export import export_run
+
+    pvd = export_run(args.run_dir, args.out)
+    print(f"wrote {pvd}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``willmore-nlp``."""
     ap = argparse.ArgumentParser(prog="willmore-nlp", description=__doc__)
@@ -105,6 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("cache", help="show or clear the cache of compiled element kernels")
     c.add_argument("action", choices=["info", "clear"])
     c.set_defaults(func=cmd_cache)
+
+    e = sub.add_parser("export", help="export a run as VTU files + a PVD time index (ParaView)")
+    e.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
+    e.add_argument("--out", required=True, help="output directory for the .vtu files and run.pvd")
+    e.set_defaults(func=cmd_export)
     return ap
 
 

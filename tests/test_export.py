@@ -1,0 +1,52 @@
+"""VTK/PVD export round-trips through meshio."""
+
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import meshio
+import numpy as np
+import pytest
+
+from willmore_nlp import load_run
+from willmore_nlp.export import vertex_normals
+from willmore_nlp.geometry import mean_curvature_vector
+from willmore_nlp.mesh import shapes
+
+
+@pytest.mark.parametrize(("problem", "sets"), [("circle", ["n=16"]), ("sphere", ["subdivisions=1"])])
+def test_export_round_trip(tmp_path, problem: str, sets: list[str]) -> None:
+    run_dir = tmp_path / "run"
+    args = [sys.executable, "-m", "willmore_nlp.cli", "run", problem, "--out", str(run_dir), "--steps", "2",
+            "--quiet"]
+    for s in sets:
+        args += ["--set", s]
+    subprocess.run(args, check=True, capture_output=True)
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "export", str(run_dir), "--out",
+                        str(tmp_path / "vtk")], check=True, capture_output=True, text=True)
+    assert "run.pvd" in r.stdout
+    run = load_run(run_dir)
+    pvd = ET.parse(tmp_path / "vtk" / "run.pvd").getroot()
+    sets_ = pvd.findall("./Collection/DataSet")
+    assert [float(x.get("timestep")) for x in sets_] == pytest.approx(run.times)
+    for k, (ds, mesh, Y) in enumerate(zip(sets_, run.states, run.Y, strict=True)):
+        m = meshio.read(tmp_path / "vtk" / ds.get("file"))
+        m_dim = mesh.m
+        np.testing.assert_array_equal(m.points[:, :m_dim], mesh.vertices)
+        np.testing.assert_array_equal(m.cells[0].data, mesh.simplices)
+        np.testing.assert_array_equal(m.point_data["Y"][:, :m_dim], Y)
+        np.testing.assert_array_equal(m.point_data["mean_curvature_vector"][:, :m_dim],
+                                      mean_curvature_vector(mesh))
+        if k > 0:
+            v = (mesh.vertices - run.states[k - 1].vertices) / (run.times[k] - run.times[k - 1])
+            np.testing.assert_allclose(m.point_data["velocity"][:, :m_dim], v, rtol=1e-12, atol=0)
+            np.testing.assert_allclose(m.point_data["normal_speed"], np.einsum("ij,ij->i", v, vertex_normals(mesh)),
+                                       rtol=1e-12, atol=1e-15)
+
+
+def test_vertex_normals_outward() -> None:
+    c = shapes.regular_polygon(12, 2.0)
+    np.testing.assert_allclose(vertex_normals(c), c.vertices / 2.0, atol=1e-12)
+    s = shapes.icosphere(3)
+    n = vertex_normals(s)
+    assert np.all(np.einsum("ij,ij->i", n, s.vertices) > 0.999)

@@ -1,0 +1,91 @@
+"""Export a run as a VTK time series (one .vtu per state plus a .pvd index) for ParaView & co.
+
+Each state is written with meshio (a well-kept reader/writer of FEM mesh formats) as an unstructured
+grid of lines (curves) or triangles (surfaces), 3-D points (curves in R^2 get z = 0), and point data:
+
+* ``Y``: the inner mean-curvature-motion step Y[X] of the state,
+* ``mean_curvature_vector``: -M_lumped^{-1} L X (:func:`willmore_nlp.geometry.mean_curvature_vector`),
+* ``normal``: unit vertex normal (surfaces: area-weighted face normals; planar curves: the tangent
+  turned by -90 degrees, outward for counter-clockwise curves; zero for curves in R^3),
+* ``velocity``: (X^k - X^{k-1}) / (t^k - t^{k-1}) (zero for the initial state),
+* ``normal_speed``: velocity . normal.
+
+The .pvd index (a small VTK XML file listing the .vtu files with their times) is written with the
+standard library's XML writer.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+from willmore_nlp.geometry import mean_curvature_vector
+from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.io import atomic_write
+from willmore_nlp.rundir import load_run
+
+
+def vertex_normals(mesh: Mesh) -> np.ndarray:
+    """(N, m) unit vertex normals (zero rows where no normal is defined, e.g. curves in R^3)."""
+    V, S = mesh.vertices, mesh.simplices
+    n = np.zeros_like(V)
+    if mesh.d == 2:
+        fn = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])  # length = 2 * area
+        for j in range(3):
+            np.add.at(n, S[:, j], fn)
+    elif mesh.m == 2:
+        t = V[S[:, 1]] - V[S[:, 0]]
+        rot = np.stack([t[:, 1], -t[:, 0]], axis=1)  # outward for counter-clockwise curves
+        for j in range(2):
+            np.add.at(n, S[:, j], rot)
+    else:
+        return n
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
+def _points3(V: np.ndarray) -> np.ndarray:
+    return V if V.shape[1] == 3 else np.hstack([V, np.zeros((V.shape[0], 3 - V.shape[1]))])
+
+
+def state_mesh(mesh: Mesh, Y: np.ndarray, prev: np.ndarray | None, dt: float) -> meshio.Mesh:
+    """meshio mesh of one state with its point data (see module docstring)."""
+    nrm = vertex_normals(mesh)
+    vel = np.zeros_like(mesh.vertices) if prev is None or dt <= 0 else (mesh.vertices - prev) / dt
+    H = mean_curvature_vector(mesh)
+    cell = "line" if mesh.d == 1 else "triangle"
+    return meshio.Mesh(
+        _points3(mesh.vertices),
+        [(cell, mesh.simplices)],
+        point_data={
+            "Y": _points3(Y),
+            "mean_curvature_vector": _points3(np.nan_to_num(H)),
+            "normal": _points3(nrm),
+            "velocity": _points3(vel),
+            "normal_speed": np.einsum("ij,ij->i", vel, nrm),
+        },
+    )
+
+
+def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> Path:
+    """Write ``out/state_KKKKKK.vtu`` for every state of a run and ``out/run.pvd``; returns the .pvd path."""
+    run = load_run(run_dir)
+    d = Path(out)
+    d.mkdir(parents=True, exist_ok=True)
+    root = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
+    coll = ET.SubElement(root, "Collection")
+    prev, t_prev = None, 0.0
+    for row, mesh, Y, t in zip(run.history, run.states, run.Y, run.times, strict=True):
+        name = f"state_{int(row['step']):06d}.vtu"
+        m = state_mesh(mesh, Y, prev, float(t) - t_prev)
+        atomic_write(d / name, lambda p, m=m: meshio.write(p, m, file_format="vtu"))
+        ET.SubElement(coll, "DataSet", timestep=repr(float(t)), group="", part="0", file=name)
+        prev, t_prev = mesh.vertices, float(t)
+    pvd = d / "run.pvd"
+    ET.indent(root)
+    atomic_write(pvd, lambda p: ET.ElementTree(root).write(p, xml_declaration=True, encoding="utf-8"))
+    return pvd
