@@ -90,6 +90,15 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    """Write a Markdown + HTML + PNG report of a run directory."""
+    from willmore_nlp.report import write_report
+
+    md = write_report(args.run_dir, args.out)
+    print(f"wrote {md} and {md.with_suffix('.html')}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``willmore-nlp``."""
     ap = argparse.ArgumentParser(prog="willmore-nlp", description=__doc__)
@@ -119,6 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
     e.add_argument("--out", required=True, help="output directory for the .vtu files and run.pvd")
     e.set_defaults(func=cmd_export)
+
+    rp = sub.add_parser("report", help="write a report (Markdown, HTML, PNG figures) of a run directory")
+    rp.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
+    rp.add_argument("--out", help="output directory (default RUN_DIR/report)")
+    rp.set_defaults(func=cmd_report)
     return ap
 
 
