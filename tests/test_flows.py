@@ -4,7 +4,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from willmore_nlp import WillmoreFlow, willmore_energy
-from willmore_nlp.analysis import sphere_step_radius, winding_number
+from willmore_nlp.analysis import polygon_equilibrium_radius, sphere_step_radius, winding_number
 from willmore_nlp.fem.assembly import element_geometry, mass_stiffness
 from willmore_nlp.mesh import shapes
 
@@ -65,21 +65,6 @@ def test_sphere_stays_round_and_follows_scheme_radius() -> None:
     assert abs((1.0 - R.mean()) - drift_pred) < 0.15 * drift_pred
 
 
-def _polygon_equilibrium(n: int, k: int, tt: float, lam: float) -> float:
-    """Radius minimising the scheme's energy over regular k-fold n-gons (closed form in R)."""
-    from scipy.optimize import minimize_scalar
-
-    th = 2 * np.pi * k / n
-
-    def e(R: float) -> float:
-        ell = 2 * R * np.sin(th / 2)
-        mm = ell * (4 + 2 * np.cos(th)) / 6  # consistent mass on the rotating radial field
-        ll = 2 * (1 - np.cos(th)) / ell  # stiffness on it
-        return n / 2 * mm * R**2 * ll**2 / (mm + tt * ll) ** 2 + lam * n * ell
-
-    return float(minimize_scalar(e, bounds=(0.5, 20.0), method="bounded", options={"xatol": 1e-12}).x)
-
-
 def test_hypocycloid_keeps_winding_and_reaches_fivefold_circle() -> None:
     lam = 0.025
     mesh = shapes.hypocycloid(200)
@@ -90,7 +75,7 @@ def test_hypocycloid_keeps_winding_and_reaches_fivefold_circle() -> None:
         r = flow.step()
         assert abs(winding_number(r.vertices) - 5) < 1e-9
     R = np.linalg.norm(r.vertices - r.vertices.mean(axis=0), axis=1)
-    R_eq = _polygon_equilibrium(200, 5, h * h / 100, lam)
+    R_eq = polygon_equilibrium_radius(200, 5, h * h / 100, lam)
     assert R.std() / R.mean() < 0.01
     assert abs(R.mean() / R_eq - 1) < 2e-3
     assert abs(R_eq * np.sqrt(2 * lam) - 1) < 5e-3  # -> 1/sqrt(2 lam) as h, tt -> 0

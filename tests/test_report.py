@@ -43,3 +43,16 @@ def test_snapshot_indices_and_html() -> None:
     h = markdown_to_html("# T\n\n| a | b |\n|---|---|\n| 1 | `x<y` |\n\n![c](f.png)\n")
     assert "<h1>T</h1>" in h and "<th>a</th>" in h and "<td><code>x&lt;y</code></td>" in h
     assert '<img alt="c" src="f.png"' in h
+
+
+def test_reproduce_section_writes_document(tmp_path) -> None:
+    from willmore_nlp.reproduce import reproduce
+
+    doc = reproduce(tmp_path, only=["Fig. 2"])
+    text = doc.read_text()
+    assert "## Fig. 2" in text and "Regenerate with" in text
+    for link in re.findall(r"\]\(([^)]+)\)", text):
+        assert mpimg.imread(tmp_path / link).size > 0
+    # the deviation quoted in the document is the computed one and small
+    dev = float(re.search(r"exact radius: ([0-9.e+-]+)", text).group(1))
+    assert 0 < dev < 1e-3

@@ -57,3 +57,25 @@ def sphere_step_radius(Rk: float, tau: float, tt: float, lam: float = 0.0) -> fl
         return R - Rk + tau / Rk**2 * (16 * tt / (R**3 * (1 + 2 * tt / R**2) ** 3) + 2 * lam * R)
 
     return float(brentq(F, 1e-3 * Rk, Rk))
+
+
+def polygon_equilibrium_radius(n: int, k: int, tt: float, lam: float) -> float:
+    """Radius minimising the scheme's energy e(R) over regular k-fold covered n-gons (closed form in R).
+
+    For the rotating radial field of a regular polygon with angle th = 2 pi k / n per segment, the
+    consistent mass and the stiffness act as scalars mm = l (4 + 2 cos th)/6 and ll = 2 (1 - cos th)/l
+    (l the edge length), so e(R) = n/2 mm R^2 ll^2 / (mm + tt ll)^2 + lam n l; stationary k-fold
+    polygons of the flow sit at its minimiser (-> 1/sqrt(2 lam) as n -> oo, tt -> 0).
+    """
+    from scipy.optimize import minimize_scalar
+
+    th = 2 * np.pi * k / n
+
+    def e(R: float) -> float:
+        ell = 2 * R * np.sin(th / 2)
+        mm = ell * (4 + 2 * np.cos(th)) / 6
+        ll = 2 * (1 - np.cos(th)) / ell
+        return n / 2 * mm * R**2 * ll**2 / (mm + tt * ll) ** 2 + lam * n * ell
+
+    R0 = 1 / np.sqrt(2 * lam)
+    return float(minimize_scalar(e, bounds=(0.1 * R0, 10 * R0), method="bounded", options={"xatol": 1e-12}).x)

@@ -99,6 +99,15 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Reproduce the paper's Sec. 5 into OUT/REPRODUCTION.md and OUT/figures."""
+    from willmore_nlp.reproduce import reproduce
+
+    doc = reproduce(args.out, args.only)
+    print(f"wrote {doc}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``willmore-nlp``."""
     ap = argparse.ArgumentParser(prog="willmore-nlp", description=__doc__)
@@ -133,6 +142,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
     rp.add_argument("--out", help="output directory (default RUN_DIR/report)")
     rp.set_defaults(func=cmd_report)
+
+    rr = sub.add_parser("reproduce", help="reproduce the paper's Sec. 5 (REPRODUCTION.md + figures)")
+    rr.add_argument("--out", default="reports", help="output directory (default: reports)")
+    rr.add_argument("--only", action="append", help="run only this section (e.g. 'Fig. 2'); repeatable")
+    rr.set_defaults(func=cmd_reproduce)
     return ap
 
 

@@ -1,0 +1,392 @@
+"""Reproduction of the paper's Sec. 5 (closed curves and surfaces): ``willmore-nlp reproduce``.
+
+Writes ``reports/REPRODUCTION.md`` and ``reports/figures/*.png``. Every number in the document is
+computed here; the paper's own numbers appear only where quoted as the paper's claim. Settings are
+chosen to run in a few minutes on a 2-core machine (coarser meshes than the paper, said so).
+"""
+
+from __future__ import annotations
+
+import platform
+import subprocess
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import casadi
+import numpy as np
+from matplotlib.figure import Figure
+
+from willmore_nlp import FlowError, WillmoreFlow, registry
+from willmore_nlp.analysis import fit_order, polygon_equilibrium_radius, sphere_step_radius, winding_number
+from willmore_nlp.fem.assembly import lumped_mass
+from willmore_nlp.mesh import shapes
+
+PAPER_TABLE1 = {  # the paper's Table 1: L2 errors at t = 0.01 for 2^n edges
+    4: (0.1255, 0.1632), 5: (0.0425, 0.0697), 6: (0.0098, 0.0294), 7: (0.0032, 0.0137), 8: (0.0006, 0.0057),
+}
+
+
+def _save(fig: Figure, path: Path) -> str:
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    return path.name
+
+
+def _circle_error(n: int, t_end: float, large: bool, R0: float = 1.0) -> tuple[float, float, int]:
+    mesh = shapes.regular_polygon(n, R0)
+    h = mesh.h
+    k = int(np.ceil(t_end / (h if large else h * h)))
+    flow = WillmoreFlow(mesh, t_end / k, h * h if large else t_end / k)
+    flow.run(steps=k)
+    Rex = (R0**4 + 2 * t_end) ** 0.25
+    err = float(np.sqrt(np.sum(lumped_mass(flow.X, mesh.simplices) * (np.linalg.norm(flow.X, axis=1) - Rex) ** 2)))
+    return h, err, k
+
+
+def table1(fig_dir: Path) -> str:
+    """Table 1: circle convergence, tau = tt = h^2 and the large-step column tau = h, tt = h^2."""
+    rows, hs, e1, e2 = [], [], [], []
+    t_end = 0.01
+    for n in (4, 5, 6, 7, 8):
+        h, err_small, k1 = _circle_error(2**n, t_end, large=False)
+        _, err_large, k2 = _circle_error(2**n, t_end, large=True)
+        hs.append(h)
+        e1.append(err_small)
+        e2.append(err_large)
+        p = PAPER_TABLE1[n]
+        rows.append(f"| {n} | {h:.4f} | {p[0]} | {err_small:.2e} ({k1} steps) | {p[1]} | "
+                    f"{err_large:.2e} ({k2} steps) |")
+    o1 = [fit_order(hs[i : i + 2], e1[i : i + 2]) for i in range(4)]
+    o2 = [fit_order(hs[i : i + 2], e2[i : i + 2]) for i in range(4)]
+    po1 = [fit_order(hs[i : i + 2], [PAPER_TABLE1[n][0] for n in (4 + i, 5 + i)]) for i in range(4)]
+    po2 = [fit_order(hs[i : i + 2], [PAPER_TABLE1[n][1] for n in (4 + i, 5 + i)]) for i in range(4)]
+    hs5, e5 = [], []
+    for n in (6, 7, 8):
+        h5, err5, _ = _circle_error(2**n, 0.05, large=False)
+        hs5.append(h5)
+        e5.append(err5)
+    order5 = fit_order(hs5, e5)
+    fig = Figure(figsize=(5, 3.6))
+    ax = fig.subplots()
+    ax.loglog(hs, e1, "o-", label="ours, tau = tt = h^2")
+    ax.loglog(hs, e2, "s-", label="ours, tau = h, tt = h^2")
+    ax.loglog(hs, [PAPER_TABLE1[n][0] for n in range(4, 9)], "o--", alpha=0.6, label="paper, tau = tt = h^2")
+    ax.loglog(hs, [PAPER_TABLE1[n][1] for n in range(4, 9)], "s--", alpha=0.6, label="paper, tau = tt = h")
+    ax.set_xlabel("h")
+    ax.set_ylabel("L2 error of |X| at t = 0.01")
+    ax.legend(fontsize=7)
+    img = _save(fig, fig_dir / "table1_convergence.png")
+    fmt = ", ".join
+    return "\n".join([
+        "## Table 1: circle convergence",
+        "",
+        "**Paper:** L2 error of the discrete radius |X^k| against R(t) = (R0^4 + 2t)^(1/4) at t = 0.01 for 2^n "
+        "edges, with tau = tt = h^2 and tau = tt = h; consistent with O(h^2 + tau + tt).",
+        "",
+        "**Ours:** R0 = 1 (the paper does not state R0), same t and n; the number of steps is ceil(t / step), so "
+        "coarse meshes take a single shortened step. The right column uses tau = h with tt = h^2: tt = h clusters "
+        "the nodes (README, 'Choosing tau_tilde'), so it is not a column this scheme should be run with.",
+        "",
+        "| n | h | paper tau=tt=h^2 | ours tau=tt=h^2 | paper tau=tt=h | ours tau=h, tt=h^2 |",
+        "|---|---|---|---|---|---|",
+        *rows,
+        "",
+        f"Observed orders between successive rows: ours (h^2 column) {fmt(f'{o:.2f}' for o in o1)}; "
+        f"paper {fmt(f'{o:.2f}' for o in po1)}. Large-step column: ours {fmt(f'{o:.2f}' for o in o2)}; paper "
+        f"(tau = tt = h) {fmt(f'{o:.2f}' for o in po2)}.",
+        "",
+        "**Match/differ:** at t = 0.01 the coarse rows are not in the asymptotic regime: for n <= 6 (h^2 > t) "
+        "and for every row of the large-step column (h > t) the run is a single step of tau = t, so the columns "
+        f"differ only through tt; our order between the two finest rows is {o1[-1]:.2f} (paper {po1[-1]:.2f}). "
+        "Our absolute errors are much smaller than the paper's (R0 and the paper's normalisation of the L2 error "
+        f"are not stated). At t = 0.05 (n = 64, 128, 256, no capping) the fitted order is {order5:.2f}; "
+        "tests/test_circle.py asserts order 2 in h and first order in tau and in tt separately.",
+        "",
+        f"![Table 1]({'figures/' + img})",
+        "",
+    ])
+
+
+def fig2(fig_dir: Path) -> str:
+    """Fig. 2: circle of radius 2, 200 vertices, tau = h: radius against the exact solution."""
+    mesh = shapes.regular_polygon(200, 2.0)
+    h = mesh.h
+    flow = WillmoreFlow(mesh, h / 10, h * h)
+    ts, Rs = [0.0], [2.0]
+    snaps = {}
+    for r in flow.run(t_end=0.1):
+        ts.append(r.t)
+        Rs.append(float(np.linalg.norm(r.vertices, axis=1).mean()))
+        for tt in (0.01, 0.05, 0.1):
+            if abs(r.t - tt) < 1e-9 or (tt not in snaps and r.t > tt):
+                snaps[tt] = r.vertices
+    t = np.array(ts)
+    exact = (2.0**4 + 2 * t) ** 0.25
+    fig = Figure(figsize=(9, 3.6))
+    a1, a2 = fig.subplots(1, 2)
+    a1.plot(*np.vstack([mesh.vertices, mesh.vertices[:1]]).T, "r-", lw=1, label="t = 0")
+    for tt, V in snaps.items():
+        a1.plot(*np.vstack([V, V[:1]]).T, "-", lw=0.8, label=f"t = {tt}")
+    a1.set_aspect("equal")
+    a1.legend(fontsize=7)
+    a2.plot(t, Rs, "g.-", label="discrete mean radius")
+    a2.plot(t, exact, "b-", label="exact (R0^4 + 2t)^(1/4)")
+    a2.set_xlabel("t")
+    a2.legend(fontsize=7)
+    img = _save(fig, fig_dir / "fig2_circle.png")
+    err = float(np.max(np.abs(np.array(Rs) - exact)))
+    return "\n".join([
+        "## Fig. 2: expanding circle", "",
+        "**Paper:** circle of radius 2, 200 vertices, tau = tt = h; the mean radius follows the exact solution.", "",
+        f"**Ours:** 200 vertices, tau = h/10 = {h / 10:.4g} (so that the plotted times 0.01, 0.05, 0.1 are "
+        f"reached; tau = h = {h:.4g} is larger than 0.01), tt = h^2 = {h * h:.3g} (tt = h clusters nodes), to "
+        f"t = 0.1 ({len(ts) - 1} steps). Largest deviation of the mean radius from the exact radius: {err:.2e} "
+        f"(radius grows {Rs[-1] - 2:.4f}).", "",
+        "**Match:** yes, the radius follows R(t) to within the O(h^2 + tau + tt) error.", "",
+        f"![Fig. 2](figures/{img})", "",
+    ])
+
+
+def fig3(fig_dir: Path) -> str:
+    """Fig. 3: sphere long run: radius against the scheme's predicted shrinkage, mesh quality."""
+    mesh = shapes.icosphere(3)
+    h = mesh.h
+    tau, tt = h, h * h / 100
+    flow = WillmoreFlow(mesh, tau, tt)
+    t, R, Rp, qa, qr = [0.0], [1.0], [1.0], [], []
+    q0 = flow.state().quality
+    qa.append(q0["min_angle"])
+    qr.append(q0["edge_ratio"])
+    for r in flow.run(steps=40):
+        t.append(r.t)
+        R.append(float(np.linalg.norm(r.vertices - r.vertices.mean(axis=0), axis=1).mean()))
+        Rp.append(sphere_step_radius(Rp[-1], r.tau, tt))
+        qa.append(r.quality["min_angle"])
+        qr.append(r.quality["edge_ratio"])
+    fig = Figure(figsize=(9, 3.4))
+    a1, a2 = fig.subplots(1, 2)
+    a1.plot(t, R, "o-", ms=3, label="discrete mean radius")
+    a1.plot(t, Rp, "--", label="time-discrete sphere equation")
+    a1.set_xlabel("t")
+    a1.legend(fontsize=7)
+    a2.plot(t, qa, "o-", ms=3, label="min angle [deg]")
+    a2.set_xlabel("t")
+    a2b = a2.twinx()
+    a2b.plot(t, qr, "s-", ms=3, color="C1", label="edge ratio")
+    a2.legend(loc="lower left", fontsize=7)
+    a2b.legend(loc="lower right", fontsize=7)
+    img = _save(fig, fig_dir / "fig3_sphere.png")
+    return "\n".join([
+        "## Fig. 3: sphere, long run and mesh quality", "",
+        "**Paper:** spheres are stationary; with h = 0.02 and tau = tt = 1.6e-7 the nested scheme keeps a good "
+        "mesh where Rusu's semi-implicit scheme degenerates.", "",
+        f"**Ours:** icosphere with 642 vertices (h = {h:.3f}), tau = h (large steps), tt = h^2/100, 40 steps to "
+        f"t = {t[-1]:.2f}. Min angle {qa[0]:.2f} -> {qa[-1]:.2f} deg, edge ratio {qr[0]:.3f} -> {qr[-1]:.3f}: "
+        f"the mesh stays intact. The radius drifts {1 - R[-1]:.4f}: the time-discrete scheme with finite tt shrinks "
+        f"spheres at rate 16 tt/R^5 (predicted drift {1 - Rp[-1]:.4f}).", "",
+        "**Differs:** the paper's tiny tt hides this O(tt) drift; with tt = h^2/4 a sphere loses 16% of its radius "
+        "in one step of tau = h. The semi-implicit comparison waits for the baseline solver (issue 5).", "",
+        f"![Fig. 3](figures/{img})", "",
+    ])
+
+
+def _curve_snapshots(states: list[tuple[float, np.ndarray]], path: Path, three_d: bool) -> str:
+    fig = Figure(figsize=(3.0 * len(states), 3.0))
+    for j, (t, V) in enumerate(states):
+        ax = fig.add_subplot(1, len(states), j + 1, projection="3d" if three_d else None)
+        W = np.vstack([V, V[:1]])
+        ax.plot(*W.T, "-", lw=0.8)
+        if not three_d:
+            ax.set_aspect("equal")
+        ax.set_title(f"t = {t:.0f}", fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    return _save(fig, path)
+
+
+def fig4(fig_dir: Path) -> str:
+    """Fig. 4: planar hypocycloid to a fivefold circle."""
+    lam = 0.025
+    mesh = shapes.hypocycloid(200)
+    h = mesh.h
+    flow = WillmoreFlow(mesh, 100.0, h * h / 100, lam=lam)
+    snaps = [(0.0, mesh.vertices)]
+    winds = [winding_number(mesh.vertices)]
+    for i, r in enumerate(flow.run(steps=150)):
+        winds.append(winding_number(r.vertices))
+        if i in (9, 39, 149):
+            snaps.append((r.t, r.vertices))
+    V = snaps[-1][1]
+    R = np.linalg.norm(V - V.mean(axis=0), axis=1)
+    R_eq = polygon_equilibrium_radius(200, 5, h * h / 100, lam)
+    img = _curve_snapshots(snaps, fig_dir / "fig4_hypocycloid.png", False)
+    return "\n".join([
+        "## Fig. 4: planar hypocycloid to a fivefold circle", "",
+        "**Paper:** lam = 0.025, tau = h = 0.5493, gradient descent; the curve becomes a fivefold covered circle "
+        "by t ~ 10^4.", "",
+        f"**Ours:** 200 vertices (h = {h:.3f}), lam = {lam}, tau = 100 (~{100 / h:.0f} h: the scheme is stable "
+        f"with very large steps), tt = h^2/100, IPOPT, 150 steps to t = {snaps[-1][0]:.0f}. Winding number "
+        f"{min(winds):.3f}..{max(winds):.3f} at every step; final mean radius {R.mean():.4f} (relative spread "
+        f"{R.std() / R.mean():.1e}) vs 1/sqrt(2 lam) = {1 / np.sqrt(2 * lam):.4f}.", "",
+        f"The equilibrium of the discrete scheme for a regular fivefold 200-gon is R = {R_eq:.4f} "
+        f"(analysis.polygon_equilibrium_radius); the run is {abs(R.mean() / R_eq - 1):.1e} from it at this time "
+        "and still converging (tests/test_flows.py runs it to 2e-3 with tau = 1000).", "",
+        "**Match:** yes: the winding number is kept and the curve approaches a fivefold circle of radius "
+        "1/sqrt(2 lam) up to the O(h^2 + tt) shift of the discrete equilibrium.", "",
+        f"![Fig. 4](figures/{img})", "",
+    ])
+
+
+def fig5(fig_dir: Path) -> str:
+    """Fig. 5: hypocycloid perturbed out of the plane unfolds to a single circle."""
+    lam = 0.025
+    mesh = shapes.hypocycloid(150, 0.1)
+    h = mesh.h
+    tau = 50 * h
+    flow = WillmoreFlow(mesh, tau, h * h / 100, lam=lam)
+    snaps = [(0.0, mesh.vertices)]
+    t_unfold = None
+    for i, r in enumerate(flow.run(steps=300)):
+        if t_unfold is None and abs(abs(winding_number(r.vertices)) - 1) < 1e-6:
+            t_unfold = r.t
+        if i in (99, 174, 199, 299):
+            snaps.append((r.t, r.vertices))
+    V = snaps[-1][1]
+    c = V - V.mean(axis=0)
+    R = np.linalg.norm(c, axis=1)
+    normal = np.linalg.svd(c)[2][-1]
+    planarity = float(np.abs(c @ normal).max())
+    img = _curve_snapshots(snaps, fig_dir / "fig5_hypocycloid3d.png", True)
+    return "\n".join([
+        "## Fig. 5: hypocycloid in R^3 unfolding to a circle", "",
+        "**Paper:** delta = 0.1, h = tau = 0.005; the perturbed fivefold curve unfolds to a single circle between "
+        "t = 9108 and t = 9489 (lam not stated).", "",
+        f"**Ours:** 150 vertices (h = {h:.3f}), delta = 0.1, lam = {lam}, tau = 50 h = {tau:.1f}, tt = h^2/100, "
+        f"300 steps. The projected winding number first becomes +-1 at t = {t_unfold or float('nan'):.0f}; "
+        f"the final curve is a planar circle (distance to its best plane {planarity:.1e}) of radius {R.mean():.4f} "
+        f"(spread {R.std() / R.mean():.1e}) vs 1/sqrt(2 lam) = {1 / np.sqrt(2 * lam):.4f}.", "",
+        "**Match:** yes: the curve unfolds to a single circle of radius 1/sqrt(2 lam) on a similar time scale "
+        "as the paper's (first single winding at the time above vs. the paper's 9108-9489), with a much coarser "
+        "curve and larger steps.", "",
+        f"![Fig. 5](figures/{img})", "",
+    ])
+
+
+def fig6_7(fig_dir: Path) -> str:
+    """Figs. 6-7: coarse torus toward the Clifford torus, and the effect of tau at a fixed time."""
+    mesh = shapes.torus(1.0, 0.5, 24, 12)
+    h = mesh.h
+
+    def ratio(V: np.ndarray) -> float:
+        rho = np.hypot(V[:, 0], V[:, 1])
+        return float((rho.max() + rho.min()) / (rho.max() - rho.min()))
+
+    flow = WillmoreFlow(mesh, 2e-3, h * h / 100)
+    t, w, q = [0.0], [flow.state().willmore], [ratio(mesh.vertices)]
+    snaps = [(0.0, mesh.vertices)]
+    for i, r in enumerate(flow.run(t_end=0.1)):
+        t.append(r.t)
+        w.append(r.willmore)
+        q.append(ratio(r.vertices))
+        if i in (9, 24):
+            snaps.append((r.t, r.vertices))
+    snaps.append((t[-1], flow.X))
+    fig = Figure(figsize=(9, 3.2))
+    a1, a2 = fig.subplots(1, 2)
+    a1.plot(t, w, "o-", ms=2, label="Willmore energy")
+    a1.axhline(4 * np.pi**2, color="k", ls="--", label="4 pi^2")
+    a1.legend(fontsize=7)
+    a1.set_xlabel("t")
+    a2.plot(t, q, "o-", ms=2, label="R / r")
+    a2.axhline(np.sqrt(2), color="k", ls="--", label="sqrt 2")
+    a2.legend(fontsize=7)
+    a2.set_xlabel("t")
+    img = _save(fig, fig_dir / "fig6_torus.png")
+    fig = Figure(figsize=(3.2 * len(snaps), 3.2))
+    for j, (tj, V) in enumerate(snaps):
+        ax = fig.add_subplot(1, len(snaps), j + 1, projection="3d")
+        ax.plot_trisurf(*V.T, triangles=mesh.simplices, color="0.8", edgecolor="0.3", linewidth=0.2)
+        ax.view_init(elev=35, azim=-60)
+        ax.set_box_aspect((1, 1, 0.5))
+        ax.set_title(f"t = {tj:.3f}", fontsize=8)
+        ax.set_axis_off()
+    img_s = _save(fig, fig_dir / "fig6_torus_shapes.png")
+    t_fix = 0.05
+    rows = []
+    for name, tau in (("h^4", h**4), ("t/2", t_fix / 2), ("t", t_fix)):
+        f = WillmoreFlow(mesh, tau, h * h / 100)
+        try:
+            res = f.run(t_end=t_fix)
+            rows.append(f"| tau = {name} = {tau:.3g} | {len(res)} | {sum(r.retries for r in res)} | "
+                        f"{res[-1].willmore:.4f} | {ratio(res[-1].vertices):.4f} |")
+        except FlowError as exc:
+            rows.append(f"| tau = {name} = {tau:.3g} | failed at t = {exc.args[0][:60]} | | | |")
+    return "\n".join([
+        "## Figs. 6-7: torus toward the Clifford torus", "",
+        "**Paper:** a coarse torus flows toward the Clifford torus (R/r = sqrt 2, w = 4 pi^2); at a fixed time "
+        "the shapes for tau = h^4, h^2 and h agree.", "",
+        f"**Ours:** torus R = 1, r = 0.5 on a 24 x 12 grid (h = {h:.3f}), tt = h^2/100, tau = 2e-3 to t = 0.1: "
+        f"Willmore energy {w[0]:.3f} -> {w[-1]:.3f} (4 pi^2 = {4 * np.pi**2:.3f}), R/r {q[0]:.3f} -> {q[-1]:.3f} "
+        f"(sqrt 2 = 1.414; R/r first falls below sqrt 2 at t = {t[int(np.argmax(np.array(q) < np.sqrt(2)))]:.3f}).",
+        "",
+        f"Fig. 7 analogue at t = {t_fix} (the paper compared tau = h^4, h^2, h at t = 0.3735 with h = 0.0745; "
+        f"here h^2 = {h * h:.3f} and h exceed the time by which this coarse grid starts to degenerate, so the "
+        "larger steps are t/2 and t):", "",
+        "| step size | steps | retries | Willmore energy | R/r |", "|---|---|---|---|---|", *rows, "",
+        "**Differs:** the flow moves toward the Clifford torus as in the paper, but on this coarse 24 x 12 grid "
+        "it does not stop there: R/r passes sqrt 2 and the discrete Willmore energy falls below 4 pi^2 while the "
+        "inner ring's triangles are compressed (the grid is never re-meshed). The paper's converged row used "
+        "h = 0.0089; a 24 x 12 torus is too coarse to hold the Clifford torus as a discrete minimiser. In the Fig. 7 "
+        "analogue the shapes at the same time agree closely; 'retries' counts steps where IPOPT failed at the "
+        "requested tau on this coarse grid and the flow halved it, so the two larger step sizes ended up taking "
+        "the same steps.", "",
+        f"![Fig. 6](figures/{img})", "", f"![Fig. 6 shapes](figures/{img_s})", "",
+    ])
+
+
+SECTIONS: list[tuple[str, Callable[[Path], str]]] = [
+    ("Table 1", table1), ("Fig. 2", fig2), ("Fig. 3", fig3), ("Fig. 4", fig4), ("Fig. 5", fig5),
+    ("Figs. 6-7", fig6_7),
+]
+WAITING = {  # paper items whose problems are not implemented yet -> the problem names they need
+    "Fig. 1 (clamped arc and sphere cap)": ("circle_arc", "sphere_cap"),
+    "Fig. 8 (curve blending)": ("curve_blending",),
+    "Figs. 9-10 (surface blending, restoration)": ("surface_blending", "torus_hole"),
+    "Fig. 11 (anisotropic bunny)": ("bunny",),
+}
+
+
+def reproduce(out: str | Path = "reports", only: list[str] | None = None) -> Path:
+    """Run every section and write ``out/REPRODUCTION.md`` with figures in ``out/figures``."""
+    out = Path(out)
+    fig_dir = out / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    parts, timing = [], []
+    for name, fn in SECTIONS:
+        if only and name not in only:
+            continue
+        ts = time.perf_counter()
+        parts.append(fn(fig_dir))
+        timing.append(f"{name}: {time.perf_counter() - ts:.0f} s")
+    reg = registry.load_all()
+    waiting = [f"- {k}: not yet available (needs problem(s) {', '.join(v)})"
+               for k, v in WAITING.items() if not all(p in reg for p in v)]
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                check=False).stdout.strip()
+    except OSError:
+        commit = "unknown"
+    head = [
+        "# Reproduction of Sec. 5 of the paper (closed curves and surfaces)", "",
+        "Regenerate with: `willmore-nlp reproduce --out reports`", "",
+        f"git {commit or 'unknown'}; Python {platform.python_version()}; CasADi {casadi.__version__}; "
+        f"numpy {np.__version__}; {platform.platform()}.", "",
+        f"Total run time {time.perf_counter() - t0:.0f} s ({'; '.join(timing)}).", "",
+        "Solver: IPOPT with exact element-assembled Hessians (the paper's Newton/SQP analogue) unless stated.", "",
+        "Not reproduced yet:", "", *(waiting or ["- (none)"]), "",
+    ]
+    doc = out / "REPRODUCTION.md"
+    doc.write_text("\n".join(head + parts), encoding="utf-8")
+    return doc
