@@ -143,9 +143,10 @@ class WillmoreFlow:
     allow_components : bool
         Accept a mesh of several separate curves or surfaces (default: one is expected,
         :func:`willmore_nlp.mesh.topology.check_connected`).
-    boundary : optional
-        Clamped-boundary description. Reserved: the boundary variants (issue 3) are not
-        implemented yet and any value other than None raises NotImplementedError.
+    boundary : Boundary, optional
+        Clamped (C^1) boundary: which vertices move and which variant ("conormal" or "ring")
+        imposes position and co-normal on the patch boundary (:mod:`willmore_nlp.boundary`).
+        The fixed vertices never move; ``willmore`` in the results sums over the patch nodes.
     anisotropy : optional
         Anisotropy gamma for the fully nonlinear anisotropic scheme. Reserved likewise (issue 4).
     **options
@@ -199,6 +200,8 @@ class WillmoreFlow:
         t0 = time.perf_counter()
         self.setup = build_step(mesh, boundary=boundary, anisotropy=anisotropy)
         self.problem = self.setup.problem
+        bd = self.setup.boundary
+        self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes
         kernels = self.problem.kernels
         self.codegen_info: dict[str, Any] = {"enabled": False}
         if codegen is None:
@@ -248,7 +251,7 @@ class WillmoreFlow:
             Y=Y.copy(),
             objective=obj,
             energy=self.discrete_energy(X, Y),
-            willmore=geometry.willmore_energy(mesh),
+            willmore=geometry.willmore_energy(mesh, self.energy_nodes),
             measure=geometry.measure(mesh),
             volume=geometry.enclosed_volume(mesh),
             iterations=0 if res is None else res.iterations,

@@ -22,12 +22,18 @@ def mean_curvature_vector(mesh: Mesh) -> np.ndarray:
     return H
 
 
-def willmore_energy(mesh: Mesh) -> float:
+def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None) -> float:
     """w = 1/2 int h^2 with h the sum of principal curvatures.
 
     Uses the stiffness matrix and the lumped mass: w = 1/2 sum_i |(L X)_i|^2 / m_i, over
     interior vertices only when the mesh has a boundary. A circle of radius R gives pi/R,
     a sphere 8 pi, the Clifford torus 4 pi^2 (in the limit of fine meshes).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    nodes : (N,) bool array, optional
+        Sum over these vertices only (e.g. a clamped patch and its boundary nodes).
     """
     V, S = mesh.vertices, mesh.simplices
     _, L = mass_stiffness(V, S)
@@ -36,6 +42,8 @@ def willmore_energy(mesh: Mesh) -> float:
     e = 0.5 * np.sum(LX**2, axis=1) / mi
     if not mesh.is_closed:
         e[mesh.boundary_vertices] = 0.0
+    if nodes is not None:
+        e = e[np.asarray(nodes, bool)]
     return float(e.sum())
 
 

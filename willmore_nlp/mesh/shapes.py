@@ -106,3 +106,63 @@ def torus(R: float = 1.0, r: float = 0.5, n_major: int = 24, n_minor: int = 12) 
     dd = i * n_minor + (j + 1) % n_minor
     T = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, dd], -1).reshape(-1, 3)])
     return Mesh(P, T, f"torus(R={R}, r={r}, {n_major}x{n_minor})")
+
+
+def disk(rings: int = 6, radius: float = 1.0) -> Mesh:
+    """Flat disk in the plane x3 = 0 of R^3, normal +x3: the centre and ``rings`` concentric
+    rings with 6k vertices on ring k (k = 1..rings), Delaunay-triangulated (scipy).
+
+    ``3 rings (rings + 1) + 1`` vertices; nearly equilateral triangles of edge ~ radius / rings.
+    """
+    from scipy.spatial import Delaunay
+
+    if rings < 1:
+        raise MeshError(f"disk: rings must be >= 1, got {rings}")
+    pts = [np.zeros((1, 2))]
+    for k in range(1, rings + 1):
+        t = 2 * np.pi * np.arange(6 * k) / (6 * k)
+        pts.append(radius * k / rings * np.stack([np.cos(t), np.sin(t)], axis=1))
+    P2 = np.concatenate(pts)
+    T = Delaunay(P2).simplices
+    a, b, c = P2[T[:, 0]], P2[T[:, 1]], P2[T[:, 2]]
+    cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
+    T[cw] = T[cw][:, [0, 2, 1]]
+    P = np.column_stack([P2, np.zeros(len(P2))])
+    return Mesh(P, T, f"disk(rings={rings})")
+
+
+def cylinder(radius: float = 1.0, length: float = 2.0, n_around: int = 24, n_along: int = 8,
+             z0: float = 0.0) -> Mesh:
+    """Open cylinder about the x3 axis from x3 = z0 to z0 + length, outward normals.
+
+    A regular (n_along + 1) x n_around grid, each quad split into two triangles.
+    """
+    if n_around < 3 or n_along < 1:
+        raise MeshError(f"cylinder: need n_around >= 3 and n_along >= 1, got {n_around}, {n_along}")
+    u = 2 * np.pi * np.arange(n_around) / n_around
+    z = z0 + length * np.arange(n_along + 1) / n_along
+    Z, U = np.meshgrid(z, u, indexing="ij")
+    P = np.stack([radius * np.cos(U), radius * np.sin(U), Z], axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n_along), np.arange(n_around), indexing="ij")
+    a = i * n_around + j
+    b = i * n_around + (j + 1) % n_around
+    c = (i + 1) * n_around + (j + 1) % n_around
+    dd = (i + 1) * n_around + j
+    T = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, dd], -1).reshape(-1, 3)])
+    return Mesh(P, T, f"cylinder(r={radius}, {n_along}x{n_around})")
+
+
+def spherical_cap(rings: int = 8, angle: float = 45.0, radius: float = 1.0) -> Mesh:
+    """Cap of the sphere of ``radius`` around +x3 up to the polar ``angle`` (degrees).
+
+    :func:`disk` mapped to the sphere: ring k of the disk lies on the latitude circle at polar
+    angle ``angle * k / rings``, so the cap's boundary and every ring are latitude circles.
+    """
+    if not 0 < angle < 180:
+        raise MeshError(f"spherical_cap: angle must be in (0, 180) degrees, got {angle}")
+    D = disk(rings, 1.0)
+    xy = D.vertices[:, :2]
+    th = np.radians(angle) * np.linalg.norm(xy, axis=1)
+    phi = np.arctan2(xy[:, 1], xy[:, 0])
+    P = radius * np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.cos(th)], axis=1)
+    return Mesh(P, D.simplices, f"spherical_cap(rings={rings}, angle={angle})")

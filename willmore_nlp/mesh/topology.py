@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from willmore_nlp.mesh.core import Mesh
 
 
-def _facets(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def simplex_facets(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Directed facets of every simplex and the simplex each belongs to.
 
     Returns
@@ -35,7 +35,7 @@ def _facets(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def boundary_facets(S: np.ndarray) -> np.ndarray:
     """(B, d) facets that belong to exactly one simplex (boundary of the mesh)."""
-    F, _ = _facets(S)
+    F, _ = simplex_facets(S)
     key = np.sort(F, axis=1)
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     once = counts[inv.ravel()] == 1
@@ -64,7 +64,7 @@ def check_manifold(mesh: Mesh) -> None:
                     f"{c[bad[0]]} segments"
                 )
         return
-    F, owner = _facets(S)
+    F, owner = simplex_facets(S)
     key = np.sort(F, axis=1)
     uniq, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     inv = inv.ravel()
@@ -127,9 +127,18 @@ def components(mesh: Mesh) -> tuple[int, np.ndarray]:
     labels : (N,) int array
         Component of each vertex.
     """
-    e = mesh.edges
-    N = mesh.n_vertices
-    A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(N, N))
+    return vertex_components(mesh.simplices, mesh.n_vertices)
+
+
+def vertex_components(S: np.ndarray, N: int) -> tuple[int, np.ndarray]:
+    """Connected components of the vertices of simplices ``S`` ((K, d+1)) among N vertices.
+
+    Vertices on no simplex are components of their own. Returns ``(n, labels)`` as
+    :func:`components`.
+    """
+    S = np.asarray(S)
+    a, b = S[:, :-1].ravel(), S[:, 1:].ravel()
+    A = sp.coo_matrix((np.ones(a.size), (a, b)), shape=(N, N))
     n, labels = connected_components(A, directed=False)
     return int(n), labels
 

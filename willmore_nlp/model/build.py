@@ -7,8 +7,10 @@ from typing import Any
 
 import numpy as np
 
+from willmore_nlp.anisotropy import Anisotropy, get_anisotropy
+from willmore_nlp.boundary import Boundary, BoundaryData, boundary_data
 from willmore_nlp.mesh.core import Mesh, MeshError
-from willmore_nlp.model.energies import isotropic
+from willmore_nlp.model.energies import anisotropic, isotropic
 from willmore_nlp.model.step import StepProblem
 
 
@@ -24,6 +26,8 @@ class StepSetup:
 
     problem: StepProblem
     extra: np.ndarray | None = None
+    boundary: BoundaryData | None = None
+    anisotropy: Anisotropy | None = None
 
     def params(self, Xk: np.ndarray, tau: float, tt: float, lam: float) -> np.ndarray:
         """Parameter vector of a step from Xk."""
@@ -37,13 +41,20 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None) -> S
     ----------
     mesh : Mesh
         Closed unless ``boundary`` is given.
-    boundary : optional
-        Boundary description (clamped boundary variants).
-    anisotropy : optional
-        Anisotropy gamma (fully nonlinear anisotropic scheme).
+    boundary : Boundary, optional
+        Clamped boundary (:mod:`willmore_nlp.boundary`): the "conormal" variant poses the inner
+        problem on the patch with the co-normal term ``g -= tt Nco``; the "ring" variant on patch +
+        ring, with the outer objective weighted 0 on the ring and Y fixed on the ring's outer nodes.
+    anisotropy : str, callable or Anisotropy, optional
+        Anisotropy gamma for the fully nonlinear anisotropic scheme (:mod:`willmore_nlp.anisotropy`):
+        closed curves in R^2 and closed surfaces in R^3.
     """
-    if boundary is not None or anisotropy is not None:
-        raise NotImplementedError("boundary conditions and anisotropy are not available yet")
+    if anisotropy is not None:
+        if boundary is not None:
+            raise NotImplementedError("anisotropic flow with clamped boundaries is not implemented")
+        return _build_anisotropic(mesh, anisotropy)
+    if boundary is not None:
+        return _build_clamped(mesh, boundary)
     if not mesh.is_closed:
         raise MeshError(
             f"{mesh.source}: the mesh has a boundary ({len(mesh.boundary_facets)} boundary "
@@ -51,3 +62,36 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None) -> S
         )
     problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, isotropic, name=f"iso_d{mesh.d}_m{mesh.m}")
     return StepSetup(problem)
+
+
+def _build_clamped(mesh: Mesh, boundary: Boundary) -> StepSetup:
+    """Step problem of a free patch with a clamped boundary (both variants, DESIGN.md section 1).
+
+    The inner problem lives on patch + ring (when there is a ring): X is unknown on the free
+    vertices, Y on the patch nodes (free vertices and Gamma) and equal to X on the ring's outer
+    nodes. Ring elements carry ``c = (0, 1)`` in the "ring" variant and ``c = (0, 0)`` in the
+    "conormal" variant, whose co-normal term ``-tt Nco`` stands for the ring's stiffness.
+    """
+    if not isinstance(boundary, Boundary):
+        raise TypeError(f"boundary must be a willmore_nlp.boundary.Boundary, got {type(boundary).__name__}")
+    bd = boundary_data(mesh, boundary)
+    cells = np.flatnonzero(bd.patch | bd.ring)
+    patch = bd.patch[cells].astype(float)
+    stiff = patch if bd.variant == "conormal" else np.ones_like(patch)
+    problem = StepProblem(mesh.simplices[cells], mesh.n_vertices, mesh.m, isotropic, x_free=bd.free,
+                          y_free=bd.patch_nodes, element_const=np.column_stack([patch, stiff]),
+                          g_extra=bd.variant == "conormal", name=f"clamped_d{mesh.d}_m{mesh.m}")
+    return StepSetup(problem, bd.nco if bd.variant == "conormal" else None, bd)
+
+
+def _build_anisotropic(mesh: Mesh, anisotropy: Any) -> StepSetup:
+    """Step problem of the fully nonlinear anisotropic scheme on a closed mesh."""
+    if not mesh.is_closed:
+        raise MeshError(f"{mesh.source}: anisotropic flow needs a closed curve or surface")
+    if mesh.d == 1 and mesh.m != 2:
+        raise MeshError(f"{mesh.source}: anisotropic curve flow needs a curve in R^2 (the normal of a curve in "
+                        f"R^{mesh.m} is not a vector), got R^{mesh.m}")
+    an = get_anisotropy(anisotropy, mesh.m)
+    problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, anisotropic(an.gamma),
+                          name=f"aniso_{an.name}_d{mesh.d}_m{mesh.m}")
+    return StepSetup(problem, anisotropy=an)

@@ -13,27 +13,63 @@ The constraint of the NLP is g = 1/2 dE/dY = (M + tt L) Y - M X (isotropic).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import casadi as ca
 
 from willmore_nlp.fem.element import mass_matrix, measure, quad, stiffness_matrix
 
 
-def outer_objective(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX) -> ca.SX:
-    """Local W_T: squared distance to Xk, approximate Willmore term and length/area energy."""
+def outer_objective(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, patch: ca.SX | float = 1.0) -> ca.SX:
+    """Local W_T: squared distance to Xk, approximate Willmore term and length/area energy.
+
+    ``patch`` weights the distance and length/area terms: 0 on the fixed outer ring of a clamped
+    boundary, where they are constant; the Willmore term always counts (see :func:`isotropic`).
+    """
     tau, tt, lam = par[0], par[1], par[2]
     M = mass_matrix(X)
     Mk = mass_matrix(Xk)
-    return quad(Mk, X - Xk, X - Xk) + tau / tt**2 * quad(M, Y - X, Y - X) + 2 * tau * lam * measure(X)
+    return patch * (quad(Mk, X - Xk, X - Xk) + 2 * tau * lam * measure(X)) + tau / tt**2 * quad(M, Y - X, Y - X)
 
 
-def isotropic_inner(X: ca.SX, Y: ca.SX, tt: ca.SX) -> ca.SX:
-    """Local E_T of the linearised (Dziuk) mean-curvature step: M(Y-X).(Y-X) + tt L Y.Y."""
-    return quad(mass_matrix(X), Y - X, Y - X) + tt * quad(stiffness_matrix(X), Y, Y)
+def isotropic_inner(X: ca.SX, Y: ca.SX, tt: ca.SX, stiff: ca.SX | float = 1.0) -> ca.SX:
+    """Local E_T of the linearised (Dziuk) mean-curvature step: M(Y-X).(Y-X) + tt L Y.Y.
+
+    ``stiff`` weights the stiffness term (0 on the outer ring of the co-normal variant).
+    """
+    return quad(mass_matrix(X), Y - X, Y - X) + stiff * tt * quad(stiffness_matrix(X), Y, Y)
 
 
 def isotropic(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, c: ca.SX) -> tuple[ca.SX, ca.SX]:
-    """Isotropic closed-surface energies; ``c[0]``, if present, weights W_T (0 on a fixed ring)."""
-    w = outer_objective(X, Y, Xk, par)
-    if c.numel() > 0:
-        w = c[0] * w
-    return w, isotropic_inner(X, Y, par[1])
+    """Isotropic energies.
+
+    Per-element constants ``c`` are empty for closed meshes; for clamped boundaries
+    (:func:`willmore_nlp.model.build.build_step`) ``c = (patch, stiff)``: ``patch`` = 1 on the
+    free patch and 0 on the fixed outer ring (distance and length/area terms of W, constant
+    there), ``stiff`` = 0 on the ring of the co-normal variant, where the co-normal term replaces
+    the ring's stiffness, and 1 otherwise. Ring elements keep their mass in W and E so that the
+    boundary nodes Gamma carry their full mass (DESIGN.md section 1, note on boundary weights).
+    """
+    if c.numel() == 0:
+        return outer_objective(X, Y, Xk, par), isotropic_inner(X, Y, par[1])
+    return outer_objective(X, Y, Xk, par, c[0]), isotropic_inner(X, Y, par[1], c[1])
+
+
+def anisotropic(gamma: Callable[[ca.SX], ca.SX]) -> Callable[..., tuple[ca.SX, ca.SX]]:
+    """Energies of the fully nonlinear anisotropic scheme (DESIGN.md section 1, paper (3.3)).
+
+    ``E_T = M[X](Y-X).(Y-X) + 2 tt gamma(z_T(Y))`` with ``z_T = rot90(Y1 - Y0)`` (segments in R^2)
+    or ``(Y1 - Y0) x (Y2 - Y0) / 2`` (triangles); the outer objective is the isotropic one (the
+    approximate Willmore term measures Y - X, now the anisotropic mean-curvature step).
+    """
+
+    def energy(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, c: ca.SX) -> tuple[ca.SX, ca.SX]:
+        if Y.shape[1] == 2:
+            e = Y[:, 1] - Y[:, 0]
+            z = ca.vertcat(e[1], -e[0])
+        else:
+            z = 0.5 * ca.cross(Y[:, 1] - Y[:, 0], Y[:, 2] - Y[:, 0])
+        inner = quad(mass_matrix(X), Y - X, Y - X) + 2 * par[1] * gamma(z)
+        return outer_objective(X, Y, Xk, par), inner
+
+    return energy

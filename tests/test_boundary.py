@@ -1,0 +1,301 @@
+"""Clamped boundaries (both variants): independent assembly, derivatives, stationarity, errors."""
+
+import numpy as np
+import pytest
+
+from willmore_nlp import WillmoreFlow
+from willmore_nlp.analysis import fit_order
+from willmore_nlp.boundary import Boundary, BoundaryError, boundary_data
+from willmore_nlp.fem.assembly import element_geometry, mass_stiffness
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.model.build import build_step
+from willmore_nlp.model.evaluator import StepEvaluator
+
+
+def _arc(n: int = 12, R: float = 1.0) -> tuple[Mesh, np.ndarray]:
+    th = np.linspace(-np.pi / 2, np.pi / 2, n + 4)
+    m = shapes.open_curve(R * np.stack([np.cos(th), np.sin(th)], 1))
+    free = np.zeros(m.n_vertices, bool)
+    free[2:-2] = True
+    return m, free
+
+
+def _cap(rings: int = 4) -> tuple[Mesh, np.ndarray]:
+    D = shapes.disk(rings + 2)
+    r = np.linalg.norm(D.vertices[:, :2], axis=1) * (rings + 2)
+    th = np.radians(40) * r / rings
+    phi = np.arctan2(D.vertices[:, 1], D.vertices[:, 0])
+    V = np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.cos(th)], 1)
+    return Mesh(V, D.simplices), r < rings - 0.5
+
+
+CASES = [
+    pytest.param(_arc, "conormal", id="arc-conormal"),
+    pytest.param(_arc, "ring", id="arc-ring"),
+    pytest.param(_cap, "conormal", id="cap-conormal"),
+    pytest.param(_cap, "ring", id="cap-ring"),
+]
+
+
+def _setup(make, variant, seed=0):
+    mesh, free = make()
+    setup = build_step(mesh, boundary=Boundary(free, variant))
+    P = setup.problem
+    ev = StepEvaluator(P, P.functions())
+    rng = np.random.default_rng(seed)
+    h = mesh.h
+    X = mesh.vertices + 0.05 * h * rng.normal(size=mesh.vertices.shape) * free[:, None]
+    Y = X + 0.05 * h * rng.normal(size=X.shape)
+    p = setup.params(mesh.vertices, 0.3, 0.1 * h * h, 0.7)
+    return mesh, free, setup, ev, P.pack_z(X, Y), p, rng
+
+
+@pytest.mark.parametrize(("make", "variant"), CASES)
+def test_boundary_gradient_jacobian_hessian_fd(make, variant) -> None:
+    *_, setup, ev, z, p, rng = _setup(make, variant)
+    P = setup.problem
+    eps = 1e-6
+    d = rng.normal(size=z.size)
+    fd = (ev.f(z + eps * d, p) - ev.f(z - eps * d, p)) / (2 * eps)
+    np.testing.assert_allclose(ev.grad_f(z, p) @ d, fd, rtol=1e-6)
+    fdg = (ev.g(z + eps * d, p) - ev.g(z - eps * d, p)) / (2 * eps)
+    assert np.max(np.abs(ev.jac_g(z, p) @ d - fdg)) <= 1e-6 * np.max(np.abs(fdg))
+    lam_g = rng.normal(size=P.ng)
+
+    def lag_grad(zz):
+        return 0.8 * ev.grad_f(zz, p) + ev.jac_g(zz, p).T @ lam_g
+
+    fdh = (lag_grad(z + eps * d) - lag_grad(z - eps * d)) / (2 * eps)
+    assert np.max(np.abs(ev.hess_lag(z, p, 0.8, lam_g) @ d - fdh)) <= 1e-5 * np.max(np.abs(fdh))
+
+
+@pytest.mark.parametrize(("make", "variant"), CASES)
+def test_boundary_step_problem_matches_numpy_assembly(make, variant) -> None:
+    """g and W of both variants against scipy assembly: mass over patch + ring, stiffness over patch + ring
+    ("ring") or patch with the co-normal term -L_ring X ("conormal"), distance and length/area over the patch."""
+    mesh, _, setup, ev, z, p, _ = _setup(make, variant)
+    P, bd = setup.problem, setup.boundary
+    X, Y = P.unpack_z(z, mesh.vertices)
+    tau, tt, lam = p[P.n_vertices * P.m :][:3]
+    S, N = mesh.simplices, mesh.n_vertices
+    Sp, Se = S[bd.patch], S[bd.patch | bd.ring]
+    M, Le = mass_stiffness(X, Se, N)
+    Lp = mass_stiffness(X, Sp, N)[1]
+    if variant == "ring":
+        g = (M + tt * Le) @ Y - M @ X
+    else:
+        Lr = mass_stiffness(mesh.vertices, S[bd.ring], N)[1]
+        nco = np.zeros_like(X)
+        nco[bd.gamma] = -(Lr @ mesh.vertices)[bd.gamma]
+        g = (M + tt * Lp) @ Y - M @ X - tt * nco
+    rows = bd.patch_nodes
+    np.testing.assert_allclose(ev.g(z, p), g[rows].ravel(), atol=1e-12 * np.abs(M @ X).max())
+    Mk = mass_stiffness(mesh.vertices, Sp, N)[0]
+    D, V = X - mesh.vertices, Y - X
+    area = element_geometry(X, Sp)[0].sum()
+    W = np.einsum("ic,ic->", D, Mk @ D) + tau / tt**2 * np.einsum("ic,ic->", V, M @ V) + 2 * tau * lam * area
+    np.testing.assert_allclose(ev.f(z, p), W, rtol=1e-12)
+
+
+def test_ring_conormal_is_facet_conormal_on_a_flat_ring() -> None:
+    """-L_ring X equals int_Gamma N^co Phi_i with the per-facet outward co-normal when the ring is flat."""
+    mesh = shapes.disk(5)
+    r = np.linalg.norm(mesh.vertices[:, :2], axis=1) * 5
+    bd = boundary_data(mesh, Boundary(r < 3.5, "conormal"))
+    from willmore_nlp.boundary import _integrate_conormal
+
+    np.testing.assert_allclose(bd.nco, _integrate_conormal(mesh, bd.facets, bd.facet_conormal), atol=1e-13)
+    # outward: N^co points away from the patch centre, in the plane
+    mid = mesh.vertices[bd.facets].mean(axis=1)
+    assert np.all(np.einsum("ij,ij->i", bd.facet_conormal, mid) > 0)
+    np.testing.assert_allclose(bd.facet_conormal[:, 2], 0, atol=1e-15)
+
+
+@pytest.mark.parametrize("variant", ["conormal", "ring"])
+def test_planar_disk_in_planar_ring_is_stationary(variant) -> None:
+    mesh = shapes.disk(6)
+    r = np.linalg.norm(mesh.vertices[:, :2], axis=1) * 6
+    # tilt the plane so that every coordinate is non-trivial
+    Q = np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))[0]
+    mesh = mesh.with_vertices(mesh.vertices @ Q.T + np.array([0.3, -0.2, 0.5]))
+    flow = WillmoreFlow(mesh, mesh.h, mesh.h**2 / 10, lam=0.0, boundary=Boundary(r < 4.5, variant), codegen=False)
+    assert flow.discrete_energy(flow.X) <= 1e-24
+    res = flow.run(steps=3)
+    assert np.abs(res[-1].vertices - mesh.vertices).max() <= 1e-12
+    assert np.abs(res[-1].Y - mesh.vertices).max() <= 1e-12
+    assert res[-1].energy <= 1e-24
+
+
+def test_reversed_conormal_is_not_stationary() -> None:
+    """The sign check of DESIGN.md: with the inward co-normal the planar disk bends."""
+    mesh = shapes.disk(6)
+    r = np.linalg.norm(mesh.vertices[:, :2], axis=1) * 6
+    free = r < 4.5
+    bd = boundary_data(mesh, Boundary(free, "conormal"))
+    inward = np.zeros_like(mesh.vertices)
+    for f, n in zip(bd.facets, bd.facet_conormal, strict=True):
+        inward[f] = -n
+    flow = WillmoreFlow(mesh, mesh.h, mesh.h**2 / 10, boundary=Boundary(free, "conormal", conormal=inward),
+                        codegen=False)
+    assert flow.discrete_energy(flow.X) > 1.0
+
+
+def _restore(name: str, t_end: float, **params):
+    from willmore_nlp import registry
+
+    pb, _ = registry.build(name, **params)
+    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+    res = flow.run(t_end=t_end)
+    return pb, flow, res[-1]
+
+
+@pytest.mark.parametrize("variant", ["conormal", "ring"])
+def test_perturbed_arc_returns_to_the_circle(variant) -> None:
+    """lam = 1/(2R^2): the arc of radius R is the equilibrium; the distance to it is O(h)."""
+    hs, dist, defect = [], [], []
+    for n in (16, 32, 64):
+        pb, flow, last = _restore("circle_arc", 4.0, n=n, variant=variant, R=1.0, amp=0.1)
+        free = pb.flow_options["boundary"].free
+        X, X0 = last.vertices, pb.mesh.vertices
+        assert np.array_equal(X[~free], X0[~free])  # the boundary nodes and the ring never move
+        hs.append(pb.mesh.h)
+        dist.append(np.abs(np.linalg.norm(X[flow.setup.boundary.patch_nodes], axis=1) - 1).max())
+        # discrete co-normal of the patch at both ends vs the prescribed one (from the fixed outer segment)
+        bd = flow.setup.boundary
+        ang = []
+        for g, inner, outer in ((2 - 1, 2, 0), (len(X) - 2, len(X) - 3, len(X) - 1)):
+            t_patch = (X[g] - X[inner]) / np.linalg.norm(X[g] - X[inner])
+            t_pres = (X[outer] - X[g]) / np.linalg.norm(X[outer] - X[g])
+            ang.append(np.arccos(np.clip(t_patch @ t_pres, -1, 1)))
+        assert bd.gamma.tolist() == [1, len(X) - 2]
+        defect.append(max(ang))
+    assert dist[-1] < 0.25 * 0.1  # back from a perturbation of 0.1 to within a quarter of it
+    assert dist[0] > dist[1] > dist[2]
+    assert fit_order(hs, dist) > 0.8
+    # the co-normal defect is the polygon's own turning angle at Gamma: O(h)
+    assert defect[0] > defect[1] > defect[2]
+    assert fit_order(hs, defect) > 0.8
+
+
+@pytest.mark.parametrize("variant", ["conormal", "ring"])
+def test_flattened_sphere_cap_is_restored(variant) -> None:
+    """A cap pressed halfway flat returns to the unit sphere; the maximal distance decreases as O(h)."""
+    hs, dist = [], []
+    for rings in (4, 6, 8):
+        pb, flow, last = _restore("sphere_cap", 1.2, rings=rings, variant=variant, init="flat", amp=0.5)
+        bd = flow.setup.boundary
+        X, X0 = last.vertices, pb.mesh.vertices
+        assert np.array_equal(X[~bd.free], X0[~bd.free])
+        d0 = np.abs(np.linalg.norm(X0[bd.patch_nodes], axis=1) - 1).max()
+        hs.append(pb.mesh.h)
+        dist.append(np.abs(np.linalg.norm(X[bd.patch_nodes], axis=1) - 1).max())
+        assert dist[-1] < 0.2 * d0
+        assert last.quality["min_angle"] > 15
+    assert dist[0] > dist[1] > dist[2]
+    assert fit_order(hs, dist) > 0.8
+
+
+def test_boundary_problems_build() -> None:
+    from willmore_nlp import registry
+
+    for name in ("circle_arc", "sphere_cap", "curve_blending", "surface_blending", "torus_hole"):
+        for variant in ("conormal", "ring"):
+            pb, _ = registry.build(name, variant=variant)
+            bd = boundary_data(pb.mesh, pb.flow_options["boundary"])
+            assert bd.free.any() and bd.gamma.size and bd.ring.any()
+
+
+def _disk_free(rings=6, inner=4.5):
+    mesh = shapes.disk(rings)
+    return mesh, np.linalg.norm(mesh.vertices[:, :2], axis=1) * rings < inner
+
+
+def test_boundary_errors_name_the_problem() -> None:
+    mesh, free = _disk_free()
+    with pytest.raises(BoundaryError, match="empty patch"):
+        boundary_data(mesh, Boundary(np.zeros(mesh.n_vertices, bool)))
+    with pytest.raises(BoundaryError, match="variant"):
+        Boundary(free, "dirichlet")
+    # free vertex on the mesh boundary
+    with pytest.raises(BoundaryError, match="lies on the mesh boundary"):
+        rr = np.linalg.norm(mesh.vertices[:, :2], axis=1) * 6
+        boundary_data(mesh, Boundary((rr > 5.5) | (rr < 3.5)))
+    # the patch touches the mesh boundary: no ring
+    with pytest.raises(BoundaryError, match="no fixed outer simplex"):
+        boundary_data(mesh, Boundary(np.linalg.norm(mesh.vertices[:, :2], axis=1) * 6 < 5.5))
+    # a fixed vertex inside the patch
+    holey = free.copy()
+    holey[0] = False
+    with pytest.raises(BoundaryError, match="vertex 0 is surrounded"):
+        boundary_data(mesh, Boundary(holey))
+    # two one-vertex patches whose fans touch at a single vertex v: four patch boundary edges meet at v
+    m2 = shapes.disk(8)
+    E = m2.edges
+    nb = [set() for _ in range(m2.n_vertices)]
+    for a, b in E:
+        nb[a].add(b)
+        nb[b].add(a)
+    b = next(w for w in range(1, m2.n_vertices) if w not in nb[0] and len(nb[0] & nb[w]) == 1)
+    pinch = np.zeros(m2.n_vertices, bool)
+    pinch[[0, b]] = True
+    v = (nb[0] & nb[b]).pop()
+    with pytest.raises(BoundaryError, match=f"not closed and simple at vertex {v}"):
+        boundary_data(m2, Boundary(pinch))
+    # an explicit ring that is not one layer / does not cover the boundary
+    m7, free7 = _disk_free(7, 4.5)
+    bd = boundary_data(m7, Boundary(free7, "ring"))
+    outside = np.flatnonzero(~bd.patch & ~bd.ring)
+    with pytest.raises(BoundaryError, match=f"not a single layer around the patch: simplex {outside[0]}"):
+        boundary_data(m7, Boundary(free7, "ring", ring=np.concatenate([np.flatnonzero(bd.ring), outside[:1]])))
+    ring = np.flatnonzero(bd.ring)
+    across = ring[np.isin(m7.simplices[ring], bd.facets[0]).sum(axis=1) == 2]  # the ring simplex across facet 0
+    with pytest.raises(BoundaryError, match=f"does not cover the patch boundary: outer simplex {across[0]}"):
+        boundary_data(m7, Boundary(free7, "ring", ring=np.setdiff1d(ring, across)))
+    # a closed surface entirely free is not a clamped problem
+    with pytest.raises(BoundaryError, match="every vertex is free"):
+        boundary_data(shapes.icosphere(1), Boundary(np.ones(42, bool)))
+    # co-normal explicitly zero
+    zero = np.zeros_like(mesh.vertices)
+    with pytest.raises(BoundaryError, match="no usable prescribed co-normal"):
+        boundary_data(mesh, Boundary(free, "conormal", conormal=zero))
+
+
+def test_open_curve_with_prescribed_end_tangents() -> None:
+    """Without an outer ring, a curve is clamped by explicit end tangents: a straight segment stays put,
+    and prescribed tangents bend it into an arc-like curve that leaves along them."""
+    P = np.stack([np.linspace(0, 1, 21), np.zeros(21)], 1)
+    mesh = shapes.open_curve(P)
+    b = Boundary.complement(mesh, [0, 20], conormal={0: [-1.0, 0.0], 20: [1.0, 0.0]})
+    flow = WillmoreFlow(mesh, mesh.h, mesh.h**2 / 100, lam=0.1, boundary=b, codegen=False)
+    assert np.abs(flow.run(steps=2)[-1].vertices - P).max() <= 1e-12
+    c = np.cos(np.radians(30)), np.sin(np.radians(30))
+    b = Boundary.complement(mesh, [0, 20], conormal={0: [-c[0], -c[1]], 20: [c[0], -c[1]]})
+    flow = WillmoreFlow(mesh, mesh.h, mesh.h**2 / 100, lam=0.1, boundary=b, codegen=False)
+    X = flow.run(t_end=1.0)[-1].vertices
+    assert X[10, 1] > 0.02  # bulges upward, toward the side the end tangents point away from
+    t0 = (X[0] - X[1]) / np.linalg.norm(X[0] - X[1])
+    assert np.degrees(np.arccos(t0 @ np.array([-c[0], -c[1]]))) < 10
+
+
+def test_cli_runs_and_resumes_a_clamped_problem(tmp_path) -> None:
+    import subprocess
+    import sys
+
+    from willmore_nlp import load_run
+
+    cli = [sys.executable, "-m", "willmore_nlp.cli"]
+    out = tmp_path / "arc"
+    r = subprocess.run([*cli, "run", "circle_arc", "--steps", "2", "--out", str(out), "--set", "variant=ring",
+                        "--set", "n=24"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([*cli, "run", "--resume", str(out), "--steps", "3"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    run = load_run(out)
+    assert len(run.states) == 4  # the initial state and steps 1..3
+    X0, X3 = run.states[0].vertices, run.states[-1].vertices
+    assert np.array_equal(X0[[0, 1, -2, -1]], X3[[0, 1, -2, -1]])  # clamped ends and ring unchanged
+    bad = subprocess.run([*cli, "run", "circle_arc", "--steps", "1", "--out", str(tmp_path / "bad"),
+                          "--set", "variant=dirichlet"], capture_output=True, text=True, timeout=600)
+    assert bad.returncode != 0 and "boundary variant must be one of conormal, ring" in bad.stderr
+    assert not (tmp_path / "bad").exists()
