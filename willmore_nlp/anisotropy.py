@@ -10,7 +10,7 @@ counter-clockwise curve, rotated clockwise) and ``z_T = (X1 - X0) x (X2 - X0) / 
 Presets (paper Sec. 5.3 and their 3-D analogues): ``gamma0`` = |z| (isotropic), ``gamma1`` =
 sqrt(z1^2 + 4 z2^2) (Wulff shape: the ellipse x1^2 + x2^2/4 <= 1, elongated along x2; in 3-D
 sqrt(z1^2 + 4 z2^2 + z3^2)), ``gamma2`` = sum_i sqrt(1e-7 |z|^2 + z_i^2) (regularised l1 norm,
-Wulff shape close to the axis-aligned square / cube).
+Wulff shape close to the axis-aligned square / cube; ``"gamma2:EPS"`` picks another regularisation).
 """
 
 from __future__ import annotations
@@ -41,9 +41,24 @@ def _gamma1(z: ca.SX) -> ca.SX:
     return ca.sqrt(sum(w[i] * z[i] ** 2 for i in range(z.numel())))
 
 
-def _gamma2(z: ca.SX) -> ca.SX:
-    r = 1e-7 * ca.sumsqr(z)
-    return sum(ca.sqrt(r + z[i] ** 2) for i in range(z.numel()))
+def regularized_l1(eps: float = 1e-7) -> GammaFn:
+    """gamma(z) = sum_i sqrt(eps |z|^2 + z_i^2), the paper's gamma2 for eps = 1e-7.
+
+    The kinks of the l1 norm are smoothed over normal angles of about sqrt(eps); where that is far
+    below the angle between neighbouring element normals the discrete problem is effectively
+    non-smooth (see README, "Anisotropic flow").
+    """
+    if not (np.isfinite(eps) and eps > 0):
+        raise AnisotropyError(f"gamma2: the regularisation eps must be > 0, got {eps!r}")
+
+    def gamma(z: ca.SX) -> ca.SX:
+        r = eps * ca.sumsqr(z)
+        return sum(ca.sqrt(r + z[i] ** 2) for i in range(z.numel()))
+
+    return gamma
+
+
+_gamma2 = regularized_l1(1e-7)
 
 
 PRESETS: dict[str, GammaFn] = {"gamma0": _gamma0, "gamma1": _gamma1, "gamma2": _gamma2}
@@ -127,14 +142,25 @@ def validate(an: Anisotropy, n_samples: int = 2000, seed: int = 0) -> None:
 
 
 def get_anisotropy(spec: str | Anisotropy | GammaFn, m: int) -> Anisotropy:
-    """An :class:`Anisotropy` on R^m from a preset name, a callable or an Anisotropy (checked for m)."""
+    """An :class:`Anisotropy` on R^m from a preset name, a callable or an Anisotropy (checked for m).
+
+    Strings: ``"gamma0"``, ``"gamma1"``, ``"gamma2"`` or ``"gamma2:EPS"`` (regularised l1 norm with
+    regularisation EPS instead of the paper's 1e-7).
+    """
     if isinstance(spec, Anisotropy):
         if spec.m != m:
             raise AnisotropyError(f"anisotropy {spec.name} is defined on R^{spec.m}, the normals live in R^{m}")
         return spec
     if isinstance(spec, str):
+        if spec.startswith("gamma2:"):
+            try:
+                eps = float(spec.split(":", 1)[1])
+            except ValueError:
+                raise AnisotropyError(f"anisotropy {spec!r}: write gamma2:EPS with a number EPS > 0") from None
+            return Anisotropy(regularized_l1(eps), m, "gamma2_eps" + f"{eps:.0e}".replace("-", "m").replace("+", ""))
         if spec not in PRESETS:
-            raise AnisotropyError(f"unknown anisotropy {spec!r}; presets: {', '.join(PRESETS)}")
+            raise AnisotropyError(f"unknown anisotropy {spec!r}; presets: {', '.join(PRESETS)} "
+                                  f"(and gamma2:EPS for another regularisation)")
         return Anisotropy(PRESETS[spec], m, spec)
     if callable(spec):
         return Anisotropy(spec, m, getattr(spec, "__name__", "custom").strip("_<>") or "custom")

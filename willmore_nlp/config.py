@@ -36,6 +36,7 @@ FLOW_KEYS: dict[str, Any] = {
     "max_iter": 200,
     "warm_start": False,
     "allow_components": False,
+    "anisotropy": None,
 }
 """Flow and solver options accepted in configs, with their defaults."""
 

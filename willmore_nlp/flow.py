@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from willmore_nlp import geometry
+from willmore_nlp.anisotropy import anisotropic_willmore_energy
 from willmore_nlp.codegen import compile_kernels, find_compiler
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.build import build_step
@@ -58,6 +59,8 @@ class StepResult:
     objective : W at the solution
     energy : discrete energy of the scheme, 1/(2 tt^2) M(Y-X).(Y-X) + lam A (what decreases)
     willmore : independent discrete Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`)
+    willmore_gamma : anisotropic Willmore energy w_gamma = 1/2 int h_gamma^2
+        (:func:`willmore_nlp.anisotropy.anisotropic_willmore_energy`; NaN for isotropic flows)
     measure : length or area
     volume : enclosed area or volume (NaN for open meshes)
     iterations : solver iterations
@@ -88,6 +91,7 @@ class StepResult:
     retries: int = 0
     stats: dict[str, Any] = field(default_factory=dict)
     rejected: list[str] = field(default_factory=list)
+    willmore_gamma: float = float("nan")
 
     def row(self) -> dict[str, Any]:
         """Flat dict for history.csv."""
@@ -98,6 +102,7 @@ class StepResult:
             "objective": self.objective,
             "energy": self.energy,
             "willmore_energy": self.willmore,
+            "willmore_gamma": self.willmore_gamma,
             "measure": self.measure,
             "volume": self.volume,
             "iterations": self.iterations,
@@ -147,8 +152,12 @@ class WillmoreFlow:
         Clamped (C^1) boundary: which vertices move and which variant ("conormal" or "ring")
         imposes position and co-normal on the patch boundary (:mod:`willmore_nlp.boundary`).
         The fixed vertices never move; ``willmore`` in the results sums over the patch nodes.
-    anisotropy : optional
-        Anisotropy gamma for the fully nonlinear anisotropic scheme. Reserved likewise (issue 4).
+    anisotropy : str, callable or Anisotropy, optional
+        Anisotropy gamma for the fully nonlinear anisotropic scheme (paper Secs. 2.3, 3.3): a
+        preset name ("gamma0", "gamma1", "gamma2"), a 1-homogeneous gamma(z) written with CasADi
+        operations, or an :class:`~willmore_nlp.anisotropy.Anisotropy`. Closed curves in R^2 and
+        closed surfaces in R^3; the inner equation is then nonlinear in Y (damped Newton). Each
+        StepResult reports the anisotropic Willmore energy ``willmore_gamma``.
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
     """
@@ -262,6 +271,8 @@ class WillmoreFlow:
             retries=retries,
             stats={} if res is None else dict(res.stats),
             rejected=rejected,
+            willmore_gamma=(float("nan") if self.setup.anisotropy is None
+                            else anisotropic_willmore_energy(mesh, self.setup.anisotropy)),
         )
 
     def _reject_reason(self, res: Any, f0: float, X: np.ndarray) -> str | None:

@@ -55,10 +55,13 @@ class StepEvaluator:
         return (U + sp.triu(U, 1).T).tocsc()
 
     def solve_y(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None,
-                tol: float = 1e-12, max_iter: int = 30) -> np.ndarray:
-        """Y[X]: solve the inner equation g(X, Y) = 0 for the free Y by Newton's method.
+                tol: float = 1e-12, max_iter: int = 100) -> np.ndarray:
+        """Y[X]: solve the inner equation g(X, Y) = 0 for the free Y by damped Newton.
 
-        Linear (one Newton step) for the isotropic scheme, nonlinear for anisotropic energies.
+        Linear (one Newton step) for the isotropic scheme. For anisotropic energies g = 1/2 dE/dY
+        is the gradient of a strictly convex energy, but a nearly non-smooth gamma (the
+        regularised l1 norm ``gamma2``) makes plain Newton overshoot: steps are halved until the
+        residual decreases (backtracking on |g|).
 
         Parameters
         ----------
@@ -76,16 +79,25 @@ class StepEvaluator:
         Y = np.array(X if Y0 is None else Y0, float, copy=True)
         Y[~P.y_free] = Xk[~P.y_free]
         nXm = P.nX * m
+        gv, J = self.fn["jac_g"](P.pack_z(X, Y), p)
+        r = np.asarray(gv).ravel()
         for _ in range(max_iter):
-            z = P.pack_z(X, Y)
-            gv, J = self.fn["jac_g"](z, p)
-            r = np.asarray(gv).ravel()
             Jy = to_scipy(J)[:, nXm:]
             scale = max(1.0, float(np.abs(Jy).max()) * float(np.abs(Y).max()))
             if np.linalg.norm(r, np.inf) <= tol * scale:
                 return Y
-            dy = spla.spsolve(Jy.tocsc(), -r)
-            Y[P.y_free] += dy.reshape(-1, m)
+            dy = spla.spsolve(Jy.tocsc(), -r).reshape(-1, m)
+            rn = np.linalg.norm(r)
+            alpha = 1.0
+            for _ in range(40):
+                Yt = Y.copy()
+                Yt[P.y_free] += alpha * dy
+                gt, Jt = self.fn["jac_g"](P.pack_z(X, Yt), p)
+                rt = np.asarray(gt).ravel()
+                if np.linalg.norm(rt) < rn or alpha < 1e-9:
+                    break
+                alpha *= 0.5
+            Y, r, J = Yt, rt, Jt
         raise RuntimeError(
             f"inner equation not solved to {tol:g} in {max_iter} Newton iterations "
             f"(residual {np.linalg.norm(r, np.inf):.3e})"

@@ -1,0 +1,232 @@
+"""Anisotropic Willmore flow: derivatives of A_gamma, closed forms, the isotropic limit, long-run shapes."""
+
+import subprocess
+import sys
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.special import ellipe
+
+from willmore_nlp import WillmoreFlow
+from willmore_nlp.analysis import fit_order
+from willmore_nlp.anisotropy import (
+    AnisotropyError,
+    anisotropic_area,
+    anisotropic_area_gradient,
+    anisotropic_willmore_energy,
+    get_anisotropy,
+)
+from willmore_nlp.fem.assembly import mass_stiffness
+from willmore_nlp.geometry import enclosed_volume, willmore_energy
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.model.build import build_step
+from willmore_nlp.model.evaluator import StepEvaluator
+
+PRESETS = ["gamma0", "gamma1", "gamma2", "gamma2:1e-2"]
+
+
+def _mesh(m: int, seed: int = 0) -> Mesh:
+    """A perturbed ellipse (m = 2) or icosphere (m = 3)."""
+    rng = np.random.default_rng(seed)
+    base = shapes.ellipse(14, 1.0, 0.7) if m == 2 else shapes.icosphere(1)
+    return base.with_vertices(base.vertices + 0.05 * base.h * rng.normal(size=base.vertices.shape))
+
+
+def _widths(X: np.ndarray) -> np.ndarray:
+    """Widths of a point set along x1, x2 and the two diagonals."""
+    D = np.array([[1, 0], [0, 1], [1, 1], [1, -1]]) / np.array([1, 1, np.sqrt(2), np.sqrt(2)])[:, None]
+    P = X @ D.T
+    return P.max(0) - P.min(0)
+
+
+@pytest.mark.parametrize("m", [2, 3])
+@pytest.mark.parametrize("spec", PRESETS)
+def test_area_gradient_and_hessian_fd(spec: str, m: int) -> None:
+    """grad A_gamma (numpy chain rule) against central differences of A_gamma; the step problem's
+    inner residual g = M (Y - X) + tt grad A_gamma[Y] against that gradient (independent assembly);
+    dg/dY = M + tt Hess A_gamma against central differences of g (the Hessian of A_gamma)."""
+    an = get_anisotropy(spec, m)
+    mesh = _mesh(m)
+    V, S = mesh.vertices, mesh.simplices
+    rng = np.random.default_rng(1)
+    G = anisotropic_area_gradient(an, V, S)
+    eps = 1e-6
+    for _ in range(3):
+        D = rng.normal(size=V.shape)
+        fd = (anisotropic_area(an, V + eps * D, S) - anisotropic_area(an, V - eps * D, S)) / (2 * eps)
+        assert abs(np.sum(G * D) - fd) <= 1e-7 * max(1.0, abs(fd))
+
+    setup = build_step(mesh, anisotropy=spec)
+    P = setup.problem
+    ev = StepEvaluator(P, P.functions())
+    X = V + 0.1 * mesh.h * rng.normal(size=V.shape)
+    Y = X + 0.1 * mesh.h * rng.normal(size=V.shape)
+    tt = 0.1 * mesh.h**2
+    p = setup.params(V, 0.3, tt, 0.5)
+    z = P.pack_z(X, Y)
+    M, _ = mass_stiffness(X, S)
+    expected = M @ (Y - X) + tt * anisotropic_area_gradient(an, Y, S)
+    np.testing.assert_allclose(ev.g(z, p).reshape(-1, m), expected, rtol=1e-9, atol=1e-12)
+    Jy = ev.jac_g(z, p)[:, P.nX * m :]
+    for _ in range(3):
+        d = rng.normal(size=z.size)
+        d[: P.nX * m] = 0.0
+        fd = (ev.g(z + eps * d, p) - ev.g(z - eps * d, p)) / (2 * eps)
+        assert np.max(np.abs(Jy @ d[P.nX * m :] - fd)) <= 1e-5 * np.max(np.abs(fd))
+
+
+@pytest.mark.parametrize("spec", ["gamma1", "gamma2:1e-2"])
+def test_step_problem_derivatives_fd(spec: str) -> None:
+    """Gradient of W, Jacobian of g and the Lagrangian Hessian (third derivatives of A_gamma) against FD."""
+    mesh = _mesh(2)
+    setup = build_step(mesh, anisotropy=spec)
+    P = setup.problem
+    ev = StepEvaluator(P, P.functions())
+    rng = np.random.default_rng(2)
+    X = mesh.vertices + 0.1 * mesh.h * rng.normal(size=mesh.vertices.shape)
+    Y = X + 0.1 * mesh.h * rng.normal(size=X.shape)
+    z, p = P.pack_z(X, Y), setup.params(mesh.vertices, 0.3, 0.1 * mesh.h**2, 0.5)
+    eps = 1e-6
+    d = rng.normal(size=z.size)
+    fd = (ev.f(z + eps * d, p) - ev.f(z - eps * d, p)) / (2 * eps)
+    np.testing.assert_allclose(ev.grad_f(z, p) @ d, fd, rtol=1e-6)
+    lam_g = rng.normal(size=P.ng)
+
+    def lag_grad(zz: np.ndarray) -> np.ndarray:
+        return 0.7 * ev.grad_f(zz, p) + ev.jac_g(zz, p).T @ lam_g
+
+    fdh = (lag_grad(z + eps * d) - lag_grad(z - eps * d)) / (2 * eps)
+    assert np.max(np.abs(ev.hess_lag(z, p, 0.7, lam_g) @ d - fdh)) <= 1e-5 * np.max(np.abs(fdh))
+
+
+def test_anisotropic_willmore_energy_converges_to_closed_forms() -> None:
+    """On the Wulff shape R W_gamma, h_gamma = 1/R, so w_gamma = perimeter(W_gamma) / (2 R): for gamma1
+    the ellipse with semi-axes 1 (x1) and 2 (x2); for gamma0 the circle, pi / R, equal to the isotropic
+    discrete Willmore energy. Second-order convergence over four refinements."""
+    g0, g1 = get_anisotropy("gamma0", 2), get_anisotropy("gamma1", 2)
+    R = 1.5
+    perimeter = 8 * ellipe(0.75)
+    ns = [32, 64, 128, 256]
+    err0, err1 = [], []
+    for n in ns:
+        t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+        wulff = shapes.closed_curve(R * np.column_stack([np.cos(t), 2 * np.sin(t)]))
+        circle = shapes.regular_polygon(n, R)
+        err1.append(abs(anisotropic_willmore_energy(wulff, g1) - perimeter / (2 * R)))
+        w0 = anisotropic_willmore_energy(circle, g0)
+        assert w0 == pytest.approx(willmore_energy(circle), rel=1e-12)
+        err0.append(abs(w0 - np.pi / R))
+    h = 1.0 / np.array(ns)
+    assert fit_order(h, err1) == pytest.approx(2.0, abs=0.1)
+    assert fit_order(h, err0) == pytest.approx(2.0, abs=0.1)
+
+
+def test_gamma0_tends_to_the_isotropic_step_as_tau_tilde_shrinks() -> None:
+    """One step of the fully nonlinear scheme with gamma0 against the linearised isotropic scheme: the
+    difference is O(tau_tilde) (the inner steps differ by tt (L[Y] - L[X]) Y = O(tt^2), i.e. O(tt) in
+    (Y - X) / tt). Measured: 1.18e-3, 5.90e-4, 2.95e-4, 1.48e-4."""
+    mesh = shapes.ellipse(32, 1.0, 0.7)
+    h = mesh.h
+    tts = np.array([0.04, 0.02, 0.01, 0.005]) * h * h
+    diff = []
+    for tt in tts:
+        a = WillmoreFlow(mesh, h / 2, tt, lam=0.5, anisotropy="gamma0", tol=1e-11, max_iter=500).step()
+        b = WillmoreFlow(mesh, h / 2, tt, lam=0.5, tol=1e-11, max_iter=500).step()
+        diff.append(np.abs(a.vertices - b.vertices).max())
+    assert np.abs(a.vertices - mesh.vertices).max() > 50 * diff[-1]  # the step itself is much larger
+    assert fit_order(tts, diff) == pytest.approx(1.0, abs=0.1)
+
+
+def test_long_runs_tend_to_the_expected_shapes() -> None:
+    """gamma0: an ellipse becomes round; gamma1: the curve turns to the x2 axis, as the Wulff shape
+    x1^2 + x2^2/4 <= 1 predicts, with axis ratio near 2; regularised l1 (eps = 1e-2): a square with
+    rounded corners aligned with the axes (diagonal width / axial width between 1, the circle, and
+    sqrt(2), the square). The discrete energy never increases."""
+    mesh = shapes.ellipse(64, 3.0, 2.4)
+    h = mesh.h
+    out = {}
+    for spec, tau, steps in (("gamma0", h, 40), ("gamma1", h, 40), ("gamma2:1e-2", h / 4, 40)):
+        f = WillmoreFlow(mesh, tau, 0.1 * h * h, lam=0.05, anisotropy=spec)
+        e = [f.state().energy]
+        for _ in range(steps):
+            r = f.step()
+            e.append(r.energy)
+        assert np.all(np.diff(e) <= 1e-9 * abs(e[0]))
+        assert np.isfinite(r.willmore_gamma) and r.willmore_gamma > 0
+        out[spec] = _widths(r.vertices - r.vertices.mean(0))
+    w0, w1, w2 = out["gamma0"], out["gamma1"], out["gamma2:1e-2"]
+    assert w0[1] / w0[0] == pytest.approx(1.0, abs=0.05)  # started at 0.8
+    assert 1.7 < w1[1] / w1[0] < 2.3  # started at 0.8, elongated along x1
+    assert w2[2:].mean() / w2[:2].mean() > 1.2  # circle 1.0, square 1.414; started at 1.01
+    assert w0[2:].mean() / w0[:2].mean() == pytest.approx(1.0, abs=0.02)
+
+
+def test_surface_stretches_along_the_wulff_axis() -> None:
+    """gamma1 in R^3 (Wulff shape x1^2 + x2^2/4 + x3^2 <= 1): a sphere stretches along x2 towards
+    axis ratio 2 and stays round across x2 (measured 2.04 after 10 steps)."""
+    from willmore_nlp import registry
+
+    pb = registry.get("anisotropic_sphere").factory(steps=10)
+    f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+    for _ in range(pb.steps):
+        r = f.step()
+    w = r.vertices.max(0) - r.vertices.min(0)
+    assert 1.8 < w[1] / w[0] < 2.3
+    assert w[2] / w[0] == pytest.approx(1.0, abs=0.02)
+    assert r.quality["min_angle"] > 25
+
+
+def test_bad_anisotropies_are_refused() -> None:
+    cases = [
+        (lambda z: ca.sumsqr(z), "not 1-homogeneous"),
+        (lambda z: z[0], "not positive"),
+        (lambda z: ca.fabs(z[0]), "not positive"),
+        (lambda z: 1.0 + 0 * z[0], "not 1-homogeneous"),
+        (lambda z: z, "must be a scalar"),
+    ]
+    for fn, msg in cases:
+        with pytest.raises(AnisotropyError, match=msg):
+            get_anisotropy(fn, 2)
+    with pytest.raises(AnisotropyError, match="unknown anisotropy 'gamma9'"):
+        get_anisotropy("gamma9", 2)
+    with pytest.raises(AnisotropyError, match="gamma2:EPS"):
+        get_anisotropy("gamma2:abc", 2)
+    with pytest.raises(AnisotropyError, match="defined on R\\^3"):
+        get_anisotropy(get_anisotropy("gamma1", 3), 2)
+    with pytest.raises(MeshError, match="curve in R\\^2"):
+        build_step(shapes.regular_polygon(8, m=3), anisotropy="gamma1")
+    arc = shapes.open_curve(np.column_stack([np.linspace(0, 1, 5), np.zeros(5)]))
+    with pytest.raises(MeshError, match="closed"):
+        build_step(arc, anisotropy="gamma1")
+
+
+def test_bunny_is_a_436_node_closed_curve() -> None:
+    from problems.anisotropic import BUNNY_H, bunny_curve
+
+    b = bunny_curve()
+    assert b.n_vertices == 436 and b.is_closed and b.m == 2
+    assert b.h == pytest.approx(BUNNY_H, rel=0.01)
+    e = np.linalg.norm(np.roll(b.vertices, -1, 0) - b.vertices, axis=1)
+    assert e.max() / e.min() < 1.5  # resampled by arc length
+    assert enclosed_volume(b) > 0  # counter-clockwise
+
+
+def test_cli_runs_the_fig11_bunny_and_the_sphere(tmp_path) -> None:
+    from willmore_nlp import load_run
+
+    cli = [sys.executable, "-m", "willmore_nlp.cli"]
+    for args in (["bunny", "--set", "gamma=gamma0"], ["bunny", "--set", "gamma=gamma1"],
+                 ["anisotropic_sphere", "--set", "subdivisions=1"]):
+        out = tmp_path / "_".join(args).replace("=", "-")
+        r = subprocess.run([*cli, "run", *args, "--steps", "2", "--out", str(out)],
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+        run = load_run(out)
+        assert len(run.states) == 3
+        assert "willmore_gamma" in (out / "history.csv").read_text().splitlines()[0]
+    bad = subprocess.run([*cli, "run", "bunny", "--set", "gamma=gamma7", "--steps", "1", "--out",
+                          str(tmp_path / "bad")], capture_output=True, text=True, timeout=600)
+    assert bad.returncode != 0 and "unknown anisotropy 'gamma7'" in bad.stderr
+    assert not (tmp_path / "bad").exists()
