@@ -1,6 +1,7 @@
 """Step solvers behind one factory signature: ``make_solver(name, evaluator, options)``."""
 
 from willmore_nlp.solvers import ipopt as _ipopt  # noqa: F401  (registers "ipopt")
+from willmore_nlp.solvers import reduced as _reduced  # noqa: F401  (registers "gd", "lbfgs", "newton")
 from willmore_nlp.solvers.base import SolveResult, make_solver, register_solver, solver_names
 
 __all__ = ["SolveResult", "make_solver", "register_solver", "solver_names"]
