@@ -219,7 +219,7 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("set-no-equals", _circle_with("tau"), ["--set 'tau'", "expected key=value"]),
     ("set-max-retries", _circle_with("max_retries=-1"), ["--set", "max_retries must be an integer >= 0, got -1"]),
     ("set-min-angle", _circle_with("min_angle=75"), ["--set", "min_angle must be a number in [0, 60)"]),
-    ("set-unknown-solver", _circle_with("solver=newton"), ["unknown solver 'newton'"]),
+    ("set-unknown-solver", _circle_with("solver=bfgs"), ["unknown solver 'bfgs'"]),
     ("set-bool", _circle_with("check_energy=maybe"), ["--set: parameter check_energy: cannot read 'maybe' as bool"]),
     ("unknown-problem", lambda d: ["spheroid"], ["unknown problem 'spheroid'"]),
 ]

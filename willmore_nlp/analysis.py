@@ -79,3 +79,24 @@ def polygon_equilibrium_radius(n: int, k: int, tt: float, lam: float) -> float:
 
     R0 = 1 / np.sqrt(2 * lam)
     return float(minimize_scalar(e, bounds=(0.1 * R0, 10 * R0), method="bounded", options={"xatol": 1e-12}).x)
+
+
+def axis_widths(X: np.ndarray) -> np.ndarray:
+    """Widths of a point set along the coordinate axes and, for planar sets, the two diagonals.
+
+    Parameters
+    ----------
+    X : (N, m) points
+
+    Returns
+    -------
+    (4,) widths along x1, x2, (x1 + x2)/sqrt 2, (x1 - x2)/sqrt 2 for m = 2, or (m,) axis widths
+    otherwise. For m = 2 the ratio of the mean diagonal to the mean axial width is 1 for a circle
+    and sqrt 2 for an axis-aligned square (used to measure anisotropic shapes).
+    """
+    X = np.asarray(X, float)
+    if X.shape[1] != 2:
+        return X.max(axis=0) - X.min(axis=0)
+    s = 1.0 / np.sqrt(2.0)
+    P = X @ np.array([[1.0, 0.0], [0.0, 1.0], [s, s], [s, -s]]).T
+    return P.max(axis=0) - P.min(axis=0)

@@ -91,11 +91,45 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    """Write a Markdown + HTML + PNG report of a run directory."""
-    from willmore_nlp.report import write_report
+    """Write a Markdown + HTML + PNG report of a run directory or a study directory."""
+    from pathlib import Path
 
-    md = write_report(args.run_dir, args.out)
+    from willmore_nlp.report import markdown_to_html, write_report
+    from willmore_nlp.study import STUDY_FILE, write_study
+
+    if (Path(args.run_dir) / STUDY_FILE).exists():
+        md = write_study(args.run_dir)
+        md.with_suffix(".html").write_text(markdown_to_html(md.read_text(encoding="utf-8"), "study"), encoding="utf-8")
+    else:
+        md = write_report(args.run_dir, args.out)
     print(f"wrote {md} and {md.with_suffix('.html')}")
+    return 0
+
+
+def _typed(problem: str, items: dict[str, str], option: str) -> dict[str, Any]:
+    from willmore_nlp import registry
+
+    defaults = registry.get(problem).defaults()
+    out = {}
+    for k, v in items.items():
+        if k not in defaults:
+            raise ConfigError(f"{option} {k}: problem {problem!r} has no parameter {k!r}; "
+                              f"known: {', '.join(sorted(defaults))}")
+        out[k] = registry.coerce(v, defaults[k], k)
+    return out
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """Run a solver-comparison study on Dask and write its artefacts."""
+    from willmore_nlp.study import make_grid, run_study
+
+    params = _typed(args.problem, parse_overrides(args.set or []), "--set")
+    grid_raw = parse_overrides(args.grid or [])
+    grid = {k: [_typed(args.problem, {k: v}, "--grid")[k] for v in vals.split(",")] for k, vals in grid_raw.items()}
+    cases = make_grid(args.problem, [s.strip() for s in args.solvers.split(",") if s.strip()],
+                      [t.strip() for t in args.taus.split(",") if t.strip()], grid, params, args.steps, args.t_end)
+    md = run_study(cases, args.out, scheduler=args.scheduler, n_workers=args.workers, progress=not args.quiet)
+    print(f"wrote {md}")
     return 0
 
 
@@ -138,10 +172,24 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, help="output directory for the .vtu files and run.pvd")
     e.set_defaults(func=cmd_export)
 
-    rp = sub.add_parser("report", help="write a report (Markdown, HTML, PNG figures) of a run directory")
-    rp.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
+    rp = sub.add_parser("report", help="write a report (Markdown, HTML, PNG figures) of a run or study directory")
+    rp.add_argument("run_dir", help="run directory ('willmore-nlp run') or study directory ('willmore-nlp compare')")
     rp.add_argument("--out", help="output directory (default RUN_DIR/report)")
     rp.set_defaults(func=cmd_report)
+
+    cp = sub.add_parser("compare", help="solver-comparison study: solvers x step sizes (x parameters) on Dask")
+    cp.add_argument("problem", help="registered problem name")
+    cp.add_argument("--solvers", default="ipopt", help="comma-separated solver names (default ipopt)")
+    cp.add_argument("--taus", default="h", help="comma-separated step sizes: numbers or multiples of h (4h)")
+    cp.add_argument("--grid", action="append", metavar="KEY=V1,V2", help="problem parameter values to vary")
+    cp.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed problem parameter (repeatable)")
+    cp.add_argument("--steps", type=int, help="steps per case (default: the problem's)")
+    cp.add_argument("--t-end", type=float, dest="t_end", help="final time per case")
+    cp.add_argument("--out", required=True, help="study directory (a rerun skips finished cases)")
+    cp.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a LocalCluster)")
+    cp.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
+    cp.add_argument("--quiet", action="store_true", help="no progress lines")
+    cp.set_defaults(func=cmd_compare)
 
     rr = sub.add_parser("reproduce", help="reproduce the paper's Sec. 5 (REPRODUCTION.md + figures)")
     rr.add_argument("--out", default="reports", help="output directory (default: reports)")

@@ -1,0 +1,69 @@
+"""Solver-comparison studies on a Dask LocalCluster: artefacts, failures recorded, reruns skip finished cases."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import matplotlib.image as mpimg
+import pytest
+
+from willmore_nlp.study import STUDY_FILE, Case, StudyError, make_grid, parse_tau, run_study, write_study
+
+
+def test_tau_specs_and_grid_validation() -> None:
+    assert parse_tau("0.01", 0.5) == 0.01
+    assert parse_tau("h", 0.5) == 0.5
+    assert parse_tau("4h", 0.5) == 2.0
+    for bad in ("xh", "-1", "0h"):
+        with pytest.raises(StudyError, match="--taus"):
+            parse_tau(bad, 0.5)
+    with pytest.raises(StudyError, match="unknown solver 'bfgs'"):
+        make_grid("circle", ["ipopt", "bfgs"], ["h"])
+    cases = make_grid("circle", ["ipopt", "lbfgs"], ["h", "0.01"], {"n": [16, 32]}, steps=2)
+    assert len(cases) == 8 and len({c.key for c in cases}) == 8
+
+
+def test_study_on_a_local_cluster_writes_every_artefact_and_reruns_skip(tmp_path, capsys) -> None:
+    out = tmp_path / "study"
+    cases = make_grid("circle", ["ipopt", "lbfgs"], ["h", "0.001"], params={"n": 32}, steps=2)
+    bad = Case("circle", "ipopt", "h", {"n": 2}, 2)  # a 2-gon: the case fails, the others go on
+    md = run_study([*cases, bad], out, n_workers=2)
+    assert md == out / "summary.md" and (out / STUDY_FILE).exists()
+    with open(out / "study.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    ok_rows = [r for r in rows if r["case_status"] == "ok"]
+    assert len(ok_rows) == 4 * 3  # four cases, initial state + 2 steps each
+    failed = [r for r in rows if r["case_status"] == "failed"]
+    assert len(failed) == 1 and failed[0]["solver"] == "ipopt"
+    rec = json.loads((out / "cases" / f"{bad.key}.json").read_text())
+    assert rec["status"] == "failed" and "n must be >= 3, got 2" in rec["error"]
+    text = md.read_text()
+    assert "| ipopt tau=h n=32 |" in text and "| failed |" in text
+    assert "largest stable tau" in text.lower()
+    for name in ("energy.png", "cost.png", "stable_tau.png"):
+        img = mpimg.imread(out / "figures" / name)
+        assert img.shape[0] > 50 and img.std() > 0
+    for link in ("figures/energy.png", "figures/cost.png", "figures/stable_tau.png"):
+        assert link in text
+    # both solvers reach the same states (IPOPT and L-BFGS solve the same step problem)
+    e = {(r["solver"], r["tau_spec"], r["step"]): float(r["energy"]) for r in ok_rows}
+    for tau in ("h", "0.001"):
+        assert e[("ipopt", tau, "2")] == pytest.approx(e[("lbfgs", tau, "2")], rel=1e-6)
+    mtimes = {p.name: p.stat().st_mtime_ns for p in (out / "cases").glob("*.json")}
+    capsys.readouterr()
+    run_study([*cases, bad], out, n_workers=1)
+    assert "5 already finished" in capsys.readouterr().err
+    assert mtimes == {p.name: p.stat().st_mtime_ns for p in (out / "cases").glob("*.json")}
+    assert write_study(out) == md
+
+
+def test_compare_cli_errors_leave_nothing(tmp_path) -> None:
+    cli = [sys.executable, "-m", "willmore_nlp.cli"]
+    out = tmp_path / "s"
+    r = subprocess.run([*cli, "compare", "circle", "--solvers", "ipopt,nope", "--out", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "unknown solver 'nope'" in r.stderr and not out.exists()
+    r = subprocess.run([*cli, "compare", "circle", "--grid", "radius=1,2", "--out", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "has no parameter 'radius'" in r.stderr and not out.exists()

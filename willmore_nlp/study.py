@@ -1,0 +1,288 @@
+"""Solver-comparison studies: a grid of (solver, tau, problem parameters) run on Dask.
+
+``run_study`` submits every case of the grid to a ``dask.distributed`` cluster (a LocalCluster on
+this machine by default, or an existing scheduler), each case writing ``cases/<key>.json`` when
+it ends (atomically: a crashed worker never leaves a partial file). A failed case is recorded with
+its error and does not stop the others; a rerun skips cases whose file exists. ``write_study``
+turns the case files into the study's artefacts:
+
+    study.csv      tidy table, one row per case and step (step 0 = initial state)
+    summary.md     per-case table and the largest stable tau per solver (and mesh size)
+    figures/       energy vs t, iterations and time per step, largest stable tau vs h
+
+Command line: ``willmore-nlp compare PROBLEM --solvers ipopt,lbfgs --taus 1h,4h --steps 10``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+import sys
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import numpy as np
+from matplotlib.figure import Figure
+
+STUDY_FILE = "study.json"
+"""Marks a study directory; holds the grid."""
+
+
+class StudyError(ValueError):
+    """A study specification is invalid (names the option and value)."""
+
+
+@dataclass(frozen=True)
+class Case:
+    """One run of a study: a problem with parameters, a solver and a step size.
+
+    ``tau`` is a number or a multiple of the mesh size written ``"<c>h"`` (``"h"``, ``"4h"``).
+    """
+
+    problem: str
+    solver: str
+    tau: str
+    params: dict[str, Any] = field(default_factory=dict)
+    steps: int | None = None
+    t_end: float | None = None
+
+    @property
+    def key(self) -> str:
+        """File-name-safe identifier."""
+        par = "_".join(f"{k}-{v}" for k, v in sorted(self.params.items()))
+        raw = f"{self.problem}__{self.solver}__tau-{self.tau}" + (f"__{par}" if par else "")
+        return "".join(c if c.isalnum() or c in "-_." else "-" for c in raw)
+
+
+def parse_tau(spec: str, h: float) -> float:
+    """A step size from ``"0.01"``, ``"h"`` or ``"4h"`` (a multiple of the mesh size h)."""
+    s = str(spec).strip()
+    try:
+        val = h * (float(s[:-1]) if len(s) > 1 else 1.0) if s.endswith("h") else float(s)
+    except ValueError:
+        raise StudyError(f"--taus: {spec!r} is not a number or a multiple of h such as 4h") from None
+    if not (np.isfinite(val) and val > 0):
+        raise StudyError(f"--taus: {spec!r} gives tau = {val}, which must be positive")
+    return val
+
+
+def run_case(case: Case, out: str) -> dict[str, Any]:
+    """Run one case and write ``out/cases/<key>.json``; never raises for a failing flow.
+
+    Returns
+    -------
+    dict with ``case``, ``status`` ("ok" or "failed"), ``error``, ``h``, ``tau``, ``wall`` and
+    ``rows`` (one dict per accepted step, step 0 first).
+    """
+    from willmore_nlp import registry
+    from willmore_nlp.flow import FlowError, StepResult, WillmoreFlow
+
+    rows: list[dict[str, Any]] = []
+    rec: dict[str, Any] = {"case": asdict(case), "status": "ok", "error": "", "h": float("nan"),
+                           "tau": float("nan"), "rows": rows}
+    t0 = time.perf_counter()
+
+    def keep(r: StepResult) -> None:
+        row = {k: v for k, v in r.row().items() if isinstance(v, int | float | str)}
+        rows.append(row)
+
+    try:
+        pb, _ = registry.build(case.problem, **case.params)
+        rec["h"] = float(pb.mesh.h)
+        tau = parse_tau(case.tau, pb.mesh.h)
+        rec["tau"] = tau
+        opts = dict(pb.flow_options)
+        opts["solver"] = case.solver
+        flow = WillmoreFlow(pb.mesh, tau, pb.tau_tilde, lam=pb.lam, **opts)
+        keep(flow.state())
+        steps, t_end = case.steps, case.t_end
+        if steps is None and t_end is None:
+            steps, t_end = pb.steps, pb.t_end
+        flow.run(steps=steps, t_end=t_end, callback=keep)
+    except FlowError as exc:
+        rec.update(status="failed", error=str(exc).splitlines()[0][:500])
+    except Exception as exc:
+        rec.update(status="failed", error=f"{type(exc).__name__}: {exc}"[:500],
+                   traceback=traceback.format_exc(limit=5))
+    rec["wall"] = time.perf_counter() - t0
+    path = Path(out) / "cases" / f"{case.key}.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(rec, default=float), encoding="utf-8")
+    os.replace(tmp, path)
+    return rec
+
+
+def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str, list[Any]] | None = None,
+              params: dict[str, Any] | None = None, steps: int | None = None,
+              t_end: float | None = None) -> list[Case]:
+    """All cases of a study (solver x tau x grid values), checked before anything runs."""
+    from willmore_nlp import registry
+    from willmore_nlp.solvers import solver_names
+
+    registry.get(problem)
+    known = solver_names()
+    for s in solvers:
+        if s not in known:
+            raise StudyError(f"--solvers: unknown solver {s!r}; available: {', '.join(known)}")
+    if not solvers or not taus:
+        raise StudyError("a study needs at least one solver (--solvers) and one step size (--taus)")
+    for t in taus:
+        parse_tau(t, 1.0)
+    grid = grid or {}
+    combos: list[dict[str, Any]] = [dict(params or {})]
+    for k, vals in grid.items():
+        combos = [{**c, k: v} for c in combos for v in vals]
+    return [Case(problem, s, str(t), c, steps, t_end) for c in combos for s in solvers for t in taus]
+
+
+def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str | None = None,
+              n_workers: int = 2, progress: bool = True) -> Path:
+    """Run the cases not finished yet on Dask and write the study artefacts.
+
+    Parameters
+    ----------
+    cases : from :func:`make_grid`
+    out : study directory (created; reused by reruns, which skip finished cases)
+    scheduler : address of an existing Dask scheduler; default a LocalCluster with ``n_workers``
+        single-threaded worker processes
+    """
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    out = Path(out)
+    (out / "cases").mkdir(parents=True, exist_ok=True)
+    spec = {"cases": [asdict(c) for c in cases]}
+    (out / STUDY_FILE).write_text(json.dumps(spec, indent=1), encoding="utf-8")
+    todo = [c for c in cases if not (out / "cases" / f"{c.key}.json").exists()]
+    if progress:
+        print(f"study {out}: {len(cases)} cases, {len(cases) - len(todo)} already finished", file=sys.stderr)
+    if todo:
+        cluster = None
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+        client = Client(scheduler if scheduler is not None else cluster)
+        try:
+            futures = [client.submit(run_case, c, str(out), key=f"case-{c.key}", pure=False) for c in todo]
+            for i, fut in enumerate(as_completed(futures), 1):
+                rec = fut.result()
+                if progress:
+                    c = rec["case"]
+                    print(f"[{i}/{len(todo)}] {c['solver']} tau={c['tau']} {c['params'] or ''}: {rec['status']}, "
+                          f"{max(len(rec['rows']) - 1, 0)} steps, {rec['wall']:.1f} s "
+                          f"{rec['error'][:100] if rec['error'] else ''}", file=sys.stderr, flush=True)
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    return write_study(out)
+
+
+def _load(out: Path) -> list[dict[str, Any]]:
+    spec = json.loads((out / STUDY_FILE).read_text(encoding="utf-8"))
+    recs = []
+    for c in spec["cases"]:
+        path = out / "cases" / f"{Case(**c).key}.json"
+        if path.exists():
+            recs.append(json.loads(path.read_text(encoding="utf-8")))
+    return recs
+
+
+def _label(rec: dict[str, Any]) -> str:
+    c = rec["case"]
+    par = " ".join(f"{k}={v}" for k, v in c["params"].items())
+    return f"{c['solver']} tau={c['tau']}" + (f" {par}" if par else "")
+
+
+def write_study(out: str | os.PathLike[str]) -> Path:
+    """Write study.csv, summary.md and figures/ from the finished case files; returns summary.md."""
+    out = Path(out)
+    if not (out / STUDY_FILE).exists():
+        raise StudyError(f"{out}: not a study directory (no {STUDY_FILE})")
+    recs = _load(out)
+    figs = out / "figures"
+    figs.mkdir(exist_ok=True)
+    cols = ["case", "solver", "tau_spec", "tau", "h", "params", "case_status", "step", "status", "t", "energy",
+            "willmore_energy", "iterations", "wall_time", "kkt_residual", "retries", "converged"]
+    with open(out / "study.csv", "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
+        w.writeheader()
+        for rec in recs:
+            c = rec["case"]
+            base = {"case": Case(**c).key, "solver": c["solver"], "tau_spec": c["tau"], "tau": rec["tau"],
+                    "h": rec["h"], "params": json.dumps(c["params"], sort_keys=True), "case_status": rec["status"]}
+            for row in rec["rows"] or [{}]:
+                w.writerow({**base, **row})
+    lines = [f"# Solver comparison: {recs[0]['case']['problem'] if recs else '(no finished cases)'}", "",
+             f"{len(recs)} finished case(s). Regenerate with `willmore-nlp report {out}`; rerun missing cases with "
+             "`willmore-nlp compare` and the same options.", "",
+             "| case | h | tau | status | steps | mean iterations | mean s/step | final energy | final Willmore | "
+             "max KKT residual | error |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for rec in recs:
+        steps = rec["rows"][1:]
+        it = np.mean([r["iterations"] for r in steps]) if steps else float("nan")
+        wt = np.mean([r["wall_time"] for r in steps]) if steps else float("nan")
+        kkt = max((r.get("kkt_residual", float("nan")) for r in steps), default=float("nan"))
+        last = rec["rows"][-1] if rec["rows"] else {}
+        lines.append(f"| {_label(rec)} | {rec['h']:.4g} | {rec['tau']:.4g} | {rec['status']} | {len(steps)} | "
+                     f"{it:.1f} | {wt:.4f} | {last.get('energy', float('nan')):.6g} | "
+                     f"{last.get('willmore_energy', float('nan')):.6g} | {kkt:.2e} | {rec['error'][:120]} |")
+    stable: dict[tuple[str, float], float] = {}
+    for rec in recs:
+        if rec["status"] == "ok" and np.isfinite(rec["tau"]) and not any(r.get("retries") for r in rec["rows"]):
+            k = (rec["case"]["solver"], round(rec["h"], 12))
+            stable[k] = max(stable.get(k, 0.0), rec["tau"])
+    lines += ["", "Largest step size that completed every step without halving (within the taus tried):", "",
+              "| solver | h | largest stable tau | tau / h |", "|---|---|---|---|"]
+    lines += [f"| {s} | {h:.4g} | {t:.4g} | {t / h:.3g} |" for (s, h), t in sorted(stable.items())]
+    lines += ["", "![energy](figures/energy.png)", "", "![cost](figures/cost.png)", "",
+              "![stable tau](figures/stable_tau.png)", ""]
+    _figures(recs, stable, figs)
+    md = out / "summary.md"
+    md.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return md
+
+
+def _figures(recs: list[dict[str, Any]], stable: dict[tuple[str, float], float], figs: Path) -> None:
+    fig = Figure(figsize=(6, 4))
+    ax = fig.add_subplot(1, 1, 1)
+    for rec in recs:
+        if rec["rows"]:
+            ax.plot([r["t"] for r in rec["rows"]], [r["energy"] for r in rec["rows"]], "o-", ms=2, label=_label(rec))
+    ax.set_xlabel("t")
+    ax.set_ylabel("discrete energy")
+    ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(figs / "energy.png", dpi=90)
+    fig = Figure(figsize=(9, 3.6))
+    a1, a2 = fig.subplots(1, 2)
+    labels = [_label(r) for r in recs]
+    its = [np.mean([s["iterations"] for s in r["rows"][1:]]) if len(r["rows"]) > 1 else 0.0 for r in recs]
+    wts = [np.mean([s["wall_time"] for s in r["rows"][1:]]) if len(r["rows"]) > 1 else 0.0 for r in recs]
+    y = np.arange(len(recs))
+    a1.barh(y, its)
+    a1.set_yticks(y, labels, fontsize=6)
+    a1.set_xlabel("mean iterations per step")
+    a2.barh(y, wts)
+    a2.set_yticks(y, [""] * len(recs))
+    a2.set_xlabel("mean seconds per step")
+    fig.tight_layout()
+    fig.savefig(figs / "cost.png", dpi=90)
+    fig = Figure(figsize=(5, 3.6))
+    ax = fig.add_subplot(1, 1, 1)
+    for s in sorted({k[0] for k in stable}):
+        pts = sorted((h, t) for (sv, h), t in stable.items() if sv == s)
+        ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=s)
+    ax.set_xlabel("h")
+    ax.set_ylabel("largest stable tau")
+    if stable:
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(figs / "stable_tau.png", dpi=90)
