@@ -54,15 +54,15 @@ CASES = [
 
 
 @pytest.mark.parametrize(("mesh", "tau_h", "tt_h2", "lam"), CASES)
-def test_reduced_solvers_agree_with_ipopt(mesh, tau_h, tt_h2, lam) -> None:
-    """One step by L-BFGS (|grad W^| <= 1e-6 relative) and reduced Newton (1e-8) against IPOPT at 1e-12:
-    the differences, relative to the step, are bounded by the tolerances (measured: L-BFGS <= 1.5e-5,
-    Newton <= 1e-9)."""
+def test_solvers_agree_with_ipopt(mesh, tau_h, tt_h2, lam) -> None:
+    """One step by L-BFGS (|grad W^| <= 1e-6 relative), reduced Newton (1e-8) and the SQP (KKT residual
+    1e-9) against IPOPT at 1e-12: the differences, relative to the step, are bounded by the tolerances
+    (measured: L-BFGS <= 1.5e-5, Newton <= 1e-9, SQP <= 3e-8)."""
     h = mesh.h
     tau, tt = (1e-2 if tau_h is None else tau_h * h), tt_h2 * h * h
     ref = WillmoreFlow(mesh, tau, tt, lam=lam, tol=1e-12, max_iter=1000, max_retries=0).step()
     step = np.abs(ref.vertices - mesh.vertices).max()
-    for name, tol, bound in (("lbfgs", 1e-6, 1e-4), ("newton", 1e-8, 1e-7)):
+    for name, tol, bound in (("lbfgs", 1e-6, 1e-4), ("newton", 1e-8, 1e-7), ("sqp", 1e-9, 1e-7)):
         r = WillmoreFlow(mesh, tau, tt, lam=lam, solver=name, tol=tol, max_retries=0).step()
         assert r.converged and r.stats["kkt_residual"] <= r.stats["gtol"]
         assert np.abs(r.vertices - ref.vertices).max() <= bound * step, name
@@ -86,7 +86,7 @@ def test_gradient_descent_error_follows_its_tolerance() -> None:
 
 
 def test_solver_registry_and_options() -> None:
-    assert {"ipopt", "gd", "lbfgs", "newton"} <= set(solver_names())
+    assert {"ipopt", "sqp", "gd", "lbfgs", "newton", "semi-implicit"} <= set(solver_names())
     mesh = shapes.regular_polygon(8)
     setup = build_step(mesh)
     ev = StepEvaluator(setup.problem, setup.problem.functions())
