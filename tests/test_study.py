@@ -56,6 +56,10 @@ def test_study_on_a_local_cluster_writes_every_artefact_and_reruns_skip(tmp_path
     assert "5 already finished" in capsys.readouterr().err
     assert mtimes == {p.name: p.stat().st_mtime_ns for p in (out / "cases").glob("*.json")}
     assert write_study(out) == md
+    from willmore_nlp.cli import main
+
+    assert main(["report", str(out)]) == 0  # a study directory gets the study report
+    assert (out / "summary.html").read_text().count("<img") == 3
 
 
 def test_compare_cli_errors_leave_nothing(tmp_path) -> None:
@@ -67,3 +71,6 @@ def test_compare_cli_errors_leave_nothing(tmp_path) -> None:
     r = subprocess.run([*cli, "compare", "circle", "--grid", "radius=1,2", "--out", str(out)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "has no parameter 'radius'" in r.stderr and not out.exists()
+    r = subprocess.run([*cli, "compare", "circle", "--option", "maxiter=5", "--out", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "--option maxiter: not a flow option" in r.stderr and not out.exists()

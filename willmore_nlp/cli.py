@@ -119,6 +119,19 @@ def _typed(problem: str, items: dict[str, str], option: str) -> dict[str, Any]:
     return out
 
 
+def _flow_options(items: dict[str, str]) -> dict[str, Any]:
+    from willmore_nlp.config import FLOW_KEYS
+    from willmore_nlp.registry import coerce
+
+    out = {}
+    for k, v in items.items():
+        if k not in FLOW_KEYS or k == "solver":
+            raise ConfigError(f"--option {k}: not a flow option; known: "
+                              f"{', '.join(sorted(set(FLOW_KEYS) - {'solver'}))}")
+        out[k] = coerce(v, FLOW_KEYS[k], k) if FLOW_KEYS[k] is not None else v
+    return out
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     """Run a solver-comparison study on Dask and write its artefacts."""
     from willmore_nlp.study import make_grid, run_study
@@ -127,7 +140,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     grid_raw = parse_overrides(args.grid or [])
     grid = {k: [_typed(args.problem, {k: v}, "--grid")[k] for v in vals.split(",")] for k, vals in grid_raw.items()}
     cases = make_grid(args.problem, [s.strip() for s in args.solvers.split(",") if s.strip()],
-                      [t.strip() for t in args.taus.split(",") if t.strip()], grid, params, args.steps, args.t_end)
+                      [t.strip() for t in args.taus.split(",") if t.strip()], grid, params, args.steps, args.t_end,
+                      _flow_options(parse_overrides(args.option or [])))
     md = run_study(cases, args.out, scheduler=args.scheduler, n_workers=args.workers, progress=not args.quiet)
     print(f"wrote {md}")
     return 0
@@ -183,6 +197,8 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--taus", default="h", help="comma-separated step sizes: numbers or multiples of h (4h)")
     cp.add_argument("--grid", action="append", metavar="KEY=V1,V2", help="problem parameter values to vary")
     cp.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed problem parameter (repeatable)")
+    cp.add_argument("--option", action="append", metavar="KEY=VALUE",
+                    help="flow/solver option for every case, e.g. max_iter=1000 (repeatable)")
     cp.add_argument("--steps", type=int, help="steps per case (default: the problem's)")
     cp.add_argument("--t-end", type=float, dest="t_end", help="final time per case")
     cp.add_argument("--out", required=True, help="study directory (a rerun skips finished cases)")

@@ -53,11 +53,13 @@ class Case:
     params: dict[str, Any] = field(default_factory=dict)
     steps: int | None = None
     t_end: float | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+    """Flow and solver options (``max_iter``, ``tol``, ``max_retries`` ...) for WillmoreFlow."""
 
     @property
     def key(self) -> str:
         """File-name-safe identifier."""
-        par = "_".join(f"{k}-{v}" for k, v in sorted(self.params.items()))
+        par = "_".join(f"{k}-{v}" for k, v in sorted({**self.params, **self.options}.items()))
         raw = f"{self.problem}__{self.solver}__tau-{self.tau}" + (f"__{par}" if par else "")
         return "".join(c if c.isalnum() or c in "-_." else "-" for c in raw)
 
@@ -99,8 +101,7 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
         rec["h"] = float(pb.mesh.h)
         tau = parse_tau(case.tau, pb.mesh.h)
         rec["tau"] = tau
-        opts = dict(pb.flow_options)
-        opts["solver"] = case.solver
+        opts = {**pb.flow_options, **case.options, "solver": case.solver}
         flow = WillmoreFlow(pb.mesh, tau, pb.tau_tilde, lam=pb.lam, **opts)
         keep(flow.state())
         steps, t_end = case.steps, case.t_end
@@ -122,7 +123,7 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
 
 def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str, list[Any]] | None = None,
               params: dict[str, Any] | None = None, steps: int | None = None,
-              t_end: float | None = None) -> list[Case]:
+              t_end: float | None = None, options: dict[str, Any] | None = None) -> list[Case]:
     """All cases of a study (solver x tau x grid values), checked before anything runs."""
     from willmore_nlp import registry
     from willmore_nlp.solvers import solver_names
@@ -140,7 +141,8 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
     combos: list[dict[str, Any]] = [dict(params or {})]
     for k, vals in grid.items():
         combos = [{**c, k: v} for c in combos for v in vals]
-    return [Case(problem, s, str(t), c, steps, t_end) for c in combos for s in solvers for t in taus]
+    return [Case(problem, s, str(t), c, steps, t_end, dict(options or {})) for c in combos for s in solvers
+            for t in taus]
 
 
 def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str | None = None,
@@ -167,7 +169,7 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
         cluster = None
         if scheduler is None:
             cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+                                   dashboard_address=":0", silence_logs=logging.ERROR)
         client = Client(scheduler if scheduler is not None else cluster)
         try:
             futures = [client.submit(run_case, c, str(out), key=f"case-{c.key}", pure=False) for c in todo]
@@ -193,6 +195,14 @@ def _load(out: Path) -> list[dict[str, Any]]:
         if path.exists():
             recs.append(json.loads(path.read_text(encoding="utf-8")))
     return recs
+
+
+def _energy_rise(rec: dict[str, Any]) -> float:
+    """Largest relative increase of the discrete energy from one state to the next (0 if it never rises)."""
+    e = np.array([r.get("energy", np.nan) for r in rec["rows"]], float)
+    if e.size < 2:
+        return 0.0
+    return float(max(0.0, np.nanmax(np.diff(e) / np.maximum(np.abs(e[:-1]), 1e-300))))
 
 
 def _label(rec: dict[str, Any]) -> str:
@@ -224,7 +234,7 @@ def write_study(out: str | os.PathLike[str]) -> Path:
              f"{len(recs)} finished case(s). Regenerate with `willmore-nlp report {out}`; rerun missing cases with "
              "`willmore-nlp compare` and the same options.", "",
              "| case | h | tau | status | steps | mean iterations | mean s/step | final energy | final Willmore | "
-             "max KKT residual | error |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "max KKT residual | max energy rise | error |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for rec in recs:
         steps = rec["rows"][1:]
         it = np.mean([r["iterations"] for r in steps]) if steps else float("nan")
@@ -233,13 +243,16 @@ def write_study(out: str | os.PathLike[str]) -> Path:
         last = rec["rows"][-1] if rec["rows"] else {}
         lines.append(f"| {_label(rec)} | {rec['h']:.4g} | {rec['tau']:.4g} | {rec['status']} | {len(steps)} | "
                      f"{it:.1f} | {wt:.4f} | {last.get('energy', float('nan')):.6g} | "
-                     f"{last.get('willmore_energy', float('nan')):.6g} | {kkt:.2e} | {rec['error'][:120]} |")
+                     f"{last.get('willmore_energy', float('nan')):.6g} | {kkt:.2e} | {_energy_rise(rec):.1e} | "
+                     f"{rec['error'][:120]} |")
     stable: dict[tuple[str, float], float] = {}
     for rec in recs:
-        if rec["status"] == "ok" and np.isfinite(rec["tau"]) and not any(r.get("retries") for r in rec["rows"]):
+        if rec["status"] == "ok" and np.isfinite(rec["tau"]) and not any(r.get("retries") for r in rec["rows"]) \
+                and _energy_rise(rec) <= 1e-8:
             k = (rec["case"]["solver"], round(rec["h"], 12))
             stable[k] = max(stable.get(k, 0.0), rec["tau"])
-    lines += ["", "Largest step size that completed every step without halving (within the taus tried):", "",
+    lines += ["", "Largest step size that completed every step without halving and without raising the discrete "
+              "energy by more than 1e-8 (relative) in any step, within the taus tried:", "",
               "| solver | h | largest stable tau | tau / h |", "|---|---|---|---|"]
     lines += [f"| {s} | {h:.4g} | {t:.4g} | {t / h:.3g} |" for (s, h), t in sorted(stable.items())]
     lines += ["", "![energy](figures/energy.png)", "", "![cost](figures/cost.png)", "",
