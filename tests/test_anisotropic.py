@@ -158,7 +158,7 @@ def test_long_runs_tend_to_the_expected_shapes() -> None:
 
 def test_surface_stretches_along_the_wulff_axis() -> None:
     """gamma1 in R^3 (Wulff shape x1^2 + x2^2/4 + x3^2 <= 1): a sphere stretches along x2 towards
-    axis ratio 2 and stays round across x2 (measured 2.04 after 10 steps)."""
+    axis ratio 2 and stays round across x2 (measured 2.11 after 10 steps, x3/x1 1.008, min angle 37)."""
     from willmore_nlp import registry
 
     pb = registry.get("anisotropic_sphere").factory(steps=10)
