@@ -74,3 +74,28 @@ def test_compare_cli_errors_leave_nothing(tmp_path) -> None:
     r = subprocess.run([*cli, "compare", "circle", "--option", "maxiter=5", "--out", str(out)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "--option maxiter: not a flow option" in r.stderr and not out.exists()
+
+
+def test_surface_evolver_reference_or_clean_skip(tmp_path, monkeypatch) -> None:
+    """With Surface Evolver installed, its energy (converted to w = 1/2 int (k1 + k2)^2) of a round sphere
+    tends to 8 pi under refinement and its gradient descent lowers a torus's energy towards the Clifford
+    torus (4 pi^2); without it, the study records a clean skip."""
+    import numpy as np
+
+    from willmore_nlp.evolver import evolver_reference, find_evolver, write_datafile
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.study import evolver_rows
+
+    cases = make_grid("torus", ["ipopt"], ["0.001"], steps=1)
+    if find_evolver() is not None:
+        err = [abs(evolver_reference(shapes.icosphere(s), 50)["final"] - 8 * np.pi) for s in (1, 2, 3)]
+        assert err[0] > err[1] > err[2] and err[2] < 0.01 * 8 * np.pi
+        r = evolver_rows(cases, 200)[0]
+        assert r["initial"] > r["final"] > 4 * np.pi**2
+        assert r["w_initial"] == pytest.approx(r["initial"], rel=0.15)  # two discretisations of the same energy
+    monkeypatch.setenv("WILLMORE_EVOLVER", str(tmp_path / "no-such-evolver"))
+    assert find_evolver() is None
+    r = evolver_rows(cases, 10)[0]
+    assert "not installed" in r["skipped"]
+    with pytest.raises(ValueError, match="closed triangulated surface"):
+        write_datafile(shapes.regular_polygon(8, m=3), tmp_path / "c.fe")

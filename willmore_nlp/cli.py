@@ -142,7 +142,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     cases = make_grid(args.problem, [s.strip() for s in args.solvers.split(",") if s.strip()],
                       [t.strip() for t in args.taus.split(",") if t.strip()], grid, params, args.steps, args.t_end,
                       _flow_options(parse_overrides(args.option or [])))
-    md = run_study(cases, args.out, scheduler=args.scheduler, n_workers=args.workers, progress=not args.quiet)
+    md = run_study(cases, args.out, scheduler=args.scheduler, n_workers=args.workers, progress=not args.quiet,
+                   evolver=args.evolver)
     print(f"wrote {md}")
     return 0
 
@@ -204,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--out", required=True, help="study directory (a rerun skips finished cases)")
     cp.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a LocalCluster)")
     cp.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
+    cp.add_argument("--evolver", type=int, metavar="N", help="add Surface Evolver's Willmore energy after N "
+                    "gradient iterations as a reference (closed surfaces; skipped if evolver is not installed)")
     cp.add_argument("--quiet", action="store_true", help="no progress lines")
     cp.set_defaults(func=cmd_compare)
 

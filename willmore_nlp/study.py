@@ -19,6 +19,7 @@ import csv
 import json
 import logging
 import os
+import subprocess
 import sys
 import time
 import traceback
@@ -145,8 +146,41 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
             for t in taus]
 
 
+def evolver_rows(cases: list[Case], iterations: int) -> list[dict[str, Any]]:
+    """Surface Evolver reference energies of the initial surfaces of a study (one per parameter set).
+
+    Rows carry ``problem``, ``params``, ``w_initial`` (this library's discrete Willmore energy) and
+    Evolver's ``initial``/``final`` energies, or ``skipped`` with the reason (not installed, not a
+    closed surface, Evolver failed).
+    """
+    from willmore_nlp import registry
+    from willmore_nlp.evolver import evolver_reference, find_evolver
+    from willmore_nlp.geometry import willmore_energy
+
+    rows: list[dict[str, Any]] = []
+    seen: list[dict[str, Any]] = []
+    for c in cases:
+        if c.params in seen:
+            continue
+        seen.append(c.params)
+        row: dict[str, Any] = {"problem": c.problem, "params": c.params}
+        pb, _ = registry.build(c.problem, **c.params)
+        mesh = pb.mesh
+        if find_evolver() is None:
+            row["skipped"] = "Surface Evolver (evolver-nox) is not installed"
+        elif mesh.d != 2 or not mesh.is_closed or pb.flow_options:
+            row["skipped"] = "the reference is for closed surfaces without boundary conditions or anisotropy"
+        else:
+            try:
+                row.update(evolver_reference(mesh, iterations), w_initial=willmore_energy(mesh))
+            except (RuntimeError, OSError, subprocess.SubprocessError) as exc:
+                row["skipped"] = f"Surface Evolver failed: {exc}"[:300]
+        rows.append(row)
+    return rows
+
+
 def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str | None = None,
-              n_workers: int = 2, progress: bool = True) -> Path:
+              n_workers: int = 2, progress: bool = True, evolver: int | None = None) -> Path:
     """Run the cases not finished yet on Dask and write the study artefacts.
 
     Parameters
@@ -155,6 +189,9 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
     out : study directory (created; reused by reruns, which skip finished cases)
     scheduler : address of an existing Dask scheduler; default a LocalCluster with ``n_workers``
         single-threaded worker processes
+    evolver : if given, add Surface Evolver's Willmore energy after this many ``g`` iterations as a
+        reference (``evolver.json``) for closed surfaces; skipped with a message when Evolver is
+        not installed
     """
     from dask.distributed import Client, LocalCluster, as_completed
 
@@ -162,6 +199,13 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
     (out / "cases").mkdir(parents=True, exist_ok=True)
     spec = {"cases": [asdict(c) for c in cases]}
     (out / STUDY_FILE).write_text(json.dumps(spec, indent=1), encoding="utf-8")
+    if evolver is not None and not (out / "evolver.json").exists():
+        rows = evolver_rows(cases, evolver)
+        (out / "evolver.json").write_text(json.dumps(rows, indent=1, default=float), encoding="utf-8")
+        if progress:
+            for r in rows:
+                print(f"Surface Evolver reference {r['params'] or ''}: "
+                      f"{r.get('skipped') or format(r['final'], '.6g')}", file=sys.stderr)
     todo = [c for c in cases if not (out / "cases" / f"{c.key}.json").exists()]
     if progress:
         print(f"study {out}: {len(cases)} cases, {len(cases) - len(todo)} already finished", file=sys.stderr)
@@ -255,6 +299,19 @@ def write_study(out: str | os.PathLike[str]) -> Path:
               "energy by more than 1e-8 (relative) in any step, within the taus tried:", "",
               "| solver | h | largest stable tau | tau / h |", "|---|---|---|---|"]
     lines += [f"| {s} | {h:.4g} | {t:.4g} | {t / h:.3g} |" for (s, h), t in sorted(stable.items())]
+    ev = out / "evolver.json"
+    if ev.exists():
+        lines += ["", "Reference: Surface Evolver (`star_perp_sq_mean_curvature`, zero tension, converted to "
+                  "w = 1/2 int (k1 + k2)^2) from the initial surface:", "",
+                  "| parameters | w here (initial) | Evolver initial | Evolver after g N | N |",
+                  "|---|---|---|---|---|"]
+        for r in json.loads(ev.read_text(encoding="utf-8")):
+            par = " ".join(f"{k}={v}" for k, v in r["params"].items()) or "defaults"
+            if "skipped" in r:
+                lines.append(f"| {par} | skipped: {r['skipped']} | | | |")
+            else:
+                lines.append(f"| {par} | {r['w_initial']:.6g} | {r['initial']:.6g} | {r['final']:.6g} | "
+                             f"{r['iterations']} |")
     lines += ["", "![energy](figures/energy.png)", "", "![cost](figures/cost.png)", "",
               "![stable tau](figures/stable_tau.png)", ""]
     _figures(recs, stable, figs)
