@@ -22,6 +22,22 @@ def mean_curvature_vector(mesh: Mesh) -> np.ndarray:
     return H
 
 
+def gauss_curvature(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(N,) discrete Gauss curvature of a closed triangulated surface: angle defect / lumped mass.
+
+    ``(2 pi - sum of the triangle angles at vertex i) / m_i``; sums to 2 pi chi / area-weighted
+    (Gauss-Bonnet: sum_i m_i K_i = 2 pi chi exactly).
+    """
+    V = np.asarray(V, float)
+    ang = np.zeros(V.shape[0])
+    for j in range(3):
+        a, b, c = S[:, j], S[:, (j + 1) % 3], S[:, (j + 2) % 3]
+        u, w = V[b] - V[a], V[c] - V[a]
+        cosang = np.einsum("ij,ij->i", u, w) / (np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1))
+        np.add.at(ang, a, np.arccos(np.clip(cosang, -1.0, 1.0)))
+    return (2 * np.pi - ang) / lumped_mass(V, S)
+
+
 def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None) -> float:
     """w = 1/2 int h^2 with h the sum of principal curvatures.
 

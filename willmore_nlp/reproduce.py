@@ -505,7 +505,8 @@ def fig9_10(fig_dir: Path) -> str:
         "| problem | N | free | steps | t | Willmore energy | min angle | note |",
         "|---|---|---|---|---|---|---|---|", *rows, "",
         "**Partly:** the blend and the restored torus region are smooth and match the fixed surroundings "
-        "(C^1 across Gamma). Differences: no semi-implicit comparison (our semi-implicit baseline covers curves only); "
+        "(C^1 across Gamma). Differences: no semi-implicit comparison (our semi-implicit baseline has no "
+        "clamped boundaries); "
         "the blending surface is not run to stationarity because longer runs drift tangentially until the mesh "
         "check stops them (about step 18; issue-3 note); the noisy torus fill (15 free vertices on a coarse "
         "grid) is stopped by the mesh check within a few steps when the noise folds a triangle (see the note "

@@ -1,18 +1,20 @@
-"""Linear semi-implicit baseline for Willmore flow of closed curves (not an NLP: one sparse solve per step).
+"""Linear semi-implicit baseline for Willmore flow of closed curves and surfaces (one sparse solve per step).
 
-The scheme is the mixed (position, curvature vector) parametric discretisation of elastic flow of
-curves in R^m in the spirit of Dziuk, Kuwert & Schaetzle (*Evolution of elastic curves in R^n:
-existence and computation*, SIAM J. Math. Anal. 33, 2002), with all geometric quantities on X^k:
+A mixed (position X, mean-curvature vector H) parametric scheme with all geometric quantities on
+X^k, in the spirit of Dziuk, Kuwert & Schaetzle (*Evolution of elastic curves in R^n: existence and
+computation*, SIAM J. Math. Anal. 33, 2002) for curves and of Rusu's mixed scheme (*An algorithm for
+the elastic flow of surfaces*, Interfaces Free Bound. 7, 2005) for surfaces:
 
-    M (X^{k+1} - X^k) / tau = L kappa^{k+1} - 3/2 M_l |kappa^k|^2 kappa^{k+1} - lam L X^{k+1}
-    M kappa^{k+1} + L X^{k+1} = 0
+    M (X^{k+1} - X^k) / tau = L H^{k+1} + M_l diag(c^k) H^{k+1} - lam L X^{k+1}
+    M H^{k+1} + L X^{k+1} = 0,          c = -3/2 |H|^2 + 4 K
 
-M, L are the P1 mass and stiffness matrices of X^k, M_l the lumped mass. For a smooth curve this is
-X_t = -d_s^2 kappa - 3/2 |kappa|^2 kappa + lam kappa, whose normal part is the Willmore (elastic)
-flow -(kappa_ss + kappa^3 / 2) n + lam kappa n; the tangential part only reparametrises. The
-|kappa|^2 factor is lagged, so the system is linear and decouples into the m coordinates with one
-sparse LU per step. This is the baseline the paper compares against (its Figs. 2-3 and 9 quote
-semi-implicit schemes); surfaces (Rusu's or Dziuk's 2008 scheme) are not implemented.
+M, L are the P1 mass and stiffness matrices of X^k, M_l the lumped mass, K the Gauss curvature
+(angle defect, 0 for curves). For a smooth surface, X_t = -Delta H + c H has the normal part of
+Willmore flow, -(Delta h + h (h^2 - 4K)/2) n with h = k1 + k2 (the tangential part only
+reparametrises), plus lam H for the area term; round spheres are stationary for lam = 0. The
+coefficient c is lagged, so the system is linear and decouples into the m coordinates: one sparse
+LU per step. Differences from the cited schemes: tangential terms are dropped and the nonlinearity
+is lagged explicitly; it is a baseline, stable only for small tau (measured in the studies).
 """
 
 from __future__ import annotations
@@ -25,12 +27,13 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from willmore_nlp.fem.assembly import lumped_mass, mass_stiffness
+from willmore_nlp.geometry import gauss_curvature
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
 
 class SemiImplicitSolver:
-    """One linear solve per step for closed curves (see the module docstring).
+    """One linear solve per step for closed curves and surfaces (see the module docstring).
 
     Parameters
     ----------
@@ -50,9 +53,11 @@ class SemiImplicitSolver:
         if unknown:
             raise ValueError(f"solver semi-implicit: unknown option(s) {', '.join(sorted(unknown))}; it has none")
         P = evaluator.problem
-        if P.simplices.shape[1] != 2 or P.nX != P.n_vertices:
-            raise ValueError("solver semi-implicit: the baseline is implemented for closed curves only "
-                             "(no surfaces, no clamped boundaries)")
+        if P.nX != P.n_vertices or (P.simplices.shape[1] == 3 and P.m != 3):
+            raise ValueError("solver semi-implicit: the baseline is implemented for closed curves and closed "
+                             "surfaces in R^3 (no clamped boundaries)")
+        if P.name.startswith("aniso"):
+            raise ValueError("solver semi-implicit: the baseline is isotropic (no anisotropy)")
         self.ev = evaluator
         self.P = P
 
@@ -66,11 +71,12 @@ class SemiImplicitSolver:
         S = P.simplices
         M, L = mass_stiffness(Xk, S, N)
         Ml = lumped_mass(Xk, S, N)
-        kappa_k = -L @ Xk / Ml[:, None]
-        D = sp.diags(1.5 * Ml * np.sum(kappa_k**2, axis=1))
-        K = sp.bmat([[M + tau * lam * L, -tau * (L - D)], [L, M]], format="csc")
+        Hk = -L @ Xk / Ml[:, None]
+        K = gauss_curvature(Xk, S) if S.shape[1] == 3 else np.zeros(N)
+        D = sp.diags(Ml * (1.5 * np.sum(Hk**2, axis=1) - 4.0 * K))
+        A = sp.bmat([[M + tau * lam * L, -tau * (L - D)], [L, M]], format="csc")
         rhs = np.vstack([M @ Xk, np.zeros_like(Xk)])
-        sol = spla.splu(K).solve(rhs)
+        sol = spla.splu(A).solve(rhs)
         X = sol[:N]
         Y = self.ev.solve_y(X, p)
         z = P.pack_z(X, Y)
