@@ -22,19 +22,27 @@ def mean_curvature_vector(mesh: Mesh) -> np.ndarray:
     return H
 
 
+def _sides(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(3, K) side lengths of triangles, side j opposite corner j."""
+    return np.stack([np.linalg.norm(V[S[:, (j + 1) % 3]] - V[S[:, (j + 2) % 3]], axis=1) for j in range(3)])
+
+
+def _corner_angles(sides: np.ndarray) -> np.ndarray:
+    """(3, K) triangle angles (radians) at corners 0, 1, 2 from the sides of :func:`_sides` (law of cosines)."""
+    a, b, c = sides
+    return np.arccos(np.clip(np.stack([(b**2 + c**2 - a**2) / (2 * b * c), (a**2 + c**2 - b**2) / (2 * a * c),
+                                       (a**2 + b**2 - c**2) / (2 * a * b)]), -1, 1))
+
+
 def gauss_curvature(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     """(N,) discrete Gauss curvature of a closed triangulated surface: angle defect / lumped mass.
 
-    ``(2 pi - sum of the triangle angles at vertex i) / m_i``; sums to 2 pi chi / area-weighted
-    (Gauss-Bonnet: sum_i m_i K_i = 2 pi chi exactly).
+    ``K_i = (2 pi - sum of the triangle angles at vertex i) / m_i``, so that sum_i m_i K_i = 2 pi chi
+    exactly (discrete Gauss-Bonnet).
     """
     V = np.asarray(V, float)
     ang = np.zeros(V.shape[0])
-    for j in range(3):
-        a, b, c = S[:, j], S[:, (j + 1) % 3], S[:, (j + 2) % 3]
-        u, w = V[b] - V[a], V[c] - V[a]
-        cosang = np.einsum("ij,ij->i", u, w) / (np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1))
-        np.add.at(ang, a, np.arccos(np.clip(cosang, -1.0, 1.0)))
+    np.add.at(ang, S.T.ravel(), _corner_angles(_sides(V, S)).ravel())
     return (2 * np.pi - ang) / lumped_mass(V, S)
 
 
@@ -99,14 +107,10 @@ def quality(mesh: Mesh) -> dict[str, float]:
     q = {"edge_ratio": float(ell.max() / ell.min()), "min_edge": float(ell.min())}
     if mesh.d == 2:
         V, S = mesh.vertices, mesh.simplices
-        a = np.linalg.norm(V[S[:, 1]] - V[S[:, 2]], axis=1)
-        b = np.linalg.norm(V[S[:, 2]] - V[S[:, 0]], axis=1)
-        c = np.linalg.norm(V[S[:, 0]] - V[S[:, 1]], axis=1)
+        sides = _sides(V, S)
+        a, b, c = sides
         area = 0.5 * np.linalg.norm(np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]]), axis=1)
-        cosA = np.clip((b**2 + c**2 - a**2) / (2 * b * c), -1, 1)
-        cosB = np.clip((a**2 + c**2 - b**2) / (2 * a * c), -1, 1)
-        cosC = np.clip((a**2 + b**2 - c**2) / (2 * a * b), -1, 1)
-        ang = np.degrees(np.arccos(np.stack([cosA, cosB, cosC])))
+        ang = np.degrees(_corner_angles(sides))
         s = 0.5 * (a + b + c)
         inr = area / s
         longest = np.maximum(np.maximum(a, b), c)
