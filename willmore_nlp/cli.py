@@ -106,39 +106,26 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def _typed(problem: str, items: dict[str, str], option: str) -> dict[str, Any]:
-    from willmore_nlp import registry
-
-    defaults = registry.get(problem).defaults()
-    out = {}
-    for k, v in items.items():
-        if k not in defaults:
-            raise ConfigError(f"{option} {k}: problem {problem!r} has no parameter {k!r}; "
-                              f"known: {', '.join(sorted(defaults))}")
-        out[k] = registry.coerce(v, defaults[k], k)
-    return out
-
-
 def _flow_options(items: dict[str, str]) -> dict[str, Any]:
-    from willmore_nlp.config import FLOW_KEYS
-    from willmore_nlp.registry import coerce
+    from willmore_nlp.config import FLOW_KEYS, coerce_flow_option
 
     out = {}
     for k, v in items.items():
         if k not in FLOW_KEYS or k == "solver":
             raise ConfigError(f"--option {k}: not a flow option; known: "
                               f"{', '.join(sorted(set(FLOW_KEYS) - {'solver'}))}")
-        out[k] = coerce(v, FLOW_KEYS[k], k) if FLOW_KEYS[k] is not None else v
+        out[k] = coerce_flow_option(k, v)
     return out
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Run a solver-comparison study on Dask and write its artefacts."""
+    from willmore_nlp.registry import check_params
     from willmore_nlp.study import make_grid, run_study
 
-    params = _typed(args.problem, parse_overrides(args.set or []), "--set")
+    params = check_params(args.problem, parse_overrides(args.set or []))
     grid_raw = parse_overrides(args.grid or [])
-    grid = {k: [_typed(args.problem, {k: v}, "--grid")[k] for v in vals.split(",")] for k, vals in grid_raw.items()}
+    grid = {k: [check_params(args.problem, {k: v})[k] for v in vals.split(",")] for k, vals in grid_raw.items()}
     cases = make_grid(args.problem, [s.strip() for s in args.solvers.split(",") if s.strip()],
                       [t.strip() for t in args.taus.split(",") if t.strip()], grid, params, args.steps, args.t_end,
                       _flow_options(parse_overrides(args.option or [])))

@@ -153,7 +153,7 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
             factory_kw[k] = v
         elif k in FLOW_KEYS:
             try:
-                flow[k] = coerce(v, FLOW_KEYS[k], k) if FLOW_KEYS[k] is not None else _auto(v)
+                flow[k] = coerce_flow_option(k, v)
             except ProblemError as exc:
                 raise ConfigError(f"{src}: {exc}") from exc
         elif k in RUN_KEYS:
@@ -347,6 +347,18 @@ def _ipopt_problem(options: dict[str, Any]) -> str | None:
     elif valid:
         msg += f" (valid: {', '.join(valid)})"
     return msg
+
+
+def coerce_flow_option(key: str, value: Any) -> Any:
+    """A flow option from a string override, typed like its default in :data:`FLOW_KEYS`.
+
+    Raises
+    ------
+    ProblemError
+        When the value cannot be read as the option's type.
+    """
+    default = FLOW_KEYS[key]
+    return coerce(value, default, key) if default is not None else _auto(value)
 
 
 def _auto(v: Any) -> Any:

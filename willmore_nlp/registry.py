@@ -131,12 +131,22 @@ def build(name: str, **params: Any) -> tuple[Problem, dict[str, Any]]:
         Every factory parameter with the value used.
     """
     entry = get(name)
-    defaults = entry.defaults()
+    resolved = {**entry.defaults(), **check_params(name, params)}
+    return entry.factory(**resolved), resolved
+
+
+def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` of problem ``name`` typed like the factory's defaults (unknown keys are an error).
+
+    Raises
+    ------
+    ProblemError
+        Naming the unknown parameter, or the value that cannot be read as its type.
+    """
+    defaults = get(name).defaults()
     unknown = sorted(set(params) - set(defaults))
     if unknown:
         raise ProblemError(
             f"problem {name!r} has no parameter {unknown[0]!r}; its parameters: {', '.join(sorted(defaults))}"
         )
-    resolved = dict(defaults)
-    resolved.update({k: coerce(v, defaults[k], k) for k, v in params.items()})
-    return entry.factory(**resolved), resolved
+    return {k: coerce(v, defaults[k], k) for k, v in params.items()}
