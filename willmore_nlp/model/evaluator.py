@@ -41,13 +41,23 @@ class StepEvaluator:
         """(ng,) constraint residual g = 1/2 dE/dY."""
         return np.asarray(self.fn["g"](z, p)).ravel()
 
+    def f_grad(self, z: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray]:
+        """W and its (nx,) gradient from one evaluation."""
+        fv, gv = self.fn["grad_f"](z, p)
+        return float(fv), np.asarray(gv).ravel()
+
     def grad_f(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
         """(nx,) gradient of W."""
-        return np.asarray(self.fn["grad_f"](z, p)[1]).ravel()
+        return self.f_grad(z, p)[1]
+
+    def g_jac(self, z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, sp.csc_matrix]:
+        """(ng,) constraint residual and (ng, nx) Jacobian from one evaluation."""
+        gv, J = self.fn["jac_g"](z, p)
+        return np.asarray(gv).ravel(), to_scipy(J)
 
     def jac_g(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
         """(ng, nx) constraint Jacobian."""
-        return to_scipy(self.fn["jac_g"](z, p)[1])
+        return self.g_jac(z, p)[1]
 
     def hess_lag(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> sp.csc_matrix:
         """(nx, nx) full symmetric Hessian of lam_f W + lam_g . g."""

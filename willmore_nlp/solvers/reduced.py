@@ -12,8 +12,8 @@ the Lagrangian Hessian H of f + lam . g:
 
     v_Y = -J_Y^{-1} J_X v_X,  w = H (v_X, v_Y),  J_Y^T mu = -w_Y,  (Hess W^) v_X = w_X + J_X^T mu.
 
-One sparse LU of J_Y per evaluation point serves Y's last Newton step, the adjoint and every
-Hessian-vector product there.
+One sparse LU of J_Y at each evaluation point serves the adjoint and every Hessian-vector product
+there (the inner Newton solve for Y factorises on its own).
 
 Methods: ``gd`` (gradient descent with Armijo backtracking, the paper's method), ``lbfgs``
 (scipy L-BFGS-B), ``newton`` (scipy trust-region Newton-CG with exact Hessian-vector products).
@@ -89,7 +89,7 @@ class ReducedSolver:
         Y = self.ev.solve_y(X, p, Y0)
         self._count("n_inner_solve")
         z = P.pack_z(X, Y)
-        gf = self.ev.grad_f(z, p)
+        f, gf = self.ev.f_grad(z, p)
         J = self.ev.jac_g(z, p)
         self._count("n_eval_grad_f")
         self._count("n_eval_jac_g")
@@ -99,7 +99,7 @@ class ReducedSolver:
         lam = lu.solve(-gf[self.nxm :], trans="T")
         self._count("n_linear_solves")
         grad = gf[: self.nxm] + Jx.T @ lam
-        return _Point(x.copy(), z, self.ev.f(z, p), grad, lam, Jx, lu)
+        return _Point(x.copy(), z, f, grad, lam, Jx, lu)
 
     def _hessp(self, pt: _Point, p: np.ndarray, v: np.ndarray) -> np.ndarray:
         vy = -pt.lu.solve(pt.Jx @ v)

@@ -64,12 +64,10 @@ class SqpSolver:
         delta = 0.0
         status = "maximum iterations"
         scale = None
-        it = 0
         inf_du = inf_pr = float("inf")
         for it in range(self.max_iter + 1):
-            gf = ev.grad_f(z, p)
-            J = ev.jac_g(z, p)
-            g = ev.g(z, p)
+            f, gf = ev.f_grad(z, p)
+            g, J = ev.g_jac(z, p)
             counts["n_eval_grad_f"] += 1
             counts["n_eval_jac_g"] += 1
             if scale is None:
@@ -94,7 +92,6 @@ class SqpSolver:
                     break
                 delta = max(1e-6 * scale, 10 * delta)
             nu = max(nu, 1.1 * float(np.abs(lam_new).max()))
-            f = ev.f(z, p)
             phi0 = f + nu * np.abs(g).sum()
             dphi = float(gf @ dz) - nu * np.abs(g).sum()
             alpha = 1.0
@@ -111,7 +108,7 @@ class SqpSolver:
         stats.update(t_wall_total=time.perf_counter() - t0, inf_du=inf_du, inf_pr=inf_pr,
                      kkt_residual=max(inf_du, inf_pr), gtol=self.tol * (scale or 1.0),
                      n_linear_solves=counts["n_factorizations"], delta=delta)
-        return SolveResult(z=z, f=ev.f(z, p), lam_g=lam, converged=status == "converged", status=status,
+        return SolveResult(z=z, f=f, lam_g=lam, converged=status == "converged", status=status,
                            iterations=it, stats=stats)
 
 
