@@ -87,6 +87,7 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
     """
     from willmore_nlp import registry
     from willmore_nlp.flow import FlowError, StepResult, WillmoreFlow
+    from willmore_nlp.rundir import write_text_atomic
 
     rows: list[dict[str, Any]] = []
     rec: dict[str, Any] = {"case": asdict(case), "status": "ok", "error": "", "h": float("nan"),
@@ -115,10 +116,7 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
         rec.update(status="failed", error=f"{type(exc).__name__}: {exc}"[:500],
                    traceback=traceback.format_exc(limit=5))
     rec["wall"] = time.perf_counter() - t0
-    path = Path(out) / "cases" / f"{case.key}.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(rec, default=float), encoding="utf-8")
-    os.replace(tmp, path)
+    write_text_atomic(Path(out) / "cases" / f"{case.key}.json", json.dumps(rec, default=float))
     return rec
 
 
