@@ -47,20 +47,26 @@ def bunny_curve(n: int = 436, h: float = BUNNY_H) -> Mesh:
 
 @register("bunny")
 def bunny(gamma: str = "gamma1", n: int = 436, h: float = 0.05, tau: float | None = None,
-          tau_tilde: float | None = None, lam: float = 0.025, steps: int = 600) -> Problem:
+          tau_tilde: float | None = None, lam: float = 0.025, steps: int = 600,
+          tangential_weight: float | None = None) -> Problem:
     """Bunny-shaped curve under anisotropic Willmore flow (Fig. 11).
 
     ``gamma``: gamma0 (isotropic, tends to a circle), gamma1 (sqrt(z1^2 + 4 z2^2): an ellipse-like
-    shape elongated along x2; Wulff shape x1^2 + x2^2/4 <= 1) or gamma2 / gamma2:EPS (regularised
-    l1 norm: a square with rounded corners). Defaults: 436 nodes, tau = h, lam = 0.025 as in the
-    paper, but the curve is scaled to h = 0.05 (about 6.6 wide) and tau_tilde = h^2 / 10: with the
-    paper's h = 0.00865 and tau_tilde = 7.5e-5 the first step does not converge here (see README,
-    "Anisotropic flow"); pass ``h=0.00865 tau_tilde=7.5e-5`` to try.
+    shape elongated along x2; Wulff shape x1^2 + x2^2/4 <= 1) or gamma2:EPS (regularised l1 norm:
+    a square with rounded corners). Defaults: 436 nodes, tau = h, lam = 0.025 as in the paper, but
+    the curve is scaled to h = 0.05 (about 6.6 wide) and tau_tilde = h^2 / 10: with the paper's
+    h = 0.00865 and tau_tilde = 7.5e-5 the first step does not converge here (see README,
+    "Anisotropic flow"); pass ``h=0.00865 tau_tilde=7.5e-5`` to try. Fig. 11's third row runs as
+    ``gamma=gamma2:0.1``: the paper's eps = 1e-7 (``gamma2``), and eps <= 0.05, cluster the nodes
+    within the first steps. ``tangential_weight`` (beta of the distance term) defaults to 1000 for
+    gamma2 (nodes otherwise slide into clusters) and to 1, the paper's scheme, otherwise.
     """
     mesh = bunny_curve(n, h)
     h_ = mesh.h
+    if tangential_weight is None:
+        tangential_weight = 1000.0 if gamma.startswith("gamma2") else 1.0
     return Problem(mesh, h_ if tau is None else float(tau), 0.1 * h_ * h_ if tau_tilde is None else float(tau_tilde),
-                   lam, steps=steps, flow_options={"anisotropy": gamma},
+                   lam, steps=steps, flow_options={"anisotropy": gamma, "tangential_weight": float(tangential_weight)},
                    description="bunny curve under anisotropic Willmore flow (Fig. 11)")
 
 

@@ -211,7 +211,7 @@ def test_cli_runs_the_fig11_bunny_and_the_sphere(tmp_path) -> None:
 
     cli = [sys.executable, "-m", "willmore_nlp.cli"]
     for args in (["bunny", "--set", "gamma=gamma0"], ["bunny", "--set", "gamma=gamma1"],
-                 ["anisotropic_sphere", "--set", "subdivisions=1"]):
+                 ["bunny", "--set", "gamma=gamma2:0.1"], ["anisotropic_sphere", "--set", "subdivisions=1"]):
         out = tmp_path / "_".join(args).replace("=", "-")
         r = subprocess.run([*cli, "run", *args, "--steps", "2", "--out", str(out)],
                            capture_output=True, text=True, timeout=600)
@@ -219,6 +219,8 @@ def test_cli_runs_the_fig11_bunny_and_the_sphere(tmp_path) -> None:
         run = load_run(out)
         assert len(run.states) == 3
         assert "willmore_gamma" in (out / "history.csv").read_text().splitlines()[0]
+        if "gamma=gamma2:0.1" in args:
+            assert run.config["effective_flow_options"]["tangential_weight"] == 1000.0
     bad = subprocess.run([*cli, "run", "bunny", "--set", "gamma=gamma7", "--steps", "1", "--out",
                           str(tmp_path / "bad")], capture_output=True, text=True, timeout=600)
     assert bad.returncode != 0 and "unknown anisotropy 'gamma7'" in bad.stderr

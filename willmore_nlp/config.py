@@ -37,6 +37,7 @@ FLOW_KEYS: dict[str, Any] = {
     "warm_start": False,
     "allow_components": False,
     "anisotropy": None,
+    "tangential_weight": 1.0,
 }
 """Flow and solver options accepted in configs, with their defaults."""
 
@@ -75,6 +76,7 @@ class RunSpec:
             "tau_tilde": self.problem.tau_tilde,
             "lam": self.problem.lam,
             "flow_options": self.flow_options,
+            "effective_flow_options": {**self.problem.flow_options, **self.flow_options},
             "steps": self.steps,
             "t_end": self.t_end,
             "mesh": {"n_vertices": self.problem.mesh.n_vertices, "n_simplices": self.problem.mesh.n_simplices,

@@ -158,6 +158,11 @@ class WillmoreFlow:
         operations, or an :class:`~willmore_nlp.anisotropy.Anisotropy`. Closed curves in R^2 and
         closed surfaces in R^3; the inner equation is then nonlinear in Y (damped Newton). Each
         StepResult reports the anisotropic Willmore energy ``willmore_gamma``.
+    tangential_weight : float
+        beta >= 1 (default 1, the paper's scheme): the distance term of W charges the tangential
+        part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
+        motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
+        discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000).
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
     """
@@ -179,6 +184,7 @@ class WillmoreFlow:
         allow_components: bool = False,
         boundary: Any = None,
         anisotropy: Any = None,
+        tangential_weight: float = 1.0,
         **options: Any,
     ) -> None:
         for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
@@ -207,7 +213,7 @@ class WillmoreFlow:
         self.max_edge_ratio = float(max_edge_ratio)
         self.energy_rtol = float(energy_rtol)
         t0 = time.perf_counter()
-        self.setup = build_step(mesh, boundary=boundary, anisotropy=anisotropy)
+        self.setup = build_step(mesh, boundary=boundary, anisotropy=anisotropy, tangential_weight=tangential_weight)
         self.problem = self.setup.problem
         bd = self.setup.boundary
         self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes

@@ -122,7 +122,8 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     params = [["problem", cfg.get("problem", "")], ["tau", cfg.get("tau", "")], ["tau_tilde", cfg.get("tau_tilde", "")],
               ["lam", cfg.get("lam", "")]]
     params += [[k, v] for k, v in sorted(cfg.get("params", {}).items()) if k not in ("tau", "tau_tilde", "lam")]
-    params += [[k, v] for k, v in sorted(cfg.get("flow_options", {}).items())]
+    flow_options = cfg.get("effective_flow_options", cfg.get("flow_options", {}))  # older runs lack the effective
+    params += [[k, v] for k, v in sorted(flow_options.items())]
     mesh = cfg.get("mesh", {})
     params += [[f"mesh {k}", v] for k, v in mesh.items()]
     steps = [r for r in run.history if int(r["step"]) > 0]

@@ -65,6 +65,19 @@ def stiffness_matrix(X: ca.SX) -> ca.SX:
     return vol * ca.mtimes([Gh, Ginv, Gh.T])
 
 
+def tangent_projector(X: ca.SX) -> ca.SX:
+    """(m, m) orthogonal projector onto the tangent space of the simplex: t t^T for a segment,
+    I - n n^T (n the unit normal) for a triangle in R^3."""
+    d, m = X.shape[1] - 1, X.shape[0]
+    if d == 1:
+        t = X[:, 1] - X[:, 0]
+        return ca.mtimes(t, t.T) / ca.dot(t, t)
+    if d == 2 and m == 3:
+        n = ca.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+        return ca.SX.eye(3) - ca.mtimes(n, n.T) / ca.dot(n, n)
+    raise ValueError(f"tangent projector: simplices of dimension {d} in R^{m} are not supported")
+
+
 def quad(A: ca.SX, U: ca.SX, W: ca.SX) -> ca.SX:
     """Block bilinear form  A U . W = sum_c sum_ij A_ij U_ci W_cj  for (m, d+1) nodal matrices."""
     return ca.sum1(ca.sum2(ca.mtimes(U, A) * W))

@@ -34,7 +34,13 @@ class StepSetup:
         return self.problem.pack_p(Xk, tau, tt, lam, self.extra)
 
 
-def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None) -> StepSetup:
+def _tag(beta: float) -> str:
+    """Problem-name suffix of a tangential weight (empty for the paper's beta = 1)."""
+    return "" if beta == 1.0 else f"_tw{beta:g}"
+
+
+def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None,
+               tangential_weight: float = 1.0) -> StepSetup:
     """The step problem of ``mesh``.
 
     Parameters
@@ -48,23 +54,33 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None) -> S
     anisotropy : str, callable or Anisotropy, optional
         Anisotropy gamma for the fully nonlinear anisotropic scheme (:mod:`willmore_nlp.anisotropy`):
         closed curves in R^2 and closed surfaces in R^3.
+    tangential_weight : float
+        beta >= 1: the distance term charges tangential displacement beta times
+        (:func:`willmore_nlp.model.energies.distance`); 1 is the paper's scheme.
     """
+    beta = float(tangential_weight)
+    if not (np.isfinite(beta) and beta >= 1.0):
+        raise ValueError(f"tangential_weight must be a number >= 1 (1 = the paper's L^2 distance), "
+                         f"got {tangential_weight!r}")
+    if beta != 1.0 and mesh.d == 2 and mesh.m != 3:
+        raise MeshError(f"{mesh.source}: tangential_weight needs surfaces in R^3, got R^{mesh.m}")
     if anisotropy is not None:
         if boundary is not None:
             raise NotImplementedError("anisotropic flow with clamped boundaries is not implemented")
-        return _build_anisotropic(mesh, anisotropy)
+        return _build_anisotropic(mesh, anisotropy, beta)
     if boundary is not None:
-        return _build_clamped(mesh, boundary)
+        return _build_clamped(mesh, boundary, beta)
     if not mesh.is_closed:
         raise MeshError(
             f"{mesh.source}: the mesh has a boundary ({len(mesh.boundary_facets)} boundary "
             "facets) but closed-surface flow needs a closed mesh; pass boundary=... for a clamped flow"
         )
-    problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, isotropic, name=f"iso_d{mesh.d}_m{mesh.m}")
+    problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, isotropic(beta),
+                          name=f"iso_d{mesh.d}_m{mesh.m}{_tag(beta)}")
     return StepSetup(problem)
 
 
-def _build_clamped(mesh: Mesh, boundary: Boundary) -> StepSetup:
+def _build_clamped(mesh: Mesh, boundary: Boundary, beta: float) -> StepSetup:
     """Step problem of a free patch with a clamped boundary (both variants, DESIGN.md section 1).
 
     The inner problem lives on patch + ring (when there is a ring): X is unknown on the free
@@ -78,13 +94,13 @@ def _build_clamped(mesh: Mesh, boundary: Boundary) -> StepSetup:
     cells = np.flatnonzero(bd.patch | bd.ring)
     patch = bd.patch[cells].astype(float)
     stiff = patch if bd.variant == "conormal" else np.ones_like(patch)
-    problem = StepProblem(mesh.simplices[cells], mesh.n_vertices, mesh.m, isotropic, x_free=bd.free,
+    problem = StepProblem(mesh.simplices[cells], mesh.n_vertices, mesh.m, isotropic(beta), x_free=bd.free,
                           y_free=bd.patch_nodes, element_const=np.column_stack([patch, stiff]),
-                          g_extra=bd.variant == "conormal", name=f"clamped_d{mesh.d}_m{mesh.m}")
+                          g_extra=bd.variant == "conormal", name=f"clamped_d{mesh.d}_m{mesh.m}{_tag(beta)}")
     return StepSetup(problem, bd.nco if bd.variant == "conormal" else None, bd)
 
 
-def _build_anisotropic(mesh: Mesh, anisotropy: Any) -> StepSetup:
+def _build_anisotropic(mesh: Mesh, anisotropy: Any, beta: float) -> StepSetup:
     """Step problem of the fully nonlinear anisotropic scheme on a closed mesh."""
     if not mesh.is_closed:
         raise MeshError(f"{mesh.source}: anisotropic flow needs a closed curve or surface")
@@ -92,6 +108,6 @@ def _build_anisotropic(mesh: Mesh, anisotropy: Any) -> StepSetup:
         raise MeshError(f"{mesh.source}: anisotropic curve flow needs a curve in R^2 (the normal of a curve in "
                         f"R^{mesh.m} is not a vector), got R^{mesh.m}")
     an = get_anisotropy(anisotropy, mesh.m)
-    problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, anisotropic(an.gamma),
-                          name=f"aniso_{an.name}_d{mesh.d}_m{mesh.m}")
+    problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, anisotropic(an.gamma, beta),
+                          name=f"aniso_{an.name}_d{mesh.d}_m{mesh.m}{_tag(beta)}")
     return StepSetup(problem, anisotropy=an)

@@ -6,6 +6,9 @@ outer objective ``w_T`` and inner energy ``e_T``:
 
     W = M[Xk](X-Xk).(X-Xk) + tau/tt^2 M[X](Y-X).(Y-X) + 2 tau lam A[X]
     E = M[X](Y-X).(Y-X) + tt L[X] Y.Y                      (isotropic)
+
+With a tangential weight beta != 1 (:func:`distance`) the first term of W becomes
+``sum_T int_T |X-Xk|^2 + (beta - 1) |P_T (X-Xk)|^2`` (P_T the tangent projector of T in Xk).
     E = M[X](Y-X).(Y-X) + 2 tt A_gamma[Y]                  (anisotropic)
 
 The constraint of the NLP is g = 1/2 dE/dY = (M + tt L) Y - M X (isotropic).
@@ -17,19 +20,36 @@ from collections.abc import Callable
 
 import casadi as ca
 
-from willmore_nlp.fem.element import mass_matrix, measure, quad, stiffness_matrix
+from willmore_nlp.fem.element import mass_matrix, measure, quad, stiffness_matrix, tangent_projector
 
 
-def outer_objective(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, patch: ca.SX | float = 1.0) -> ca.SX:
-    """Local W_T: squared distance to Xk, approximate Willmore term and length/area energy.
+def distance(X: ca.SX, Xk: ca.SX, beta: float = 1.0) -> ca.SX:
+    """Local squared distance of X to Xk: ``int_T |D|^2 + (beta - 1) |P_T D|^2`` with D = X - Xk.
+
+    ``beta = 1`` is the paper's L^2 distance M[Xk](X-Xk).(X-Xk). ``beta > 1`` charges the
+    tangential part of the displacement (P_T, the tangent projector of the element in Xk) beta
+    times: the normal velocity, and with it the geometric flow in the limit h -> 0, is the same,
+    but nodes can no longer slide along the curve or surface to where the discrete energy rewards
+    them (the clustering of the nearly crystalline anisotropy gamma2; README, "Anisotropic flow").
+    """
+    Mk = mass_matrix(Xk)
+    dist = quad(Mk, X - Xk, X - Xk)
+    if beta == 1.0:
+        return dist
+    D = X - Xk
+    return dist + (beta - 1.0) * quad(Mk, ca.mtimes(tangent_projector(Xk), D), D)
+
+
+def outer_objective(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, patch: ca.SX | float = 1.0,
+                    beta: float = 1.0) -> ca.SX:
+    """Local W_T: squared distance to Xk (:func:`distance`), approximate Willmore term and length/area energy.
 
     ``patch`` weights the distance and length/area terms: 0 on the fixed outer ring of a clamped
     boundary, where they are constant; the Willmore term always counts (see :func:`isotropic`).
     """
     tau, tt, lam = par[0], par[1], par[2]
     M = mass_matrix(X)
-    Mk = mass_matrix(Xk)
-    return patch * (quad(Mk, X - Xk, X - Xk) + 2 * tau * lam * measure(X)) + tau / tt**2 * quad(M, Y - X, Y - X)
+    return patch * (distance(X, Xk, beta) + 2 * tau * lam * measure(X)) + tau / tt**2 * quad(M, Y - X, Y - X)
 
 
 def isotropic_inner(X: ca.SX, Y: ca.SX, tt: ca.SX, stiff: ca.SX | float = 1.0) -> ca.SX:
@@ -40,8 +60,8 @@ def isotropic_inner(X: ca.SX, Y: ca.SX, tt: ca.SX, stiff: ca.SX | float = 1.0) -
     return quad(mass_matrix(X), Y - X, Y - X) + stiff * tt * quad(stiffness_matrix(X), Y, Y)
 
 
-def isotropic(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, c: ca.SX) -> tuple[ca.SX, ca.SX]:
-    """Isotropic energies.
+def isotropic(beta: float = 1.0) -> Callable[..., tuple[ca.SX, ca.SX]]:
+    """Energies of the isotropic scheme with tangential weight ``beta`` (:func:`distance`).
 
     Per-element constants ``c`` are empty for closed meshes; for clamped boundaries
     (:func:`willmore_nlp.model.build.build_step`) ``c = (patch, stiff)``: ``patch`` = 1 on the
@@ -50,17 +70,22 @@ def isotropic(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, c: ca.SX) -> tuple[ca.S
     the ring's stiffness, and 1 otherwise. Ring elements keep their mass in W and E so that the
     boundary nodes Gamma carry their full mass (DESIGN.md section 1, note on boundary weights).
     """
-    if c.numel() == 0:
-        return outer_objective(X, Y, Xk, par), isotropic_inner(X, Y, par[1])
-    return outer_objective(X, Y, Xk, par, c[0]), isotropic_inner(X, Y, par[1], c[1])
+
+    def energy(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, c: ca.SX) -> tuple[ca.SX, ca.SX]:
+        if c.numel() == 0:
+            return outer_objective(X, Y, Xk, par, beta=beta), isotropic_inner(X, Y, par[1])
+        return outer_objective(X, Y, Xk, par, c[0], beta), isotropic_inner(X, Y, par[1], c[1])
+
+    return energy
 
 
-def anisotropic(gamma: Callable[[ca.SX], ca.SX]) -> Callable[..., tuple[ca.SX, ca.SX]]:
+def anisotropic(gamma: Callable[[ca.SX], ca.SX], beta: float = 1.0) -> Callable[..., tuple[ca.SX, ca.SX]]:
     """Energies of the fully nonlinear anisotropic scheme (DESIGN.md section 1, paper (3.3)).
 
     ``E_T = M[X](Y-X).(Y-X) + 2 tt gamma(z_T(Y))`` with ``z_T = rot90(Y1 - Y0)`` (segments in R^2)
     or ``(Y1 - Y0) x (Y2 - Y0) / 2`` (triangles); the outer objective is the isotropic one (the
-    approximate Willmore term measures Y - X, now the anisotropic mean-curvature step).
+    approximate Willmore term measures Y - X, now the anisotropic mean-curvature step), with
+    tangential weight ``beta`` (:func:`distance`).
     """
 
     def energy(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, c: ca.SX) -> tuple[ca.SX, ca.SX]:
@@ -70,6 +95,6 @@ def anisotropic(gamma: Callable[[ca.SX], ca.SX]) -> Callable[..., tuple[ca.SX, c
         else:
             z = 0.5 * ca.cross(Y[:, 1] - Y[:, 0], Y[:, 2] - Y[:, 0])
         inner = quad(mass_matrix(X), Y - X, Y - X) + 2 * par[1] * gamma(z)
-        return outer_objective(X, Y, Xk, par), inner
+        return outer_objective(X, Y, Xk, par, beta=beta), inner
 
     return energy

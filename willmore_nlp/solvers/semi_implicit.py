@@ -58,6 +58,9 @@ class SemiImplicitSolver:
                              "surfaces in R^3 (no clamped boundaries)")
         if P.name.startswith("aniso"):
             raise ValueError("solver semi-implicit: the baseline is isotropic (no anisotropy)")
+        if "_tw" in P.name:  # build_step's tag of a tangential weight != 1
+            raise ValueError("solver semi-implicit: the baseline has no tangential weight (it does not minimise W); "
+                             "use tangential_weight=1")
         self.ev = evaluator
         self.P = P
 
