@@ -76,7 +76,7 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None,
             "facets) but closed-surface flow needs a closed mesh; pass boundary=... for a clamped flow"
         )
     problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, isotropic(beta),
-                          name=f"iso_d{mesh.d}_m{mesh.m}{_tag(beta)}")
+                          name=f"iso_d{mesh.d}_m{mesh.m}{_tag(beta)}", tangential_weight=beta)
     return StepSetup(problem)
 
 
@@ -96,7 +96,8 @@ def _build_clamped(mesh: Mesh, boundary: Boundary, beta: float) -> StepSetup:
     stiff = patch if bd.variant == "conormal" else np.ones_like(patch)
     problem = StepProblem(mesh.simplices[cells], mesh.n_vertices, mesh.m, isotropic(beta), x_free=bd.free,
                           y_free=bd.patch_nodes, element_const=np.column_stack([patch, stiff]),
-                          g_extra=bd.variant == "conormal", name=f"clamped_d{mesh.d}_m{mesh.m}{_tag(beta)}")
+                          g_extra=bd.variant == "conormal", name=f"clamped_d{mesh.d}_m{mesh.m}{_tag(beta)}",
+                          tangential_weight=beta)
     return StepSetup(problem, bd.nco if bd.variant == "conormal" else None, bd)
 
 
@@ -109,5 +110,6 @@ def _build_anisotropic(mesh: Mesh, anisotropy: Any, beta: float) -> StepSetup:
                         f"R^{mesh.m} is not a vector), got R^{mesh.m}")
     an = get_anisotropy(anisotropy, mesh.m)
     problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, anisotropic(an.gamma, beta),
-                          name=f"aniso_{an.name}_d{mesh.d}_m{mesh.m}{_tag(beta)}")
+                          name=f"aniso_{an.name}_d{mesh.d}_m{mesh.m}{_tag(beta)}", anisotropic=True,
+                          tangential_weight=beta)
     return StepSetup(problem, anisotropy=an)

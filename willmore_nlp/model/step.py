@@ -139,6 +139,10 @@ class StepProblem:
         If given, ``p`` carries an extra (N*m) block ``b`` and ``g -= tt * b`` on free-Y rows
         (the co-normal term of the boundary variant).
     name : str
+    anisotropic : bool
+        The inner energy is the anisotropic one (nonlinear in Y), not the linearised isotropic one.
+    tangential_weight : float
+        beta of the distance term (:func:`willmore_nlp.model.energies.distance`), 1 for the paper's.
     """
 
     simplices: np.ndarray
@@ -151,6 +155,8 @@ class StepProblem:
     n_par: int = 3
     g_extra: bool = False
     name: str = "step"
+    anisotropic: bool = False
+    tangential_weight: float = 1.0
     kernels: dict[str, ca.Function] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:

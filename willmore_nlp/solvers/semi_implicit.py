@@ -56,9 +56,9 @@ class SemiImplicitSolver:
         if P.nX != P.n_vertices or (P.simplices.shape[1] == 3 and P.m != 3):
             raise ValueError("solver semi-implicit: the baseline is implemented for closed curves and closed "
                              "surfaces in R^3 (no clamped boundaries)")
-        if P.name.startswith("aniso"):
+        if P.anisotropic:
             raise ValueError("solver semi-implicit: the baseline is isotropic (no anisotropy)")
-        if "_tw" in P.name:  # build_step's tag of a tangential weight != 1
+        if P.tangential_weight != 1.0:
             raise ValueError("solver semi-implicit: the baseline has no tangential weight (it does not minimise W); "
                              "use tangential_weight=1")
         self.ev = evaluator
