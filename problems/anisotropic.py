@@ -35,20 +35,16 @@ def bunny_curve(n: int = 436, h: float = BUNNY_H) -> Mesh:
          + bump(180, 0.25, 0.08)  # tail
          + bump(245, 0.18, 0.04) + bump(300, 0.18, 0.04))  # feet
     P = np.column_stack([r * np.cos(th), r * np.sin(th)])
-    seg = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    Pc = np.vstack([P, P[:1]])
-    t = np.linspace(0.0, s[-1], n, endpoint=False)
-    Q = np.column_stack([np.interp(t, s, Pc[:, 0]), np.interp(t, s, Pc[:, 1])])
+    Q = shapes.resample_closed_polyline(P, n)
     Q -= Q.mean(axis=0)
-    Q *= n * h / s[-1]
+    Q *= n * h / np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum()  # the dense outline's length
     return shapes.closed_curve(Q, "bunny")
 
 
 @register("bunny")
 def bunny(gamma: str = "gamma1", n: int = 436, h: float = 0.05, tau: float | None = None,
           tau_tilde: float | None = None, lam: float = 0.025, steps: int = 600,
-          tangential_weight: float | None = None) -> Problem:
+          tangential_weight: float | None = None, redistribute: bool | None = None) -> Problem:
     """Bunny-shaped curve under anisotropic Willmore flow (Fig. 11).
 
     ``gamma``: gamma0 (isotropic, tends to a circle), gamma1 (sqrt(z1^2 + 4 z2^2): an ellipse-like
@@ -57,16 +53,22 @@ def bunny(gamma: str = "gamma1", n: int = 436, h: float = 0.05, tau: float | Non
     the curve is scaled to h = 0.05 (about 6.6 wide) and tau_tilde = h^2 / 10: with the paper's
     h = 0.00865 and tau_tilde = 7.5e-5 the first step does not converge here (see README,
     "Anisotropic flow"); pass ``h=0.00865 tau_tilde=7.5e-5`` to try. Fig. 11's third row runs as
-    ``gamma=gamma2:0.1``: the paper's eps = 1e-7 (``gamma2``), and eps <= 0.05, cluster the nodes
-    within the first steps. ``tangential_weight`` (beta of the distance term) defaults to 1000 for
-    gamma2 (nodes otherwise slide into clusters) and to 1, the paper's scheme, otherwise.
+    ``gamma=gamma2:1e-2`` (with redistribution) or ``gamma=gamma2:0.1`` (without): the paper's
+    eps = 1e-7 (``gamma2``) clusters the nodes within the first step. For gamma2 the defaults are
+    ``tangential_weight`` (beta of the distance term) = 1000, since nodes otherwise slide into
+    clusters, and ``redistribute`` (equal arc-length spacing after every step) = True; for the other
+    anisotropies 1 and False, the paper's scheme.
     """
     mesh = bunny_curve(n, h)
     h_ = mesh.h
+    crystal = gamma.startswith("gamma2")
     if tangential_weight is None:
-        tangential_weight = 1000.0 if gamma.startswith("gamma2") else 1.0
+        tangential_weight = 1000.0 if crystal else 1.0
+    if redistribute is None:
+        redistribute = crystal
     return Problem(mesh, h_ if tau is None else float(tau), 0.1 * h_ * h_ if tau_tilde is None else float(tau_tilde),
-                   lam, steps=steps, flow_options={"anisotropy": gamma, "tangential_weight": float(tangential_weight)},
+                   lam, steps=steps, flow_options={"anisotropy": gamma, "tangential_weight": float(tangential_weight),
+                                                   "redistribute": bool(redistribute)},
                    description="bunny curve under anisotropic Willmore flow (Fig. 11)")
 
 

@@ -63,14 +63,17 @@ def main() -> None:
              "width is 1 for a circle and sqrt(2) = 1.414 for an axis-aligned square. gamma1's Wulff shape "
              "x1^2 + x2^2/4 <= 1 has axis ratio x2/x1 = 2 and diag/axis 1.054; gamma2:0.1's Wulff shape has "
              "diag/axis 1.135, gamma2:1e-2's 1.293 (a Wulff shape's width along n is 2 gamma(n)). beta is the "
-             "tangential weight (README, \"Tangential weight\"); the bunny's default is 1000 for gamma2.", "",
+             "tangential weight, 'redistributed' means equal arc-length spacing after every step (README, "
+             "\"Tangential weight and redistribution\"); the bunny's defaults for gamma2 are beta = 1000 with "
+             "redistribution.", "",
              "| case | steps done | t | x2/x1 | diag/axis | w_gamma | edge ratio | mean iters | s/step | note |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     keep = (args.steps // 6, args.steps // 2, args.steps)
-    gammas = ("gamma0", "gamma1", "gamma2", "gamma2:0.1")
-    fig, axes = plt.subplots(1, len(gammas), figsize=(16, 4.2))
-    for ax, g in zip(axes, gammas, strict=True):
-        pb, _ = registry.build("bunny", gamma=g)
+    cases: tuple[tuple[str, dict], ...] = (
+        ("gamma0", {}), ("gamma1", {}), ("gamma2", {}), ("gamma2:0.1", {"redistribute": False}), ("gamma2:1e-2", {}))
+    fig, axes = plt.subplots(1, len(cases), figsize=(20, 4.2))
+    for ax, (g, extra) in zip(axes, cases, strict=True):
+        pb, _ = registry.build("bunny", gamma=g, **extra)
         f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
         r = run(f, args.steps, keep)
         for k, X in sorted(r["snaps"].items()):
@@ -80,7 +83,8 @@ def main() -> None:
         ax.set_title(f"bunny, {g}")
         ax.legend(fontsize=7)
         beta = pb.flow_options["tangential_weight"]
-        _row(lines, f"bunny {g}, beta = {beta:g} (h = 0.05, tau = h, tt = h^2/10, lam = 0.025)", r)
+        redist = ", redistributed" if pb.flow_options["redistribute"] else ""
+        _row(lines, f"bunny {g}, beta = {beta:g}{redist} (h = 0.05, tau = h, tt = h^2/10, lam = 0.025)", r)
     fig.tight_layout()
     png = out.with_name("anisotropic_fig11.png")
     fig.savefig(png, dpi=110)
@@ -88,9 +92,13 @@ def main() -> None:
 
     for eps in ("0.05", "0.03", "0.01"):
         for beta in (1.0, 1e3, 1e4):
-            pb, _ = registry.build("bunny", gamma=f"gamma2:{eps}", tangential_weight=beta)
+            pb, _ = registry.build("bunny", gamma=f"gamma2:{eps}", tangential_weight=beta, redistribute=False)
             f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
             _row(lines, f"bunny gamma2:{eps}, beta = {beta:g}, at most 100 steps", run(f, 100))
+    for eps in ("1e-3", "1e-4"):
+        pb, _ = registry.build("bunny", gamma=f"gamma2:{eps}")
+        f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+        _row(lines, f"bunny gamma2:{eps}, beta = 1000, redistributed, at most 100 steps", run(f, 100))
     pb, _ = registry.build("bunny", gamma="gamma1", h=0.00865, tau_tilde=7.5e-5)
     f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
     _row(lines, "bunny gamma1, paper's scale (h = 0.00865, tt = 7.5e-5)", run(f, 20))

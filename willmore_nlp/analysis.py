@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 
@@ -81,6 +83,10 @@ def polygon_equilibrium_radius(n: int, k: int, tt: float, lam: float) -> float:
     return float(minimize_scalar(e, bounds=(0.1 * R0, 10 * R0), method="bounded", options={"xatol": 1e-12}).x)
 
 
+WIDTH_DIRECTIONS = np.array([[1.0, 0.0], [0.0, 1.0], [np.sqrt(0.5), np.sqrt(0.5)], [np.sqrt(0.5), -np.sqrt(0.5)]])
+"""Unit directions of :func:`axis_widths` and :func:`wulff_widths` in the plane: x1, x2 and the two diagonals."""
+
+
 def axis_widths(X: np.ndarray) -> np.ndarray:
     """Widths of a point set along the coordinate axes and, for planar sets, the two diagonals.
 
@@ -97,6 +103,21 @@ def axis_widths(X: np.ndarray) -> np.ndarray:
     X = np.asarray(X, float)
     if X.shape[1] != 2:
         return X.max(axis=0) - X.min(axis=0)
-    s = 1.0 / np.sqrt(2.0)
-    P = X @ np.array([[1.0, 0.0], [0.0, 1.0], [s, s], [s, -s]]).T
+    P = X @ WIDTH_DIRECTIONS.T
     return P.max(axis=0) - P.min(axis=0)
+
+
+def wulff_widths(anisotropy: Any) -> np.ndarray:
+    """Widths 2 gamma(n) of the Wulff shape of a planar anisotropy along the directions of :func:`axis_widths`.
+
+    ``anisotropy`` is an :class:`willmore_nlp.anisotropy.Anisotropy` on R^2 or anything
+    :func:`willmore_nlp.anisotropy.get_anisotropy` accepts ("gamma1", "gamma2:1e-2", ...).
+    For a convex, even gamma the Wulff shape's support function is gamma, so the width along n is 2 gamma(n).
+
+    Returns
+    -------
+    (4,) widths along x1, x2, (x1 + x2)/sqrt 2, (x1 - x2)/sqrt 2.
+    """
+    from willmore_nlp.anisotropy import get_anisotropy
+
+    return 2.0 * get_anisotropy(anisotropy, 2)(WIDTH_DIRECTIONS)

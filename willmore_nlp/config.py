@@ -38,6 +38,7 @@ FLOW_KEYS: dict[str, Any] = {
     "allow_components": False,
     "anisotropy": None,
     "tangential_weight": 1.0,
+    "redistribute": False,
 }
 """Flow and solver options accepted in configs, with their defaults."""
 

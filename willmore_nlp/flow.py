@@ -113,7 +113,8 @@ class StepResult:
             "rejected": " | ".join(self.rejected),
         }
         r.update({f"q_{k}": v for k, v in self.quality.items()})
-        for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "n_eval_hess"):
+        for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "n_eval_hess", "energy_before_redistribution",
+                  "redistribution_shift"):
             if k in self.stats:
                 r[k] = self.stats[k]
         return r
@@ -163,6 +164,12 @@ class WillmoreFlow:
         part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
         motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
         discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000).
+    redistribute : bool
+        Closed curves only: after every accepted step move the vertices along the curve to equal
+        arc-length spacing (:func:`willmore_nlp.geometry.redistribute_curve`) and solve Y[X] again.
+        Not part of the paper's scheme: it changes the curve by O(h^2 kappa) and the energy e(X)
+        by a little (``stats["energy_before_redistribution"]`` and ``stats["redistribution_shift"]``
+        record it), so e(X^k) is no longer guaranteed to decrease from step to step.
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
     """
@@ -185,6 +192,7 @@ class WillmoreFlow:
         boundary: Any = None,
         anisotropy: Any = None,
         tangential_weight: float = 1.0,
+        redistribute: bool = False,
         **options: Any,
     ) -> None:
         for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
@@ -213,6 +221,10 @@ class WillmoreFlow:
         self.max_edge_ratio = float(max_edge_ratio)
         self.energy_rtol = float(energy_rtol)
         t0 = time.perf_counter()
+        if redistribute and not (mesh.d == 1 and mesh.is_closed and boundary is None):
+            raise ValueError(f"{mesh.source}: redistribute=True is implemented for closed curves without boundary "
+                             "conditions")
+        self.redistribute = bool(redistribute)
         self.setup = build_step(mesh, boundary=boundary, anisotropy=anisotropy, tangential_weight=tangential_weight)
         self.problem = self.setup.problem
         bd = self.setup.boundary
@@ -326,6 +338,12 @@ class WillmoreFlow:
             else:
                 X, Y = self.problem.unpack_z(res.z, self.X)
                 reason = self._reject_reason(res, f0, X)
+            moved: dict[str, float] = {}
+            if reason is None and self.redistribute:
+                e_step = self.discrete_energy(X, Y)
+                Xr = geometry.redistribute_curve(self.mesh.with_vertices(X))
+                moved = {"redistribution_shift": float(np.abs(Xr - X).max()), "energy_before_redistribution": e_step}
+                X = Xr
             if reason is None:
                 try:
                     Y = self._solve_y(X, tau, Y)
@@ -337,7 +355,9 @@ class WillmoreFlow:
             if reason is None:
                 self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
                 self.lam_g = res.lam_g
-                return self._result(X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
+                result = self._result(X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
+                result.stats.update(moved)
+                return result
             rejected.append(f"tau={tau:.6g}: {reason}")
             tau /= 2
         raise FlowError(

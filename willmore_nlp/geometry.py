@@ -93,6 +93,51 @@ def enclosed_volume(mesh: Mesh) -> float:
     return float(np.einsum("ij,ij->i", V[S[:, 0]], np.cross(V[S[:, 1]], V[S[:, 2]])).sum() / 6.0)
 
 
+def redistribute_curve(mesh: Mesh) -> np.ndarray:
+    """Vertices of a closed curve moved along it to equal arc-length spacing (connectivity kept).
+
+    Each closed component is walked from its lowest-numbered vertex in the direction of its first
+    segment and its vertices are placed, in walk order, at equal arc length along the polygon
+    (:func:`willmore_nlp.mesh.shapes.resample_closed_polyline`): a purely tangential move
+    that changes the curve by O(h^2 kappa) (the new polygon cuts the old one's corners).
+
+    Returns
+    -------
+    (N, m) new vertex positions.
+
+    Raises
+    ------
+    MeshError
+        When the mesh is not a closed curve.
+    """
+    from willmore_nlp.mesh.core import MeshError
+    from willmore_nlp.mesh.shapes import resample_closed_polyline
+
+    if mesh.d != 1 or not mesh.is_closed:
+        raise MeshError(f"{mesh.source}: redistribution is implemented for closed curves")
+    S = mesh.simplices
+    nbrs: list[list[int]] = [[] for _ in range(mesh.n_vertices)]
+    for a, b in S:
+        nbrs[a].append(int(b))
+        nbrs[b].append(int(a))
+    X = np.array(mesh.vertices, dtype=float)
+    seen = np.zeros(mesh.n_vertices, dtype=bool)
+    for start in range(mesh.n_vertices):
+        if seen[start]:
+            continue
+        order, prev, cur = [start], -1, start
+        seen[start] = True
+        while True:
+            nxt = nbrs[cur][0] if nbrs[cur][0] != prev else nbrs[cur][1]
+            if nxt == start:
+                break
+            order.append(nxt)
+            seen[nxt] = True
+            prev, cur = cur, nxt
+        X[order] = resample_closed_polyline(X[order], len(order))
+    return X
+
+
 def quality(mesh: Mesh) -> dict[str, float]:
     """Mesh quality figures.
 

@@ -24,8 +24,8 @@ from willmore_nlp.analysis import (
     polygon_equilibrium_radius,
     sphere_step_radius,
     winding_number,
+    wulff_widths,
 )
-from willmore_nlp.anisotropy import get_anisotropy
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import shapes
@@ -353,13 +353,6 @@ def fig6_7(fig_dir: Path) -> str:
     ])
 
 
-def _wulff_widths(spec: str) -> np.ndarray:
-    """Widths 2 gamma(n) of the Wulff shape of a planar anisotropy along the directions of :func:`axis_widths`."""
-    an = get_anisotropy(spec, 2)
-    s = 1.0 / np.sqrt(2.0)
-    return np.array([2.0 * float(an.gamma(casadi.DM(n))) for n in ([1.0, 0.0], [0.0, 1.0], [s, s], [s, -s])])
-
-
 def _problem_run(name: str, steps: int | None = None, **params: object) -> tuple[WillmoreFlow, list, str]:
     """Run a registered problem; returns the flow, the accepted steps and why it stopped early ('' if not)."""
     pb, _ = registry.build(name, **params)
@@ -525,12 +518,13 @@ def fig9_10(fig_dir: Path) -> str:
 
 def fig11(fig_dir: Path) -> str:
     """Fig. 11: anisotropic Willmore flow of a bunny-shaped curve with gamma0, gamma1, gamma2."""
-    gammas = ("gamma0", "gamma1", "gamma2", "gamma2:0.1")
-    fig = Figure(figsize=(16, 4))
+    cases: tuple[tuple[str, dict[str, object]], ...] = (
+        ("gamma0", {}), ("gamma1", {}), ("gamma2", {}), ("gamma2:0.1", {"redistribute": False}), ("gamma2:1e-2", {}))
+    fig = Figure(figsize=(20, 4))
     rows = []
-    for j, g in enumerate(gammas):
-        flow, res, stopped = _problem_run("bunny", gamma=g)
-        ax = fig.add_subplot(1, len(gammas), j + 1)
+    for j, (g, extra) in enumerate(cases):
+        flow, res, stopped = _problem_run("bunny", gamma=g, **extra)
+        ax = fig.add_subplot(1, len(cases), j + 1)
         states = [(0.0, flow.mesh.vertices)] + [(r.t, r.vertices) for r in res]
         shown = states[:: max(1, len(states) // 4)]
         if shown[-1] is not states[-1]:
@@ -540,12 +534,13 @@ def fig11(fig_dir: Path) -> str:
             ax.plot(*W.T, lw=0.8, label=f"t = {t:.3g}")
         ax.set_aspect("equal")
         beta = f"{flow.setup.problem.tangential_weight:g}"
-        ax.set_title(f"bunny, {g}, tangential weight {beta}", fontsize=9)
+        redist = "yes" if flow.redistribute else "no"
+        ax.set_title(f"bunny, {g}, beta {beta}, redistribution {redist}", fontsize=8)
         ax.legend(fontsize=6)
         w = axis_widths(states[-1][1])
-        wulff = _wulff_widths(g)
+        wulff = wulff_widths(g)
         wall = np.mean([r.wall_time for r in res]) if res else float("nan")
-        rows.append(f"| {g} | {beta} | {len(res)} | {states[-1][0]:.3g} "
+        rows.append(f"| {g} | {beta} | {redist} | {len(res)} | {states[-1][0]:.3g} "
                     f"| {w[1] / w[0]:.3f} ({wulff[1] / wulff[0]:.3f}) "
                     f"| {w[2:].mean() / w[:2].mean():.3f} ({wulff[2:].mean() / wulff[:2].mean():.3f}) "
                     f"| {wall:.3f} | {stopped or '-'} |")
@@ -553,8 +548,8 @@ def fig11(fig_dir: Path) -> str:
     flow = WillmoreFlow(convex, convex.h / 4, convex.h**2 / 10, lam=0.05, anisotropy="gamma2:1e-2")
     res = flow.run(steps=40)
     w = axis_widths(res[-1].vertices)
-    wulff = _wulff_widths("gamma2:1e-2")
-    rows.append(f"| gamma2:1e-2 on a 3 x 2.4 ellipse (64 nodes, tau = h/4) | 1 | {len(res)} | {res[-1].t:.3g} | "
+    wulff = wulff_widths("gamma2:1e-2")
+    rows.append(f"| gamma2:1e-2 on a 3 x 2.4 ellipse (64 nodes, tau = h/4) | 1 | no | {len(res)} | {res[-1].t:.3g} | "
                 f"{w[1] / w[0]:.3f} ({wulff[1] / wulff[0]:.3f}) | {w[2:].mean() / w[:2].mean():.3f} "
                 f"({wulff[2:].mean() / wulff[:2].mean():.3f}) | "
                 f"{np.mean([r.wall_time for r in res]):.3f} | started at diag/axis 1.01 |")
@@ -567,19 +562,21 @@ def fig11(fig_dir: Path) -> str:
         "tt = h^2/10, 600 steps. x2/x1 is the ratio of the widths along the axes, diag/axis the ratio of the mean "
         "diagonal to the mean axial width (1 for a circle, 1.414 for an axis-aligned square); in brackets the same "
         "ratios of the Wulff shape (its width along n is 2 gamma(n)):", "",
-        "| gamma | tangential weight | steps | t | x2/x1 (Wulff) | diag/axis (Wulff) | s/step | note |",
-        "|---|---|---|---|---|---|---|---|", *rows, "",
+        "| gamma | tangential weight | redistribution | steps | t | x2/x1 (Wulff) | diag/axis (Wulff) | s/step "
+        "| note |",
+        "|---|---|---|---|---|---|---|---|---|", *rows, "",
         "**Matches:** gamma0 gives a circle, gamma1 an ellipse-like convex curve elongated along x2 with the "
-        "Wulff shape's axis ratio, and gamma2 with eps = 0.1 the rounded square of its Wulff shape (diag/axis "
-        "beside the Wulff shape's). **Differs:** (1) at the paper's scale (bunny about 1 wide, h = 0.00865) the "
-        "first step does not converge here for any gamma, nor for the isotropic scheme, so the curve is scaled up "
-        "(the shapes are scale-free; the time scale is not); (2) gamma2 needs a tangential weight (the discrete "
-        "energy rewards nodes that slide away from the corners of the Wulff shape: they cluster within a few "
-        "steps) and eps = 0.1: with the paper's eps = 1e-7, or eps <= 0.05, the nodes still cluster and the "
-        "first steps fail. eps = 1e-7 smooths gamma2's kinks over normal angles of 3e-4, far below the turning "
-        "angle between neighbouring segments: the discrete problem is then crystalline, and where it runs (a "
-        "convex ellipse with tangential weight 1000) it grows axis-aligned facet tabs with long edges instead of "
-        "rounding into a square. See `reports/anisotropic_study.md` and the README section on anisotropic flow.", "",
+        "Wulff shape's axis ratio, and gamma2 with eps = 1e-2 (and 0.1) the rounded square of its Wulff shape "
+        "(diag/axis beside the Wulff shape's). **Differs:** (1) at the paper's scale (bunny about 1 wide, "
+        "h = 0.00865) the first step does not converge here for any gamma, nor for the isotropic scheme, so the "
+        "curve is scaled up (the shapes are scale-free; the time scale is not); (2) gamma2 needs a tangential "
+        "weight (the discrete energy rewards nodes that slide away from the corners of the Wulff shape: they "
+        "cluster within a few steps) and, for eps = 1e-2, a redistribution of the nodes along the curve after "
+        "every step (README, \"Tangential weight and redistribution\"; neither is in the paper). With the "
+        "paper's eps = 1e-7 the first step fails. eps = 1e-7 smooths gamma2's kinks over normal angles of 3e-4, "
+        "far below the turning angle between neighbouring segments: the discrete problem is then crystalline, "
+        "and where it runs (a convex ellipse with tangential weight 1000) it grows axis-aligned facet tabs with "
+        "long edges instead of rounding into a square. See `reports/anisotropic_study.md`.", "",
         f"![Fig. 11](figures/{img})", "",
     ])
 

@@ -23,6 +23,27 @@ def closed_curve(points: np.ndarray, source: str = "<curve>") -> Mesh:
     return Mesh(P, S, source)
 
 
+def resample_closed_polyline(points: np.ndarray, n: int) -> np.ndarray:
+    """``n`` points equally spaced in arc length along the closed polyline through ``points``.
+
+    Parameters
+    ----------
+    points : (k, m) vertices of the closed polyline (segment k-1 -> 0 closes it)
+    n : number of points to return
+
+    Returns
+    -------
+    (n, m) points on the polyline, the first one at ``points[0]``, in the polyline's order.
+    """
+    P = np.asarray(points, dtype=float)
+    closed = np.vstack([P, P[:1]])
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+    if not s[-1] > 0:
+        raise MeshError("cannot resample a closed polyline of zero length")
+    t = np.linspace(0.0, s[-1], n, endpoint=False)
+    return np.column_stack([np.interp(t, s, closed[:, c]) for c in range(P.shape[1])])
+
+
 def open_curve(points: np.ndarray, source: str = "<curve>") -> Mesh:
     """Open polyline through ``points`` ((n, m) array), segments i -> i+1."""
     P = np.asarray(points, dtype=float)
