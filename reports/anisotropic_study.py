@@ -45,7 +45,9 @@ def run(flow: WillmoreFlow, steps: int, keep: tuple[int, ...] = ()) -> dict:
     wall = time.perf_counter() - t0
     last = res[-1] if res else flow.state()
     w = axis_widths(last.vertices)
+    full = [r.step for r in res if r.tau == flow.tau and r.retries == 0]
     return {"steps": len(res), "t": last.t, "w": w, "wall": wall / max(len(res), 1), "failed": failed,
+            "first_tau": res[0].tau if res else float("nan"), "full_from": full[0] if full else "-",
             "iters": float(np.mean([r.iterations for r in res])) if res else float("nan"),
             "wg": last.willmore_gamma, "quality": last.quality, "snaps": snaps}
 
@@ -101,7 +103,13 @@ def main() -> None:
         _row(lines, f"bunny gamma2:{eps}, beta = 1000, redistributed, at most 100 steps", run(f, 100))
     pb, _ = registry.build("bunny", gamma="gamma1", h=0.00865, tau_tilde=7.5e-5)
     f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
-    _row(lines, "bunny gamma1, paper's scale (h = 0.00865, tt = 7.5e-5)", run(f, 20))
+    _row(lines, "bunny gamma1, paper's scale (h = 0.00865, tt = 7.5e-5), fixed tau = h", run(f, 20))
+    for g in ("gamma0", "gamma1", "gamma2:1e-2"):
+        pb, _ = registry.build("bunny", gamma=g, h=0.00865, tau_tilde=7.5e-5)
+        f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options, adaptive=True, max_retries=16)
+        r = run(f, args.steps)
+        _row(lines, f"bunny {g}, paper's scale, adaptive (first tau {r['first_tau']:.2g}, tau = h from step "
+                    f"{r['full_from']})", r)
     mesh = shapes.ellipse(64, 3.0, 2.4)
     for spec, tau_f in (("gamma2", 0.25), ("gamma2:1e-2", 1.0), ("gamma2:1e-2", 0.25)):
         f = WillmoreFlow(mesh, tau_f * mesh.h, 0.1 * mesh.h**2, lam=0.05, anisotropy=spec)

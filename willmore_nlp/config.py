@@ -39,6 +39,7 @@ FLOW_KEYS: dict[str, Any] = {
     "anisotropy": None,
     "tangential_weight": 1.0,
     "redistribute": False,
+    "adaptive": False,
 }
 """Flow and solver options accepted in configs, with their defaults."""
 

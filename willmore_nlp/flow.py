@@ -170,6 +170,10 @@ class WillmoreFlow:
         Not part of the paper's scheme: it changes the curve by O(h^2 kappa) and the energy e(X)
         by a little (``stats["energy_before_redistribution"]`` and ``stats["redistribution_shift"]``
         record it), so e(X^k) is no longer guaranteed to decrease from step to step.
+    adaptive : bool
+        Step-size control for stiff starts: a step first tries twice the previous accepted step
+        (the same step if that one needed retries), never more than ``tau``; failures halve it as
+        usual (``max_retries`` per step). Off, every step first tries ``tau``.
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
     """
@@ -193,6 +197,7 @@ class WillmoreFlow:
         anisotropy: Any = None,
         tangential_weight: float = 1.0,
         redistribute: bool = False,
+        adaptive: bool = False,
         **options: Any,
     ) -> None:
         for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
@@ -225,6 +230,8 @@ class WillmoreFlow:
             raise ValueError(f"{mesh.source}: redistribute=True is implemented for closed curves without boundary "
                              "conditions")
         self.redistribute = bool(redistribute)
+        self.adaptive = bool(adaptive)
+        self._tau_adapt = float("inf")  # first try of the next step under adaptive control
         self.setup = build_step(mesh, boundary=boundary, anisotropy=anisotropy, tangential_weight=tangential_weight)
         self.problem = self.setup.problem
         bd = self.setup.boundary
@@ -325,7 +332,7 @@ class WillmoreFlow:
             When every attempt was rejected; the flow's state is unchanged.
         """
         t0 = time.perf_counter()
-        tau = self.tau
+        tau = min(self.tau, self._tau_adapt) if self.adaptive else self.tau
         rejected: list[str] = []
         for attempt in range(self.max_retries + 1):
             p = self.params(self.X, tau)
@@ -355,6 +362,7 @@ class WillmoreFlow:
             if reason is None:
                 self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
                 self.lam_g = res.lam_g
+                self._tau_adapt = 2 * tau if attempt == 0 else tau
                 result = self._result(X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
                 result.stats.update(moved)
                 return result
@@ -367,7 +375,7 @@ class WillmoreFlow:
         )
 
     def restart(self, X: np.ndarray, Y: np.ndarray, t: float, k: int,
-                lam_g: np.ndarray | None = None) -> None:
+                lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0) -> None:
         """Continue from a saved state (X^k, Y[X^k], t, k), e.g. a run directory's checkpoint.
 
         With the ``Y`` and multipliers ``lam_g`` that the flow held at that state (both are in
@@ -380,6 +388,8 @@ class WillmoreFlow:
         t : its time
         k : its step number
         lam_g : constraint multipliers of the step that produced it (warm starts), optional
+        last_tau, last_retries : step size and retries of the step that produced it (adaptive
+            step-size control continues from them; None when the state is the initial one)
         """
         X = np.array(X, dtype=float)
         Y = np.array(Y, dtype=float)
@@ -389,6 +399,8 @@ class WillmoreFlow:
             raise ValueError("restart: the state has non-finite values")
         self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
+        self._tau_adapt = (float("inf") if last_tau is None
+                           else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
 
     def run(
         self,

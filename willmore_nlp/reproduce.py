@@ -518,13 +518,15 @@ def fig9_10(fig_dir: Path) -> str:
 
 def fig11(fig_dir: Path) -> str:
     """Fig. 11: anisotropic Willmore flow of a bunny-shaped curve with gamma0, gamma1, gamma2."""
+    paper: dict[str, object] = {"h": 0.00865, "tau_tilde": 7.5e-5, "adaptive": True, "max_retries": 16}
     cases: tuple[tuple[str, dict[str, object]], ...] = (
-        ("gamma0", {}), ("gamma1", {}), ("gamma2", {}), ("gamma2:0.1", {"redistribute": False}), ("gamma2:1e-2", {}))
-    fig = Figure(figsize=(20, 4))
+        ("gamma0", {}), ("gamma1", {}), ("gamma2", {}), ("gamma2:0.1", {"redistribute": False}), ("gamma2:1e-2", {}),
+        ("gamma0", paper), ("gamma1", paper), ("gamma2:1e-2", paper))
+    fig = Figure(figsize=(20, 8))
     rows = []
     for j, (g, extra) in enumerate(cases):
         flow, res, stopped = _problem_run("bunny", gamma=g, **extra)
-        ax = fig.add_subplot(1, len(cases), j + 1)
+        ax = fig.add_subplot(2, 5, j + 1)
         states = [(0.0, flow.mesh.vertices)] + [(r.t, r.vertices) for r in res]
         shown = states[:: max(1, len(states) // 4)]
         if shown[-1] is not states[-1]:
@@ -535,12 +537,13 @@ def fig11(fig_dir: Path) -> str:
         ax.set_aspect("equal")
         beta = f"{flow.setup.problem.tangential_weight:g}"
         redist = "yes" if flow.redistribute else "no"
-        ax.set_title(f"bunny, {g}, beta {beta}, redistribution {redist}", fontsize=8)
+        scale = f"h = {flow.mesh.h:.3g}" + (", adaptive" if flow.adaptive else "")
+        ax.set_title(f"bunny, {g}, beta {beta}, redistribution {redist}\n{scale}", fontsize=8)
         ax.legend(fontsize=6)
         w = axis_widths(states[-1][1])
         wulff = wulff_widths(g)
         wall = np.mean([r.wall_time for r in res]) if res else float("nan")
-        rows.append(f"| {g} | {beta} | {redist} | {len(res)} | {states[-1][0]:.3g} "
+        rows.append(f"| {g} | {scale} | {beta} | {redist} | {len(res)} | {states[-1][0]:.3g} "
                     f"| {w[1] / w[0]:.3f} ({wulff[1] / wulff[0]:.3f}) "
                     f"| {w[2:].mean() / w[:2].mean():.3f} ({wulff[2:].mean() / wulff[:2].mean():.3f}) "
                     f"| {wall:.3f} | {stopped or '-'} |")
@@ -549,7 +552,8 @@ def fig11(fig_dir: Path) -> str:
     res = flow.run(steps=40)
     w = axis_widths(res[-1].vertices)
     wulff = wulff_widths("gamma2:1e-2")
-    rows.append(f"| gamma2:1e-2 on a 3 x 2.4 ellipse (64 nodes, tau = h/4) | 1 | no | {len(res)} | {res[-1].t:.3g} | "
+    rows.append(f"| gamma2:1e-2 on a 3 x 2.4 ellipse (64 nodes, tau = h/4) | h = {convex.h:.3g} | 1 | no "
+                f"| {len(res)} | {res[-1].t:.3g} | "
                 f"{w[1] / w[0]:.3f} ({wulff[1] / wulff[0]:.3f}) | {w[2:].mean() / w[:2].mean():.3f} "
                 f"({wulff[2:].mean() / wulff[:2].mean():.3f}) | "
                 f"{np.mean([r.wall_time for r in res]):.3f} | started at diag/axis 1.01 |")
@@ -558,25 +562,28 @@ def fig11(fig_dir: Path) -> str:
         "## Fig. 11: anisotropic Willmore flow of a bunny curve", "",
         "**Paper:** a 436-node bunny curve (tau = h = 0.00865, lam = 0.025, tt = 7.5e-5) evolves towards a circle "
         "(gamma0), an ellipse (gamma1 = sqrt(z1^2 + 4 z2^2)) and a rounded square (gamma2, regularised l1).", "",
-        "**Ours:** problem `bunny` (own 436-node silhouette) scaled to h = 0.05, tau = h, lam = 0.025, "
-        "tt = h^2/10, 600 steps. x2/x1 is the ratio of the widths along the axes, diag/axis the ratio of the mean "
+        "**Ours:** problem `bunny` (own 436-node silhouette), tau = h, lam = 0.025, 600 steps: scaled to h = 0.05 "
+        "with tt = h^2/10 (the problem's default), and at the paper's scale (h = 0.00865, tt = 7.5e-5) with "
+        "adaptive steps. x2/x1 is the ratio of the widths along the axes, diag/axis the ratio of the mean "
         "diagonal to the mean axial width (1 for a circle, 1.414 for an axis-aligned square); in brackets the same "
         "ratios of the Wulff shape (its width along n is 2 gamma(n)):", "",
-        "| gamma | tangential weight | redistribution | steps | t | x2/x1 (Wulff) | diag/axis (Wulff) | s/step "
-        "| note |",
-        "|---|---|---|---|---|---|---|---|---|", *rows, "",
+        "| gamma | scale | tangential weight | redistribution | steps | t | x2/x1 (Wulff) | diag/axis (Wulff) "
+        "| s/step | note |",
+        "|---|---|---|---|---|---|---|---|---|---|", *rows, "",
         "**Matches:** gamma0 gives a circle, gamma1 an ellipse-like convex curve elongated along x2 with the "
         "Wulff shape's axis ratio, and gamma2 with eps = 1e-2 (and 0.1) the rounded square of its Wulff shape "
-        "(diag/axis beside the Wulff shape's). **Differs:** (1) at the paper's scale (bunny about 1 wide, "
-        "h = 0.00865) the first step does not converge here for any gamma, nor for the isotropic scheme, so the "
-        "curve is scaled up (the shapes are scale-free; the time scale is not); (2) gamma2 needs a tangential "
-        "weight (the discrete energy rewards nodes that slide away from the corners of the Wulff shape: they "
-        "cluster within a few steps) and, for eps = 1e-2, a redistribution of the nodes along the curve after "
-        "every step (README, \"Tangential weight and redistribution\"; neither is in the paper). With the "
-        "paper's eps = 1e-7 the first step fails. eps = 1e-7 smooths gamma2's kinks over normal angles of 3e-4, "
-        "far below the turning angle between neighbouring segments: the discrete problem is then crystalline, "
-        "and where it runs (a convex ellipse with tangential weight 1000) it grows axis-aligned facet tabs with "
-        "long edges instead of rounding into a square. See `reports/anisotropic_study.md`.", "",
+        "(diag/axis beside the Wulff shape's), at both scales; at the paper's scale every step after the first "
+        "30 or so is taken at the paper's tau = h. **Differs:** (1) at the paper's scale the first steps need "
+        "tau far below h (the ears' time scale, size^4, is about 1e-6; adaptive steps start at h/2^14 and reach "
+        "h near step 30), and gamma1 ends with edge ratio above 200 (tt = h^2 there, the scheme's tangential "
+        "pitfall); (2) gamma2 needs a tangential weight (the discrete energy rewards nodes that slide away from "
+        "the corners of the Wulff shape: they cluster within a few steps) and, for eps = 1e-2, a redistribution "
+        "of the nodes along the curve after every step (README, \"Tangential weight and redistribution\"; "
+        "neither is in the paper). With the paper's eps = 1e-7 the first step fails. eps = 1e-7 smooths "
+        "gamma2's kinks over normal angles of 3e-4, far below the turning angle between neighbouring segments: "
+        "the discrete problem is then crystalline, and where it runs (a convex ellipse with tangential weight "
+        "1000) it grows axis-aligned facet tabs with long edges instead of rounding into a square. See "
+        "`reports/anisotropic_study.md`.", "",
         f"![Fig. 11](figures/{img})", "",
     ])
 

@@ -293,7 +293,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                 writer.set_status("running")
                 writer.add(flow.state(), flow.lam_g)
             else:
-                flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g)
+                last = ck.row if ck.step > 0 else {}
+                flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)))
                 writer.set_status("running")
             if not quiet:
                 print(f"resuming {d} at step {flow.k} (t = {flow.t:.6g})")
