@@ -353,10 +353,12 @@ def fig6_7(fig_dir: Path) -> str:
     ])
 
 
-def _problem_run(name: str, steps: int | None = None, **params: object) -> tuple[WillmoreFlow, list, str]:
-    """Run a registered problem; returns the flow, the accepted steps and why it stopped early ('' if not)."""
+def _problem_run(name: str, steps: int | None = None, flow_options: dict[str, object] | None = None,
+                 **params: object) -> tuple[WillmoreFlow, list, str]:
+    """Run a registered problem (``flow_options`` override the problem's); returns the flow, the accepted
+    steps and why it stopped early ('' if not)."""
     pb, _ = registry.build(name, **params)
-    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **{**pb.flow_options, **(flow_options or {})})
     res: list = []
     stopped = ""
     try:
@@ -518,7 +520,8 @@ def fig9_10(fig_dir: Path) -> str:
 
 def fig11(fig_dir: Path) -> str:
     """Fig. 11: anisotropic Willmore flow of a bunny-shaped curve with gamma0, gamma1, gamma2."""
-    paper: dict[str, object] = {"h": 0.00865, "tau_tilde": 7.5e-5, "adaptive": True, "max_retries": 16}
+    paper: dict[str, object] = {"h": 0.00865, "tau_tilde": 7.5e-5,
+                                "flow_options": {"adaptive": True, "max_retries": 16}}
     cases: tuple[tuple[str, dict[str, object]], ...] = (
         ("gamma0", {}), ("gamma1", {}), ("gamma2", {}), ("gamma2:0.1", {"redistribute": False}), ("gamma2:1e-2", {}),
         ("gamma0", paper), ("gamma1", paper), ("gamma2:1e-2", paper))
@@ -571,19 +574,19 @@ def fig11(fig_dir: Path) -> str:
         "| s/step | note |",
         "|---|---|---|---|---|---|---|---|---|---|", *rows, "",
         "**Matches:** gamma0 gives a circle, gamma1 an ellipse-like convex curve elongated along x2 with the "
-        "Wulff shape's axis ratio, and gamma2 with eps = 1e-2 (and 0.1) the rounded square of its Wulff shape "
-        "(diag/axis beside the Wulff shape's), at both scales; at the paper's scale every step after the first "
-        "30 or so is taken at the paper's tau = h. **Differs:** (1) at the paper's scale the first steps need "
-        "tau far below h (the ears' time scale, size^4, is about 1e-6; adaptive steps start at h/2^14 and reach "
-        "h near step 30), and gamma1 ends with edge ratio above 200 (tt = h^2 there, the scheme's tangential "
-        "pitfall); (2) gamma2 needs a tangential weight (the discrete energy rewards nodes that slide away from "
-        "the corners of the Wulff shape: they cluster within a few steps) and, for eps = 1e-2, a redistribution "
-        "of the nodes along the curve after every step (README, \"Tangential weight and redistribution\"; "
-        "neither is in the paper). With the paper's eps = 1e-7 the first step fails. eps = 1e-7 smooths "
-        "gamma2's kinks over normal angles of 3e-4, far below the turning angle between neighbouring segments: "
-        "the discrete problem is then crystalline, and where it runs (a convex ellipse with tangential weight "
-        "1000) it grows axis-aligned facet tabs with long edges instead of rounding into a square. See "
-        "`reports/anisotropic_study.md`.", "",
+        "Wulff shape's axis ratio, and gamma2 with eps = 1e-2 (and 0.1) the rounded square of its Wulff shape"
+        " (diag/axis beside the Wulff shape's), at both scales; at the paper's scale every step after the "
+        "first 20-40 is taken at the paper's tau = h. **Differs:** (1) at the paper's scale the first steps "
+        "need tau far below h (the ears' time scale, size^4, is about 1e-6; adaptive steps start near h/4000 "
+        "and reach h within 20-40 steps), and gamma1 ends with edge ratio above 200 (tt = h^2 there, the "
+        "scheme's tangential pitfall); (2) gamma2 needs a tangential weight (the discrete energy rewards "
+        "nodes that slide away from the corners of the Wulff shape: they cluster within a few steps) and, for"
+        " eps = 1e-2, a redistribution of the nodes along the curve after every step (README, \"Tangential "
+        "weight and redistribution\"; neither is in the paper). With the paper's eps = 1e-7 the first step "
+        "fails. eps = 1e-7 smooths gamma2's kinks over normal angles of 3e-4, far below the turning angle "
+        "between neighbouring segments: the discrete problem is then crystalline, and where it runs (a convex"
+        " ellipse with tangential weight 1000) it grows axis-aligned facet tabs with long edges instead of "
+        "rounding into a square. See `reports/anisotropic_study.md`.", "",
         f"![Fig. 11](figures/{img})", "",
     ])
 
