@@ -7,24 +7,10 @@ import numpy as np
 import pytest
 
 from willmore_nlp import WillmoreFlow
-from willmore_nlp.analysis import axis_widths, fit_order, wulff_widths
+from willmore_nlp.analysis import axis_widths, fit_order, polygon_distance, wulff_widths
 from willmore_nlp.geometry import redistribute_curve
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh, MeshError
-
-
-def _hausdorff(A: np.ndarray, B: np.ndarray) -> float:
-    """Symmetric vertex-to-polygon distance of two closed polygons."""
-
-    def one_way(P: np.ndarray, Q: np.ndarray) -> float:
-        E = np.roll(Q, -1, axis=0) - Q
-        worst = 0.0
-        for a in P:
-            t = np.clip(np.einsum("ij,ij->i", a - Q, E) / np.einsum("ij,ij->i", E, E), 0.0, 1.0)
-            worst = max(worst, float(np.min(np.linalg.norm(Q + t[:, None] * E - a, axis=1))))
-        return worst
-
-    return max(one_way(A, B), one_way(B, A))
 
 
 def test_redistribution_is_tangential_to_second_order_and_ignores_numbering() -> None:
@@ -41,7 +27,7 @@ def test_redistribution_is_tangential_to_second_order_and_ignores_numbering() ->
         assert e.max() / e.min() - 1 < 2.0 * mesh.h**2
         np.testing.assert_allclose(X[0], mesh.vertices[0])
         hs.append(mesh.h)
-        dist.append(_hausdorff(X, mesh.vertices))
+        dist.append(polygon_distance(X, mesh.vertices))
     assert fit_order(hs, dist) == pytest.approx(2.0, abs=0.15)
 
     rng = np.random.default_rng(0)

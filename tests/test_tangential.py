@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from willmore_nlp import WillmoreFlow
-from willmore_nlp.analysis import axis_widths, fit_order, wulff_widths
+from willmore_nlp.analysis import axis_widths, fit_order, polygon_distance, wulff_widths
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.model.build import build_step
@@ -77,16 +77,6 @@ def test_weighted_distance_matches_numpy_and_derivatives_fd(case: str) -> None:
     assert np.max(np.abs(evb.hess_lag(z, p, 0.7, lam_g) @ d - fdh)) <= 1e-5 * np.max(np.abs(fdh))
 
 
-def _polygon_distance(A: np.ndarray, B: np.ndarray) -> float:
-    """Largest distance from a vertex of A to the closed polygon B."""
-    P0, E = B, np.roll(B, -1, axis=0) - B
-    worst = 0.0
-    for a in A:
-        t = np.clip(np.einsum("ij,ij->i", a - P0, E) / np.einsum("ij,ij->i", E, E), 0.0, 1.0)
-        worst = max(worst, float(np.min(np.linalg.norm(P0 + t[:, None] * E - a, axis=1))))
-    return worst
-
-
 def _tangential_motion(Xk: np.ndarray, X: np.ndarray) -> float:
     """Largest component of X - Xk along the nodal tangents (central differences) of the closed polygon Xk."""
     T = np.roll(Xk, -1, axis=0) - np.roll(Xk, 1, axis=0)
@@ -111,7 +101,7 @@ def test_tangential_weight_changes_the_nodes_not_the_curve() -> None:
             ends[beta] = flow.X
         A, B = ends[1.0], ends[100.0]
         hs.append(h)
-        curve.append(max(_polygon_distance(A, B), _polygon_distance(B, A)))
+        curve.append(polygon_distance(A, B))
         nodes.append(float(np.abs(A - B).max()))
         assert np.abs(A - mesh.vertices).max() > 7 * curve[-1]
     assert fit_order(hs, curve) > 1.6

@@ -107,6 +107,30 @@ def axis_widths(X: np.ndarray) -> np.ndarray:
     return P.max(axis=0) - P.min(axis=0)
 
 
+def polygon_distance(A: np.ndarray, B: np.ndarray) -> float:
+    """Symmetric vertex-to-polygon distance of two closed polygons.
+
+    Parameters
+    ----------
+    A, B : (n, m) and (k, m) vertices of closed polygons (in order)
+
+    Returns
+    -------
+    max(largest distance from a vertex of A to the polygon B, and the same with A and B swapped).
+    """
+
+    def one_way(P: np.ndarray, Q: np.ndarray) -> float:
+        E = np.roll(Q, -1, axis=0) - Q
+        worst = 0.0
+        for a in P:
+            t = np.clip(np.einsum("ij,ij->i", a - Q, E) / np.einsum("ij,ij->i", E, E), 0.0, 1.0)
+            worst = max(worst, float(np.min(np.linalg.norm(Q + t[:, None] * E - a, axis=1))))
+        return worst
+
+    A, B = np.asarray(A, float), np.asarray(B, float)
+    return max(one_way(A, B), one_way(B, A))
+
+
 def wulff_widths(anisotropy: Any) -> np.ndarray:
     """Widths 2 gamma(n) of the Wulff shape of a planar anisotropy along the directions of :func:`axis_widths`.
 
