@@ -25,6 +25,7 @@ from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.io import save_mesh
 from willmore_nlp.rundir import lock_run_dir, read_history_csv
 from willmore_nlp.solvers.base import SolveResult
+from willmore_nlp.solvers.ipopt import IpoptSolver
 
 CLI = [sys.executable, "-m", "willmore_nlp.cli"]
 STEPS = 150
@@ -187,6 +188,44 @@ def test_double_signal_abandons_step_and_resume_continues(tmp_path: Path, refere
     assert status["state"] == "abandoned" and status["step"] == 3
     assert len(load_run(out).states) == 4
     monkeypatch.setattr(WillmoreFlow, "step", step)
+    assert cli.main(["run", "--resume", str(out), "--quiet"]) == 0
+    assert_same_run(reference, out)
+
+
+@pytest.mark.parametrize("n_signals", [1, 2])
+def test_signals_inside_an_ipopt_solve_abandon_the_step_without_retry(
+        tmp_path: Path, reference: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+        n_signals: int) -> None:
+    """SIGINT arriving inside IPOPT (where CasADi catches a KeyboardInterrupt): the step under way is
+    abandoned at that iteration, never retried with tau/2 or accepted; resuming gives the uninterrupted run."""
+    solve = IpoptSolver.solve
+    solves: list[int] = []
+
+    def solve_with_signals(self: IpoptSolver, *a: object, **kw: object) -> object:
+        solves.append(1)
+        if len(solves) == 3:  # step 3: the signals arrive at its first IPOPT iteration
+            check = self.should_stop
+
+            def check_after_signals() -> bool:
+                self.should_stop = check
+                for _ in range(n_signals):
+                    os.kill(os.getpid(), signal.SIGINT)  # the second raises KeyboardInterrupt inside IPOPT
+                return check()
+
+            self.should_stop = check_after_signals
+        return solve(self, *a, **kw)
+
+    monkeypatch.setattr(IpoptSolver, "solve", solve_with_signals)
+    out = tmp_path / "run"
+    rc = cli.main(["run", *ARGS, "--steps", str(STEPS), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 130 and len(solves) == 3, err  # no retry of step 3
+    assert "interrupted by SIGINT after step 2" in err and "step 3 under way was abandoned" in err
+    status = json.loads((out / "status.json").read_text())
+    assert status["state"] == "interrupted" and status["step"] == 2
+    run = load_run(out)
+    assert len(run.states) == 3 and [h["retries"] for h in run.history] == [0, 0, 0]
+    monkeypatch.setattr(IpoptSolver, "solve", solve)
     assert cli.main(["run", "--resume", str(out), "--quiet"]) == 0
     assert_same_run(reference, out)
 

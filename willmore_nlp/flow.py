@@ -37,6 +37,26 @@ class FlowError(RuntimeError):
         self.rejected = list(rejected or [])
 
 
+class StepInterrupted(Exception):  # noqa: N818 (an outcome, not an error)
+    """A stop was requested (:attr:`WillmoreFlow.stop_requested`) while a step was under way.
+
+    The step was abandoned without retrying it; the flow's state is that of the last accepted
+    step, so continuing from it later gives exactly the results of an uninterrupted run.
+
+    Attributes
+    ----------
+    step : the abandoned step
+    """
+
+    def __init__(self, step: int) -> None:
+        super().__init__(f"step {step} abandoned on request")
+        self.step = step
+
+
+def _never() -> bool:
+    return False
+
+
 class StepSizeWarning(UserWarning):
     """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (DESIGN.md section 1)."""
 
@@ -176,6 +196,14 @@ class WillmoreFlow:
         usual (``max_retries`` per step). Off, every step first tries ``tau``.
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
+
+    Attributes
+    ----------
+    stop_requested : callable () -> bool
+        Asked before every attempt and (by IPOPT) once per solver iteration; when it returns
+        True the step under way is abandoned and :meth:`step` raises :class:`StepInterrupted`
+        instead of retrying (a truncated solve is never retried or accepted, so a stop never
+        changes a result). The runner sets it from its signal handler.
     """
 
     def __init__(
@@ -249,6 +277,8 @@ class WillmoreFlow:
         self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
         self.solver_name = solver
         self.solver = make_solver(solver, self.evaluator, options)
+        self.stop_requested: Callable[[], bool] = _never
+        self.solver.should_stop = lambda: self.stop_requested()
         self.build_time = time.perf_counter() - t0
         self.X = np.array(mesh.vertices, float)
         self.t = 0.0
@@ -330,11 +360,16 @@ class WillmoreFlow:
         ------
         FlowError
             When every attempt was rejected; the flow's state is unchanged.
+        StepInterrupted
+            When :attr:`stop_requested` turned True and the attempt under way did not succeed
+            (no retry follows); the flow's state is unchanged.
         """
         t0 = time.perf_counter()
         tau = min(self.tau, self._tau_adapt) if self.adaptive else self.tau
         rejected: list[str] = []
         for attempt in range(self.max_retries + 1):
+            if self.stop_requested():
+                raise StepInterrupted(self.k + 1)
             p = self.params(self.X, tau)
             z0 = self.problem.pack_z(self.X, self.Y)
             f0 = self.evaluator.f(z0, p)
@@ -366,6 +401,8 @@ class WillmoreFlow:
                 result = self._result(X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
                 result.stats.update(moved)
                 return result
+            if self.stop_requested():  # the solve was cut short (or failed): do not retry
+                raise StepInterrupted(self.k + 1)
             rejected.append(f"tau={tau:.6g}: {reason}")
             tau /= 2
         raise FlowError(

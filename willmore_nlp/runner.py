@@ -6,10 +6,11 @@ This is the engine of ``willmore-nlp run``. A run writes every accepted state at
 - ``completed``: the configured steps or final time were reached (exit 0);
 - ``failed``: a step was rejected after every retry (:class:`~willmore_nlp.flow.FlowError`);
   the rejected attempts are in status.json (exit 1);
-- ``interrupted``: SIGINT or SIGTERM arrived; the step under way was finished and written
+- ``interrupted``: SIGINT or SIGTERM arrived; the step under way was abandoned within one
+  solver iteration (never retried, never accepted half-solved), every accepted step is kept
   (exit 128 + signal number: 130 or 143);
-- ``abandoned``: a second signal arrived while finishing that step; it was dropped (same
-  exit codes);
+- ``abandoned``: a second signal arrived before the first took effect (a solver that does not
+  poll for stops); the step under way was dropped (same exit codes);
 - ``crashed``: an internal error (a bug; its traceback is shown); ``running`` with no live
   process means the process was killed (kill -9, power loss).
 
@@ -35,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
-from willmore_nlp.flow import FlowError, StepResult, WillmoreFlow
+from willmore_nlp.flow import FlowError, StepInterrupted, StepResult, WillmoreFlow
 from willmore_nlp.rundir import RunError, RunWriter, read_config, read_mesh_npz, write_text_atomic
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -85,26 +86,43 @@ def restore_thread_environment(saved: dict[str, Any]) -> list[str]:
 
 # -- signals -------------------------------------------------------------------------------
 class _StopRequestedError(Exception):
-    """Raised from the step callback after a first signal, once the step is written."""
+    """Raised from the step callback after a signal, once the step is written."""
 
 
 class SignalGuard:
-    """First SIGINT/SIGTERM: finish the current step, then stop. Second: abandon it at once.
+    """SIGINT/SIGTERM: stop at once, keeping every accepted step.
 
-    Use as a context manager; the previous handlers are restored on exit.
+    The first signal sets :attr:`signum`; the flow polls it (:attr:`WillmoreFlow.stop_requested`)
+    before every attempt and IPOPT once per iteration, so the step under way is abandoned within
+    one solver iteration and never retried. A second signal raises KeyboardInterrupt once (for
+    solvers that do not poll); later ones are ignored, so the exit path that records the status
+    cannot itself be interrupted. Use as a context manager; the previous handlers are restored on exit.
     """
 
     def __init__(self) -> None:
         self.signum: int | None = None
+        self.count = 0
         self._old: dict[int, Any] = {}
 
+    def stop_requested(self) -> bool:
+        """True once a signal has arrived."""
+        return self.signum is not None
+
     def _handler(self, signum: int, frame: FrameType | None) -> None:
-        if self.signum is None:
+        self.count += 1
+        name = signal.Signals(signum).name
+        if self.count == 1:
             self.signum = signum
-            print(f"\nwillmore-nlp: {signal.Signals(signum).name} received: stopping after the current step "
-                  f"(send it again to abandon the step)", file=sys.stderr, flush=True)
+            msg = (f"\nwillmore-nlp: {name} received: stopping (the step under way is abandoned, finished steps "
+                   "are kept)\n")
+        elif self.count == 2:
+            msg = f"willmore-nlp: second {name}: abandoning at once\n"
+        else:
             return
-        raise KeyboardInterrupt
+        with contextlib.suppress(OSError):
+            os.write(2, msg.encode())  # not print(): a handler may interrupt a write to sys.stderr
+        if self.count == 2:
+            raise KeyboardInterrupt
 
     def __enter__(self) -> SignalGuard:
         for s in (signal.SIGINT, signal.SIGTERM):
@@ -156,6 +174,7 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
         if guard.signum is not None:
             raise _StopRequestedError
 
+    flow.stop_requested = guard.stop_requested
     try:
         if guard.signum is None and (remaining is None or remaining > 0):
             flow.run(t_end=t_end, steps=remaining, callback=on_step)
@@ -166,21 +185,14 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
                 print(f"wrote {out} ({flow.k} steps, t = {flow.t:.6g})")
             return 0
         raise _StopRequestedError
-    except _StopRequestedError:
+    except (_StopRequestedError, StepInterrupted) as exc:
         name = signal.Signals(guard.signum or signal.SIGINT).name
-        writer.set_status("interrupted", signal=name, message=f"stopped by {name} after step {flow.k}")
+        during = f" (step {exc.step} under way was abandoned)" if isinstance(exc, StepInterrupted) else ""
+        writer.set_status("interrupted", signal=name, message=f"stopped by {name} after step {flow.k}{during}")
         bar.close()
-        print(f"willmore-nlp: interrupted by {name} after step {flow.k} (t = {flow.t:.6g}); {out} is a valid "
-              f"run directory: {again}", file=sys.stderr)
+        print(f"willmore-nlp: interrupted by {name} after step {flow.k} (t = {flow.t:.6g}){during}; {out} is a "
+              f"valid run directory: {again}", file=sys.stderr)
         return 128 + int(guard.signum or signal.SIGINT)
-    except KeyboardInterrupt:
-        signum = int(guard.signum or signal.SIGINT)
-        name = signal.Signals(signum).name
-        writer.set_status("abandoned", signal=name, message=f"step {flow.k + 1} abandoned on a second {name}")
-        bar.close()
-        print(f"willmore-nlp: abandoned step {flow.k + 1} on a second {name}; {out} holds steps 0..{flow.k}: "
-              f"{again}", file=sys.stderr)
-        return 128 + signum
     except FlowError as exc:
         writer.set_status("failed", message=str(exc), failed_step=exc.step, rejected=exc.rejected)
         bar.close()
@@ -194,6 +206,17 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
         raise
     finally:
         bar.close()
+
+
+def _abandoned(writer: RunWriter, guard: SignalGuard) -> int:
+    """Record a second signal's KeyboardInterrupt (it is raised only once: this cannot be interrupted)."""
+    signum = int(guard.signum or signal.SIGINT)
+    name = signal.Signals(signum).name
+    k = int(writer.rows[-1]["step"]) if writer.rows else -1  # the last state written
+    writer.set_status("abandoned", signal=name, message=f"step {k + 1} abandoned on a second {name}")
+    print(f"willmore-nlp: abandoned step {k + 1} on a second {name}; {writer.out} holds steps 0..{k}: "
+          f"continue with 'willmore-nlp run --resume {writer.out}'", file=sys.stderr)
+    return 128 + signum
 
 
 def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False) -> int:
@@ -217,6 +240,8 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False) ->
             writer.set_status("running")
             writer.add(flow.state(), flow.lam_g)
             return _advance(flow, writer, spec.steps, spec.t_end, guard, quiet)
+        except KeyboardInterrupt:
+            return _abandoned(writer, guard)
         finally:
             writer.close()
 
@@ -299,5 +324,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
             if not quiet:
                 print(f"resuming {d} at step {flow.k} (t = {flow.t:.6g})")
             return _advance(flow, writer, spec.steps, spec.t_end, guard, quiet)
+        except KeyboardInterrupt:
+            return _abandoned(writer, guard)
         finally:
             writer.close()

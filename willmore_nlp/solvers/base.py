@@ -36,9 +36,14 @@ class SolveResult:
 
 
 class StepSolver(Protocol):
-    """A solver built once per step problem; ``solve`` is called once per time step."""
+    """A solver built once per step problem; ``solve`` is called once per time step.
+
+    The flow sets ``should_stop`` on every solver; a solver that can stop early polls it once per
+    iteration and returns unconverged when it turns True (IPOPT does; the others finish the solve).
+    """
 
     name: str
+    should_stop: Callable[[], bool]
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """Solve the step NLP from ``z0`` with parameters ``p``."""

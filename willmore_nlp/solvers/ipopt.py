@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import casadi as ca
@@ -24,6 +25,48 @@ IPOPT_DEFAULTS: dict[str, Any] = {
 """IPOPT options used unless overridden (keys without the ``ipopt.`` prefix)."""
 
 
+def _never() -> bool:
+    return False
+
+
+class _StopHook(ca.Callback):
+    """IPOPT iteration callback: asks ``check()`` once per iteration; True stops the solve.
+
+    IPOPT then returns ``User_Requested_Stop`` (not converged). An exception raised in ``check``
+    (a KeyboardInterrupt from a signal handler) is caught by CasADi and stops the solve the same way.
+    """
+
+    def __init__(self, nx: int, ng: int, check: Callable[[], bool]) -> None:
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.check = nx, ng, check
+        self.construct("willmore_stop_hook", {})
+
+    def get_n_in(self) -> int:
+        return int(ca.nlpsol_n_out())
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return str(ca.nlpsol_out(i))
+
+    def get_name_out(self, i: int) -> str:
+        return "stop"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        n = ca.nlpsol_out(i)
+        if n == "f":
+            return ca.Sparsity.scalar()
+        if n in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if n in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg: list[Any]) -> list[Any]:
+        return [1 if self.check() else 0]
+
+
 class IpoptSolver:
     """One ``nlpsol('ipopt')`` object serving every step of a run.
 
@@ -36,6 +79,12 @@ class IpoptSolver:
         IPOPT options (``tol``, ``max_iter``, ``mu_strategy``, ``warm_start`` ...), merged over
         :data:`IPOPT_DEFAULTS`. ``warm_start=True`` passes the previous multipliers and sets
         ``warm_start_init_point``.
+
+    Attributes
+    ----------
+    should_stop : callable () -> bool
+        Polled once per IPOPT iteration; True ends the solve at once (``User_Requested_Stop``).
+        The flow sets it (:attr:`willmore_nlp.flow.WillmoreFlow.stop_requested`).
     """
 
     name = "ipopt"
@@ -49,6 +98,8 @@ class IpoptSolver:
             opts["warm_start_init_point"] = "yes"
         nlp = {"x": fn["z"], "p": fn["p"], "f": fn["f_expr"], "g": fn["g_expr"]}
         self.options = opts
+        self.should_stop: Callable[[], bool] = _never
+        self._hook = _StopHook(fn["z"].numel(), fn["g_expr"].numel(), lambda: self.should_stop())
         self._solver = ca.nlpsol(
             "willmore_step",
             "ipopt",
@@ -60,6 +111,7 @@ class IpoptSolver:
                 "print_time": False,
                 "record_time": True,
                 "error_on_fail": False,
+                "iteration_callback": self._hook,
                 "ipopt": opts,
             },
         )
