@@ -94,3 +94,75 @@ def test_cli_unknown_key_is_one_line_error(tmp_path) -> None:
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "unknown key 'nn'" in r.stderr
     assert not out.exists()
+
+
+# -- one user-error class: bad input is one line with exit 2, a bug shows its traceback ---------
+def _sliver_sphere() -> "willmore_nlp.Mesh":
+    """Icosphere whose triangle 0 is squeezed to a sliver (area about 5e-10)."""
+    from willmore_nlp.mesh import shapes
+
+    s = shapes.icosphere(2)
+    V = np.array(s.vertices)
+    a, b, c = s.simplices[0]
+    mid = 0.5 * (V[a] + V[b])
+    V[c] = mid + 1e-9 * (V[c] - mid) / np.linalg.norm(V[c] - mid)
+    return willmore_nlp.Mesh(V, s.simplices)
+
+
+@pytest.mark.parametrize("case", ["scaled_1e100", "beyond_1e150", "sliver"])
+def test_bad_meshes_are_one_line_errors(tmp_path, case: str, capsys) -> None:
+    from willmore_nlp import cli
+    from willmore_nlp.mesh import shapes
+
+    e = shapes.ellipse(16, 2.0, 1.0)
+    f = tmp_path / "m.npz"
+    if case == "scaled_1e100":
+        np.savez(f, vertices=e.vertices * 1e100, simplices=e.simplices)
+        want = "rescale it"
+    elif case == "beyond_1e150":
+        np.savez(f, vertices=e.vertices * 1e155, simplices=e.simplices)
+        want = "has a coordinate beyond 1e+150"
+    else:
+        m = _sliver_sphere()
+        np.savez(f, vertices=m.vertices, simplices=m.simplices)
+        want = "triangle 0 (vertices"
+    out = tmp_path / "run"
+    assert cli.main(["run", str(f), "--out", str(out), "--steps", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and want in err and str(f) in err, err
+    assert not out.exists()
+
+
+def test_compiler_errors_are_one_line_errors(tmp_path, monkeypatch, capsys) -> None:
+    from willmore_nlp import cli
+
+    monkeypatch.setenv("WILLMORE_NLP_CACHE", str(tmp_path / "cache"))
+    for var, val in (("WILLMORE_NLP_CFLAGS", "-fbogus-flag"), ("CC", "/bin/false")):
+        with monkeypatch.context() as mp:
+            mp.setenv(var, val)
+            out = tmp_path / var
+            assert cli.main(["run", "circle", "--set", "n=12", "--out", str(out), "--steps", "1", "--quiet"]) == 2
+            err = capsys.readouterr().err.strip()
+            assert err.count("\n") == 0 and "compiling the element kernels failed" in err and "codegen=false" in err
+            assert not out.exists()
+
+
+def test_internal_errors_show_their_traceback_and_io_errors_exit_74(tmp_path, monkeypatch, capsys) -> None:
+    import errno
+
+    from willmore_nlp import cli, runner
+
+    def bug(*a: object, **kw: object) -> int:
+        raise ValueError("an internal bug")
+
+    monkeypatch.setattr(runner, "start", bug)
+    with pytest.raises(ValueError, match="an internal bug"):  # not reported as the user's fault
+        cli.main(["run", "circle", "--out", str(tmp_path / "r"), "--steps", "1"])
+
+    def full(*a: object, **kw: object) -> int:
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "r" / "history.csv"))
+
+    monkeypatch.setattr(runner, "start", full)
+    assert cli.main(["run", "circle", "--out", str(tmp_path / "r"), "--steps", "1"]) == 74
+    err = capsys.readouterr().err.strip()
+    assert err == f"willmore-nlp: error: {tmp_path / 'r' / 'history.csv'}: No space left on device"

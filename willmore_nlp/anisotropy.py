@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh.core import Mesh
 
@@ -28,7 +29,7 @@ GammaFn = Callable[[ca.SX], ca.SX]
 """gamma(z) for a column z (m x 1, CasADi SX/DM) -> scalar."""
 
 
-class AnisotropyError(ValueError):
+class AnisotropyError(UserInputError):
     """An anisotropy is not positive or not 1-homogeneous; the message names the failing direction."""
 
 

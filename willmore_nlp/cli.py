@@ -3,25 +3,23 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import errno
+import os
 import sys
 import warnings
 from collections.abc import Sequence
 from typing import Any
 
-import tomllib
-
 from willmore_nlp import runner
 from willmore_nlp.config import ConfigError, parse_overrides, resolve
-from willmore_nlp.flow import FlowError
-from willmore_nlp.mesh.core import MeshError
-from willmore_nlp.registry import ProblemError
-from willmore_nlp.rundir import RunError
+from willmore_nlp.errors import EXIT_IO, EXIT_USAGE, UserInputError
 from willmore_nlp.runner import flow_kwargs
 
 __all__ = ["build_parser", "flow_kwargs", "main"]
 
-USER_ERRORS = (ConfigError, MeshError, ProblemError, RunError, FlowError, ValueError, OSError,
-               tomllib.TOMLDecodeError)
+IO_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
+"""OSErrors reported as one line with exit :data:`~willmore_nlp.errors.EXIT_IO` (the environment, not a bug)."""
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -211,11 +209,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     warnings.showwarning = _one_line_warning
     try:
         return int(args.func(args))
-    except USER_ERRORS as exc:
+    except UserInputError as exc:
         if args.debug:
             raise
         print(f"willmore-nlp: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
+    except BrokenPipeError:  # e.g. 'willmore-nlp problems | head': the reader left
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except OSError as exc:
+        if args.debug or exc.errno not in IO_ERRNOS:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"willmore-nlp: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_IO
     except KeyboardInterrupt:
         print("willmore-nlp: interrupted", file=sys.stderr)
         return 130

@@ -31,6 +31,7 @@ from typing import Any
 
 import casadi as ca
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.step import KERNEL_NAMES
 
 log = logging.getLogger(__name__)
@@ -41,7 +42,7 @@ DEFAULT_FLAGS: tuple[str, ...] = ("-O2",)
 MANIFEST_VERSION = 1
 
 
-class CodegenError(RuntimeError):
+class CodegenError(UserInputError):
     """No compiler, or the compiler failed on generated code (its output is in the message)."""
 
 
@@ -195,7 +196,11 @@ def build_library(
             cmd = [cc, *flags, "-fPIC", "-shared", str(c_file), "-o", str(out), "-lm"]
             r = subprocess.run(cmd, capture_output=True, text=True, check=False)
             if r.returncode != 0:
-                raise CodegenError(f"compiling generated kernels failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
+                lines = [ln.strip() for ln in r.stderr.splitlines() if ln.strip()]
+                why = next((ln for ln in lines if "error" in ln.lower()), lines[-1] if lines else "no message")
+                raise CodegenError(f"compiling the element kernels failed: '{cc} {' '.join(flags)}' exited with "
+                                   f"{r.returncode} ({why}); check $CC and $WILLMORE_NLP_CFLAGS, or set "
+                                   f"codegen=false (CasADi's virtual machine)")
             os.replace(out, lib)
         meta = {"key": key, "version": MANIFEST_VERSION, "sha256": _sha256_file(lib), "flags": list(flags),
                 "compiler": _compiler_id(cc).splitlines()[0], "casadi": ca.__version__}

@@ -21,6 +21,7 @@ from typing import Any
 import tomllib
 
 from willmore_nlp import registry
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import Problem, ProblemError, coerce
 
@@ -49,7 +50,7 @@ MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".npz", ".txt", ".curve", ".xy"
 """A run target with one of these suffixes is a mesh file: problem ``file`` with ``path = TARGET``."""
 
 
-class ConfigError(ValueError):
+class ConfigError(UserInputError):
     """A configuration file or override is invalid; the message names the file and key."""
 
 

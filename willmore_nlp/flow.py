@@ -13,6 +13,7 @@ import numpy as np
 from willmore_nlp import geometry
 from willmore_nlp.anisotropy import anisotropic_willmore_energy
 from willmore_nlp.codegen import compile_kernels, find_compiler
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
@@ -60,6 +61,16 @@ def _never() -> bool:
 class StepSizeWarning(UserWarning):
     """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (DESIGN.md section 1)."""
 
+
+MAX_MESH_SIZE = 1e5
+"""WillmoreFlow refuses meshes wider than this: IPOPT's absolute tolerances fail there (measured:
+an ellipse or ellipsoid scaled by 1e4 with tau ~ L^4 reproduces the unit-size steps to 3e-12,
+scaled by 1e6 every step fails)."""
+
+SMALL_MESH_SIZE = 0.1
+"""WillmoreFlow warns for meshes narrower than this: IPOPT's absolute tolerance tol = 1e-9 is then
+met by iterates that barely move (measured: the unit-size steps are reproduced to 2e-7 (ellipse) and
+2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4)."""
 
 TAU_TILDE_WARN_FACTOR = 2.0
 """WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde > this factor times h^2 (h = mean edge)."""
@@ -138,6 +149,30 @@ class StepResult:
             if k in self.stats:
                 r[k] = self.stats[k]
         return r
+
+
+def _check_initial_mesh(mesh: Mesh, min_angle: float, max_edge_ratio: float) -> None:
+    """Refuse an initial mesh the flow cannot work on, naming the simplex (MeshError)."""
+    size = float(np.ptp(mesh.vertices, axis=0).max())
+    if size > MAX_MESH_SIZE:
+        raise MeshError(f"{mesh.source}: the mesh is {size:.3g} wide, beyond {MAX_MESH_SIZE:g} where the solver's "
+                        f"absolute tolerances fail; rescale it to a size about 1 (Willmore flow is scale invariant: "
+                        f"X -> X/L takes t -> t/L^4)")
+    if size < SMALL_MESH_SIZE:
+        warnings.warn(f"{mesh.source}: the mesh is only {size:.3g} wide: IPOPT's absolute tolerance (tol) is then met "
+                      f"by steps that barely move; rescale it to a size about 1 (X -> X/L takes t -> t/L^4)",
+                      stacklevel=3)
+    ell = mesh.edge_lengths()
+    if ell.max() / ell.min() > max_edge_ratio:
+        raise MeshError(f"{mesh.source}: longest/shortest edge = {ell.max() / ell.min():.3g} exceeds max_edge_ratio = "
+                        f"{max_edge_ratio:g}, which every step must keep: remesh, or raise max_edge_ratio")
+    if mesh.d == 2:
+        ang = geometry.min_angles(mesh.vertices, mesh.simplices)
+        k = int(np.argmin(ang))
+        if ang[k] < min_angle:
+            raise MeshError(f"{mesh.source}: triangle {k} (vertices {mesh.simplices[k].tolist()}) has an angle of "
+                            f"{ang[k]:.3g} degrees, below min_angle = {min_angle:g} that every step must keep: "
+                            f"remesh, or lower min_angle")
 
 
 class WillmoreFlow:
@@ -230,13 +265,16 @@ class WillmoreFlow:
     ) -> None:
         for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
             if not (np.isfinite(val) and val > 0):
-                raise ValueError(f"{name} must be a positive number, got {val}")
+                raise UserInputError(f"{name} must be a positive number, got {val}")
         if not (np.isfinite(lam) and lam >= 0):
-            raise ValueError(f"lam must be >= 0, got {lam}")
+            raise UserInputError(f"lam must be >= 0, got {lam}")
         if not allow_components:
             from willmore_nlp.mesh.topology import check_connected
 
             check_connected(mesh, "set allow_components=true to flow them together")
+        self.min_angle = float(min_angle)
+        self.max_edge_ratio = float(max_edge_ratio)
+        _check_initial_mesh(mesh, self.min_angle, self.max_edge_ratio)
         h = mesh.h
         if tau_tilde > TAU_TILDE_WARN_FACTOR * h * h:
             warnings.warn(StepSizeWarning(
@@ -250,12 +288,10 @@ class WillmoreFlow:
         self.lam = float(lam)
         self.max_retries = int(max_retries)
         self.check_energy = check_energy
-        self.min_angle = float(min_angle)
-        self.max_edge_ratio = float(max_edge_ratio)
         self.energy_rtol = float(energy_rtol)
         t0 = time.perf_counter()
         if redistribute and not (mesh.d == 1 and mesh.is_closed and boundary is None):
-            raise ValueError(f"{mesh.source}: redistribute=True is implemented for closed curves without boundary "
+            raise UserInputError(f"{mesh.source}: redistribute=True is implemented for closed curves without boundary "
                              "conditions")
         self.redistribute = bool(redistribute)
         self.adaptive = bool(adaptive)
@@ -283,7 +319,11 @@ class WillmoreFlow:
         self.X = np.array(mesh.vertices, float)
         self.t = 0.0
         self.k = 0
-        self.Y = self._solve_y(self.X, self.tau)
+        try:
+            self.Y = self._solve_y(self.X, self.tau)
+        except RuntimeError as exc:
+            raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
+                            f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
 
     # -- helpers -----------------------------------------------------------------------

@@ -34,6 +34,11 @@ def _corner_angles(sides: np.ndarray) -> np.ndarray:
                                        (a**2 + b**2 - c**2) / (2 * a * b)]), -1, 1))
 
 
+def min_angles(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(K,) smallest angle (degrees) of each triangle ``S`` at positions ``V``."""
+    return np.degrees(_corner_angles(_sides(V, S))).min(axis=0)
+
+
 def gauss_curvature(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     """(N,) discrete Gauss curvature of a closed triangulated surface: angle defect / lumped mass.
 
@@ -155,10 +160,9 @@ def quality(mesh: Mesh) -> dict[str, float]:
         sides = _sides(V, S)
         a, b, c = sides
         area = 0.5 * np.linalg.norm(np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]]), axis=1)
-        ang = np.degrees(_corner_angles(sides))
         s = 0.5 * (a + b + c)
         inr = area / s
         longest = np.maximum(np.maximum(a, b), c)
-        q["min_angle"] = float(ang.min())
+        q["min_angle"] = float(min_angles(V, S).min())
         q["max_aspect"] = float((longest / (2 * np.sqrt(3) * inr)).max())
     return q

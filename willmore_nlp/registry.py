@@ -14,10 +14,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
 
 
-class ProblemError(ValueError):
+class ProblemError(UserInputError):
     """Unknown problem or parameter, or a parameter of the wrong type."""
 
 

@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.flow import StepResult
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.mesh.io import atomic_write
@@ -44,7 +45,7 @@ STATE_RE = re.compile(r"^state_(\d{6,})\.npz$")
 """File names of accepted states."""
 
 
-class RunError(ValueError):
+class RunError(UserInputError):
     """A run directory is missing, incomplete or inconsistent."""
 
 

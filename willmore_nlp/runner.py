@@ -201,6 +201,10 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
               f"attempts (last: {last}); all attempts are in {out / 'status.json'}; steps 0..{flow.k} are kept",
               file=sys.stderr)
         return EXIT_FAILED
+    except OSError as exc:  # disk full, read-only: the CLI reports it in one line (exit 74)
+        with contextlib.suppress(OSError):
+            writer.set_status("failed", message=f"cannot write: {exc}")
+        raise
     except Exception as exc:  # an internal error: record it, then let the traceback show
         writer.set_status("crashed", message=f"{type(exc).__name__}: {exc}")
         raise

@@ -33,11 +33,13 @@ matplotlib.use("Agg")
 import numpy as np
 from matplotlib.figure import Figure
 
+from willmore_nlp.errors import UserInputError
+
 STUDY_FILE = "study.json"
 """Marks a study directory; holds the grid."""
 
 
-class StudyError(ValueError):
+class StudyError(UserInputError):
     """A study specification is invalid (names the option and value)."""
 
 

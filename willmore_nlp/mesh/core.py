@@ -7,8 +7,10 @@ from functools import cached_property
 
 import numpy as np
 
+from willmore_nlp.errors import UserInputError
 
-class MeshError(ValueError):
+
+class MeshError(UserInputError):
     """A mesh failed validation; the message names the offending vertex, simplex or file."""
 
 

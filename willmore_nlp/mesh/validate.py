@@ -41,6 +41,10 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
     bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
     if bad.size:
         raise MeshError(f"{source}: vertex {bad[0]} has a non-finite coordinate {V[bad[0]].tolist()}")
+    big = np.flatnonzero((np.abs(V) > MAX_COORDINATE).any(axis=1))
+    if big.size:
+        raise MeshError(f"{source}: vertex {big[0]} has a coordinate beyond {MAX_COORDINATE:g} "
+                        f"({V[big[0]].tolist()}): lengths and areas would overflow; rescale the mesh")
     S_raw = np.asarray(simplices)
     if S_raw.ndim != 2 or S_raw.shape[1] not in (2, 3):
         raise MeshError(
@@ -98,6 +102,9 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
         )
     return V, S
 
+
+MAX_COORDINATE = 1e150
+"""Larger coordinates are refused: squared lengths (areas, distances) would overflow."""
 
 DUPLICATE_RTOL = 1e-12
 """Two vertices closer than this times the largest bounding-box side are duplicates."""

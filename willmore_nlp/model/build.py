@@ -9,6 +9,7 @@ import numpy as np
 
 from willmore_nlp.anisotropy import Anisotropy, get_anisotropy
 from willmore_nlp.boundary import Boundary, BoundaryData, boundary_data
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.energies import anisotropic, isotropic
 from willmore_nlp.model.step import StepProblem
@@ -60,7 +61,7 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None,
     """
     beta = float(tangential_weight)
     if not (np.isfinite(beta) and beta >= 1.0):
-        raise ValueError(f"tangential_weight must be a number >= 1 (1 = the paper's L^2 distance), "
+        raise UserInputError(f"tangential_weight must be a number >= 1 (1 = the paper's L^2 distance), "
                          f"got {tangential_weight!r}")
     if beta != 1.0 and mesh.d == 2 and mesh.m != 3:
         raise MeshError(f"{mesh.source}: tangential_weight needs surfaces in R^3, got R^{mesh.m}")

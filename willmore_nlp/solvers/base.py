@@ -8,6 +8,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
 
 
@@ -72,5 +73,5 @@ def solver_names() -> list[str]:
 def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | None = None) -> StepSolver:
     """Build the solver ``name`` for a step problem; ``options`` are solver-specific."""
     if name not in _SOLVERS:
-        raise ValueError(f"unknown solver {name!r}; available: {', '.join(solver_names())}")
+        raise UserInputError(f"unknown solver {name!r}; available: {', '.join(solver_names())}")
     return _SOLVERS[name](evaluator, dict(options or {}))

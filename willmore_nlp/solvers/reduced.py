@@ -29,6 +29,7 @@ import numpy as np
 import scipy.optimize as so
 import scipy.sparse.linalg as spla
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
@@ -66,7 +67,7 @@ class ReducedSolver:
         opts = dict(REDUCED_DEFAULTS)
         unknown = set(options) - {"tol", "max_iter", "armijo", "warm_start", "print_level"}
         if unknown:
-            raise ValueError(f"solver {method}: unknown option(s) {', '.join(sorted(unknown))}; "
+            raise UserInputError(f"solver {method}: unknown option(s) {', '.join(sorted(unknown))}; "
                              f"known: tol, max_iter, armijo")
         opts.update({k: v for k, v in options.items() if k not in ("warm_start", "print_level")})
         self.name = method

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass, mass_stiffness
 from willmore_nlp.geometry import gauss_curvature
 from willmore_nlp.model.evaluator import StepEvaluator
@@ -51,16 +52,16 @@ class SemiImplicitSolver:
     def __init__(self, evaluator: StepEvaluator, options: dict[str, Any]) -> None:
         unknown = set(options) - {"tol", "max_iter", "warm_start", "print_level"}
         if unknown:
-            raise ValueError(f"solver semi-implicit: unknown option(s) {', '.join(sorted(unknown))}; it has none")
+            raise UserInputError(f"solver semi-implicit: unknown option(s) {', '.join(sorted(unknown))}; it has none")
         P = evaluator.problem
         if P.nX != P.n_vertices or (P.simplices.shape[1] == 3 and P.m != 3):
-            raise ValueError("solver semi-implicit: the baseline is implemented for closed curves and closed "
+            raise UserInputError("solver semi-implicit: the baseline is implemented for closed curves and closed "
                              "surfaces in R^3 (no clamped boundaries)")
         if P.anisotropic:
-            raise ValueError("solver semi-implicit: the baseline is isotropic (no anisotropy)")
+            raise UserInputError("solver semi-implicit: the baseline is isotropic (no anisotropy)")
         if P.tangential_weight != 1.0:
-            raise ValueError("solver semi-implicit: the baseline has no tangential weight (it does not minimise W); "
-                             "use tangential_weight=1")
+            raise UserInputError("solver semi-implicit: the baseline has no tangential weight (it does not "
+                                 "minimise W); use tangential_weight=1")
         self.ev = evaluator
         self.P = P
 

@@ -25,6 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
@@ -47,7 +48,7 @@ class SqpSolver:
     def __init__(self, evaluator: StepEvaluator, options: dict[str, Any]) -> None:
         unknown = set(options) - {"tol", "max_iter", "warm_start", "print_level"}
         if unknown:
-            raise ValueError(f"solver sqp: unknown option(s) {', '.join(sorted(unknown))}; known: tol, max_iter")
+            raise UserInputError(f"solver sqp: unknown option(s) {', '.join(sorted(unknown))}; known: tol, max_iter")
         opts = {**SQP_DEFAULTS, **{k: v for k, v in options.items() if k in SQP_DEFAULTS}}
         self.ev = evaluator
         self.tol = float(opts["tol"])

@@ -1,0 +1,24 @@
+"""The one exception class for bad input, and the exit codes of the command line.
+
+Every error the user can fix (a bad file, option, parameter, run directory, environment setting)
+is a :class:`UserInputError`: the CLI prints its message as one line and exits with
+:data:`EXIT_USAGE`. Anything else is a bug and shows its traceback.
+"""
+
+from __future__ import annotations
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+"""A run stopped because a step failed after every retry (the run directory is kept)."""
+EXIT_USAGE = 2
+"""Bad input: file, option, parameter, run directory or environment setting (one-line message)."""
+EXIT_IO = 74
+"""The output could not be written (disk full, read-only or no permission; sysexits' EX_IOERR)."""
+
+
+class UserInputError(ValueError):
+    """Bad input from the user; the message names the file, vertex, option or setting and the fix.
+
+    Subclasses: ConfigError, MeshError, ProblemError, RunError, StudyError, AnisotropyError,
+    CodegenError (a subclass of ValueError so that older ``except ValueError`` code still works).
+    """
