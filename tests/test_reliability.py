@@ -396,3 +396,32 @@ def test_two_processes_give_bit_identical_states(tmp_path: Path) -> None:
         assert p.returncode == 0, err
     a, b = state_arrays(outs[0]), state_arrays(outs[1])
     assert sorted(a) == [0, 1, 2, 3] and a == b
+
+
+# -- files: only the program's own are ever deleted; no lock file is left -------------------------
+def test_resume_and_overwrite_keep_user_files_and_leave_no_lock(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    args = ["run", *ARGS, "--steps", "3", "--out", str(out)]
+    assert cli.main(args) == 0
+    assert not (out / "run.lock").exists()  # a completed run directory holds no lock file
+    user = {out / "NOTES.txt": "my notes", out / ".gitignore": "*\n", out / "states" / "state_000002.npz.bak": "x",
+            out / "states" / "README": "mine", out / ".config.json.swp": "editor"}
+    for f, text in user.items():
+        f.write_text(text)
+    (out / "states" / ".state_000004.npz.k2j4h1x9.npz").write_bytes(b"PK partial")  # the program's debris
+    capsys.readouterr()
+    assert cli.main(["run", "--resume", str(out), "--steps", "5", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("note: removed") == 1 and ".state_000004.npz.k2j4h1x9.npz" in err
+    assert all(f.read_text() == text for f, text in user.items())
+    assert len(load_run(out).states) == 6 and not (out / "run.lock").exists()
+    # running the same command again: a one-line error that says how to continue or start afresh
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--resume" in err and "--overwrite" in err
+    assert cli.main([*args, "--overwrite"]) == 0
+    assert all(f.read_text() == text for f, text in user.items())
+    run = load_run(out)
+    assert len(run.states) == 4 and run.config["steps"] == 3 and not (out / "run.lock").exists()
+    assert json.loads((out / "status.json").read_text())["sessions"][0]["from_step"] == 0

@@ -25,8 +25,8 @@ IO_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, er
 def cmd_run(args: argparse.Namespace) -> int:
     """Run a problem or config into a new run directory, or continue one (``--resume DIR``)."""
     if args.resume:
-        if args.target or args.out or args.set:
-            raise ConfigError("--resume DIR continues a run as configured: give no TARGET, --out or --set "
+        if args.target or args.out or args.set or args.overwrite:
+            raise ConfigError("--resume DIR continues a run as configured: give no TARGET, --out, --set or --overwrite "
                               "(--steps/--t-end set a new total length)")
         return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet)
     if not args.target or not args.out:
@@ -39,7 +39,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     spec = resolve(args.target, overrides)
     if spec.steps is None and spec.t_end is None:
         raise ConfigError(f"{args.target}: give --steps or --t-end")
-    return runner.start(spec, args.out, quiet=args.quiet)
+    return runner.start(spec, args.out, quiet=args.quiet, overwrite=args.overwrite)
 
 
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
@@ -157,6 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--t-end", type=float, dest="t_end", help="final time")
     r.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a parameter (repeatable)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--overwrite", action="store_true", help="if --out holds a run, start it afresh (deletes only "
+                   "the files the run wrote, once the new run has been set up)")
     r.set_defaults(func=cmd_run)
 
     p = sub.add_parser("problems", help="list registered problems")

@@ -44,6 +44,14 @@ from willmore_nlp.mesh.io import atomic_write
 STATE_RE = re.compile(r"^state_(\d{6,})\.npz$")
 """File names of accepted states."""
 
+RUN_FILES = ("config.json", "mesh.npz", "history.csv", "status.json", "run.lock")
+"""Files the program writes at the top of a run directory (besides ``states/``)."""
+
+TEMP_RE = re.compile(r"^\.(state_\d{6,}\.npz|config\.json|mesh\.npz|history\.csv|status\.json)\.[A-Za-z0-9_]+"
+                     r"\.(npz|json|csv)$")
+"""Temporary files of :func:`~willmore_nlp.mesh.io.atomic_write` (``.NAME.XXXXXXXX.SUFFIX``) for the run's
+files; only these, the state files and :data:`RUN_FILES` are ever deleted from a run directory."""
+
 
 class RunError(UserInputError):
     """A run directory is missing, incomplete or inconsistent."""
@@ -166,7 +174,8 @@ def scan_states(run_dir: Path, shape: tuple[int, ...]) -> tuple[list[Checkpoint]
     -------
     trusted : list of Checkpoint, step 0 first, without gaps
     untrusted : list of (file, reason): damaged states, states after a gap or a damaged one,
-        and stray temporary files left by a crash
+        and stray temporary files left by a crash (all files the program wrote and recognises;
+        any other file, e.g. the user's notes, is neither listed nor ever removed)
     """
     sdir = run_dir / "states"
     files: dict[int, Path] = {}
@@ -174,12 +183,10 @@ def scan_states(run_dir: Path, shape: tuple[int, ...]) -> tuple[list[Checkpoint]
     if sdir.is_dir():
         for f in sorted(sdir.iterdir()):
             m = STATE_RE.match(f.name)
-            if m:
+            if m and f.is_file():
                 files[int(m[1])] = f
-            elif f.name.startswith("."):
+            elif TEMP_RE.match(f.name) and f.is_file():
                 untrusted.append((f, "temporary file left by an interrupted write"))
-            else:
-                untrusted.append((f, "not a state file"))
     trusted: list[Checkpoint] = []
     broken: str | None = None
     for step in sorted(files):
@@ -195,8 +202,8 @@ def scan_states(run_dir: Path, shape: tuple[int, ...]) -> tuple[list[Checkpoint]
                 untrusted.append((f, str(exc)))
                 continue
         untrusted.append((f, broken))
-    for f in run_dir.iterdir():
-        if f.name.startswith(".") and f.is_file():
+    for f in sorted(run_dir.iterdir()):
+        if TEMP_RE.match(f.name) and f.is_file():
             untrusted.append((f, "temporary file left by an interrupted write"))
     return trusted, untrusted
 
@@ -225,24 +232,96 @@ def read_config(d: Path) -> dict[str, Any]:
 
 
 def lock_run_dir(d: Path) -> Any:
-    """Hold an exclusive advisory lock on ``d/run.lock`` (RunError when another process holds it)."""
+    """Hold an exclusive advisory lock on ``d/run.lock`` (RunError when another process holds it).
+
+    The writer deletes run.lock when it closes (:func:`unlock_run_dir`), so a finished run
+    directory holds no lock file; a lock taken on a file that was deleted meanwhile is retried
+    on the new one, so two writers can never both hold "the" lock.
+    """
     try:
         import fcntl
     except ImportError:  # not on POSIX: no locking
         return None
-    fh = open(d / "run.lock", "a+")  # noqa: SIM115 (held open for the writer's lifetime)
-    try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as exc:
-        fh.seek(0)
-        holder = fh.read().strip() or "another process"
-        fh.close()
-        raise RunError(f"{d}: is being written by {holder}; wait for it or stop it first") from exc
+    path = d / "run.lock"
+    while True:
+        fh = open(path, "a+")  # noqa: SIM115 (held open for the writer's lifetime)
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            fh.seek(0)
+            holder = fh.read().strip() or "another process"
+            fh.close()
+            raise RunError(f"{d}: is being written by {holder}; wait for it or stop it first") from exc
+        try:
+            same = os.stat(path).st_ino == os.fstat(fh.fileno()).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        fh.close()  # the previous holder removed the file after we opened it: lock the new one
     fh.seek(0)
     fh.truncate()
     fh.write(f"pid {os.getpid()}\n")
     fh.flush()
     return fh
+
+
+def unlock_run_dir(d: Path, lock: Any) -> None:
+    """Delete ``d/run.lock`` (still holding it), then release the lock of :func:`lock_run_dir`."""
+    if lock is None:
+        return
+    try:
+        (d / "run.lock").unlink(missing_ok=True)
+    finally:
+        lock.close()
+
+
+def check_new_run_dir(d: Path, *, keep_foreign: bool = False) -> None:
+    """RunError unless ``d`` is absent or empty (or, with ``keep_foreign``, holds none of the program's files)."""
+    if d.exists() and not d.is_dir():
+        raise RunError(f"{d}: exists and is not a directory")
+    if not d.is_dir():
+        return
+    sdir = d / "states"
+    mine = any(f.name in RUN_FILES for f in d.iterdir()) or (
+        sdir.is_dir() and any(STATE_RE.match(f.name) for f in sdir.iterdir()))
+    if keep_foreign and not mine:
+        return
+    if (d / "config.json").is_file():
+        raise RunError(f"{d}: holds a run already; continue it with 'willmore-nlp run --resume {d}', or start "
+                       f"it afresh with --overwrite (deletes only the files the run wrote)")
+    if any(d.iterdir()):
+        raise RunError(f"{d}: output directory exists and is not empty (and is not a run directory); choose "
+                       f"another --out")
+
+
+def clear_run_dir(d: Path) -> list[Path]:
+    """Delete the files the program wrote in the run directory ``d`` (for ``run --overwrite``).
+
+    Only :data:`RUN_FILES`, state files, their temporary files and an empty ``states/`` go; any
+    other file (notes, a report, backups) stays. Refused (RunError) when ``d`` is not a run
+    directory or another process is writing it.
+
+    Returns
+    -------
+    the files removed
+    """
+    read_config(d)
+    lock = lock_run_dir(d)
+    removed: list[Path] = []
+    try:
+        sdir = d / "states"
+        mine = [f for f in sdir.iterdir() if STATE_RE.match(f.name) or TEMP_RE.match(f.name)] if sdir.is_dir() else []
+        mine += [f for f in d.iterdir() if (f.name in RUN_FILES and f.name != "run.lock") or TEMP_RE.match(f.name)]
+        for f in mine:
+            if f.is_file():
+                f.unlink()
+                removed.append(f)
+        if sdir.is_dir() and not any(sdir.iterdir()):
+            sdir.rmdir()
+    finally:
+        unlock_run_dir(d, lock)
+    return removed
 
 
 class RunWriter:
@@ -253,16 +332,15 @@ class RunWriter:
     out : path of the run directory (created; must be empty or absent)
     config : resolved configuration, stored as JSON
     mesh : initial mesh
+    keep_foreign : allow files that are not the program's (left by :func:`clear_run_dir`)
 
     Use :meth:`resume` to continue writing an existing run directory.
     """
 
-    def __init__(self, out: str | os.PathLike[str], config: dict[str, Any], mesh: Mesh) -> None:
+    def __init__(self, out: str | os.PathLike[str], config: dict[str, Any], mesh: Mesh, *,
+                 keep_foreign: bool = False) -> None:
         self.out = Path(out)
-        if self.out.exists() and not self.out.is_dir():
-            raise RunError(f"{self.out}: exists and is not a directory")
-        if self.out.exists() and any(self.out.iterdir()):
-            raise RunError(f"{self.out}: output directory exists and is not empty (use --resume to continue a run)")
+        check_new_run_dir(self.out, keep_foreign=keep_foreign)
         (self.out / "states").mkdir(parents=True, exist_ok=True)
         self._lock = lock_run_dir(self.out)
         write_text_atomic(self.out / "config.json", json.dumps(config, indent=2, sort_keys=True, default=_json_default))
@@ -320,10 +398,10 @@ class RunWriter:
         return self, config, (trusted[-1] if trusted else None), notes
 
     def close(self) -> None:
-        """Release the directory's lock (also released when the process ends)."""
-        if self._lock is not None:
-            self._lock.close()
-            self._lock = None
+        """Release the directory's lock and delete run.lock (a process that dies keeps the file, but
+        the kernel releases its lock)."""
+        lock, self._lock = self._lock, None
+        unlock_run_dir(self.out, lock)
 
     # -- states and history ------------------------------------------------------------------
     def _rewrite_history(self) -> None:

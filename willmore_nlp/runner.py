@@ -37,7 +37,15 @@ import numpy as np
 
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
 from willmore_nlp.flow import FlowError, StepInterrupted, StepResult, WillmoreFlow
-from willmore_nlp.rundir import RunError, RunWriter, read_config, read_mesh_npz, write_text_atomic
+from willmore_nlp.rundir import (
+    RunError,
+    RunWriter,
+    check_new_run_dir,
+    clear_run_dir,
+    read_config,
+    read_mesh_npz,
+    write_text_atomic,
+)
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 """Environment variables that set BLAS/OpenMP thread counts (recorded in config.json)."""
@@ -223,23 +231,30 @@ def _abandoned(writer: RunWriter, guard: SignalGuard) -> int:
     return 128 + signum
 
 
-def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False) -> int:
+def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, overwrite: bool = False) -> int:
     """Run ``spec`` into the new run directory ``out``; returns the exit code.
 
-    Nothing is written when the flow cannot be built (bad mesh or options).
+    Nothing is written when the flow cannot be built (bad mesh or options). With ``overwrite``
+    an existing run directory ``out`` is cleared first (:func:`~willmore_nlp.rundir.clear_run_dir`:
+    only the files the run wrote; others stay), once the new flow has been built.
     """
     if spec.steps is None and spec.t_end is None:
         raise ConfigError("give --steps or --t-end")
     o = Path(out)
-    if o.exists() and (not o.is_dir() or any(o.iterdir())):
-        raise RunError(f"{o}: output directory exists and is not empty (use --resume to continue a run)")
+    if not (overwrite and (o / "config.json").is_file()):
+        check_new_run_dir(o)
     pb = spec.problem
     flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **flow_kwargs(spec))
+    if overwrite and (o / "config.json").is_file():
+        removed = clear_run_dir(o)
+        if not quiet:
+            print(f"willmore-nlp: --overwrite: removed {len(removed)} files of the previous run in {o}",
+                  file=sys.stderr)
     cfg = spec.config()
     cfg["cwd"] = os.getcwd()
     cfg["environment"] = thread_environment()
     with SignalGuard() as guard:
-        writer = RunWriter(out, cfg, pb.mesh)
+        writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
         try:
             writer.set_status("running")
             writer.add(flow.state(), flow.lam_g)
