@@ -425,3 +425,14 @@ def test_resume_and_overwrite_keep_user_files_and_leave_no_lock(tmp_path: Path,
     run = load_run(out)
     assert len(run.states) == 4 and run.config["steps"] == 3 and not (out / "run.lock").exists()
     assert json.loads((out / "status.json").read_text())["sessions"][0]["from_step"] == 0
+
+
+def test_run_files_respect_the_umask(tmp_path: Path) -> None:
+    old = os.umask(0o027)
+    try:
+        out = tmp_path / "run"
+        assert cli.main(["run", *ARGS, "--steps", "1", "--out", str(out)]) == 0
+    finally:
+        os.umask(old)
+    modes = {f.name: f.stat().st_mode & 0o777 for f in out.rglob("*") if f.is_file()}
+    assert modes and set(modes.values()) == {0o640}, modes  # as open() gives, not mkstemp's 0600
