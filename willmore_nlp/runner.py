@@ -276,12 +276,18 @@ def _chdir(path: str | None) -> Iterator[None]:
         os.chdir(old)
 
 
-def spec_from_config(cfg: dict[str, Any], where: str) -> RunSpec:
-    """Rebuild the RunSpec of a stored configuration (relative paths as seen from its ``cwd``)."""
+def spec_from_config(cfg: dict[str, Any], where: str, run_dir: Path | None = None) -> RunSpec:
+    """Rebuild the RunSpec of a stored configuration (relative paths as seen from its ``cwd``).
+
+    With ``run_dir``, a run of a mesh file (problem ``file``) reads the run's own copy of the
+    initial mesh, ``run_dir/mesh.npz``, so the original file may have moved, changed or gone.
+    """
     for k in ("problem", "params"):
         if k not in cfg:
             raise RunError(f"{where}: no {k!r} entry")
     overrides = {**cfg["params"], **cfg.get("flow_options", {})}
+    if run_dir is not None and cfg["problem"] == "file":
+        overrides["path"] = str(Path(run_dir).resolve() / "mesh.npz")
     with _chdir(cfg.get("cwd")):
         spec = resolve(str(cfg["problem"]), overrides, source=where)
     spec.steps = cfg.get("steps")
@@ -309,7 +315,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
     cfg = read_config(d)
     for note in restore_thread_environment(cfg.get("environment", {})):
         print(f"willmore-nlp: note: {note}", file=sys.stderr)
-    spec = spec_from_config(cfg, where)
+    spec = spec_from_config(cfg, where, d)
     if steps is not None or t_end is not None:
         spec.steps, spec.t_end = steps, t_end
         check_spec(spec, {"steps": "--steps", "t_end": "--t-end"})
