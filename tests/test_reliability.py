@@ -435,3 +435,27 @@ def test_run_files_respect_the_umask(tmp_path: Path) -> None:
         os.umask(old)
     modes = {f.name: f.stat().st_mode & 0o777 for f in out.rglob("*") if f.is_file()}
     assert modes and set(modes.values()) == {0o640}, modes  # as open() gives, not mkstemp's 0600
+
+
+def test_load_run_trusts_the_states_over_an_edited_history(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["run", *ARGS, "--steps", "2", "--out", str(out)]) == 0
+    energies = [h["energy"] for h in load_run(out).history]
+    text = (out / "history.csv").read_text().splitlines()
+    head = text[0].split(",")
+    row = text[2].split(",")
+    row[head.index("energy")] = "0.0"  # an edited or corrupted copy
+    (out / "history.csv").write_text("\n".join([*text[:2], ",".join(row), *text[3:]]) + "\n")
+    assert [h["energy"] for h in load_run(out).history] == energies and energies[1] != 0.0
+
+
+def test_resume_with_a_shorter_length_is_refused_and_changes_nothing(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["run", *ARGS, "--steps", "3", "--out", str(out)]) == 0
+    config = (out / "config.json").read_text()
+    capsys.readouterr()
+    assert cli.main(["run", "--resume", str(out), "--steps", "2", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "holds 3 steps" in err and "cannot be shorter" in err
+    assert (out / "config.json").read_text() == config and len(load_run(out).states) == 4

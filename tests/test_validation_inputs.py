@@ -222,6 +222,18 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("set-unknown-solver", _circle_with("solver=bfgs"), ["unknown solver 'bfgs'"]),
     ("set-bool", _circle_with("check_energy=maybe"), ["--set: parameter check_energy: cannot read 'maybe' as bool"]),
     ("unknown-problem", lambda d: ["spheroid"], ["unknown problem 'spheroid'"]),
+    # -- found in the second reliability pass ---------------------------------------------------
+    ("obj-concave-polygon", _write("s.obj", "v 0 0 0\nv 2 1 0\nv 0 2 0\nv 0.5 1 0\nf 1 2 3 4\n"),
+     ["s.obj:5", "a face with 4 corners is not convex (at its corner 4)", "triangulate it"]),
+    ("off-concave-polygon", _write("s.off", "OFF\n4 1 0\n0 0 0\n2 1 0\n0 2 0\n0.5 1 0\n4 0 1 2 3\n"),
+     ["s.off:7", "is not convex"]),
+    ("obj-latin1-outside-comment", _write("s.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\ng caf\xe9\nf 1 2 3\n"),
+     ["s.obj:4", "not a UTF-8 text file (byte 0xe9 in column 6)"]),
+    ("stl-truncated-binary", _write("s.stl", b"\0" * 80 + np.uint32(10).tobytes() + b"\0" * 300),
+     ["s.stl", "header promises 10 triangles", "the file has 384 bytes (truncated?)"]),
+    ("ply-zero-filled", _write("s.ply", b"\0" * 100_000), ["s.ply", "not a PLY file"]),
+    ("obj-zero-filled", _write("s.obj", b"\0" * 100_000), ["s.obj:1", "not a text file (contains a NUL byte)"]),
+    ("toml-huge", _toml('mesh = "c.txt"\n' + "#" * 1_100_000 + "\n"), ["cfg.toml", "is not a config file"]),
 ]
 
 
@@ -246,6 +258,24 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path: Path, capsys: pytest
 def test_enough_cases() -> None:
     kinds = {name.split("-")[0] for name, _, _ in CASES}
     assert len(CASES) >= 20 and {"curve", "npz", "obj", "off", "toml", "set"} <= kinds
+
+
+def test_lenient_inputs_are_read(tmp_path: Path) -> None:
+    """A Latin-1 byte in an OBJ comment and a UTF-8 BOM in a TOML config are accepted."""
+    from willmore_nlp.config import resolve
+    from willmore_nlp.mesh.io import load_mesh
+
+    (tmp_path / "s.obj").write_bytes(_ico_obj().encode() + b"# modelled by Ren\xe9\n")
+    assert load_mesh(tmp_path / "s.obj").n_simplices == 20
+    (tmp_path / "c.txt").write_text(_circle_txt(12))
+    (tmp_path / "cfg.toml").write_bytes(b'\xef\xbb\xbfmesh = "c.txt"\nsteps = 3\n')
+    assert resolve(str(tmp_path / "cfg.toml")).steps == 3
+
+
+def test_negative_steps_name_the_option(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert cli.main(["run", "circle", "--out", str(tmp_path / "r"), "--steps", "-3"]) == 2
+    assert capsys.readouterr().err.strip() == ("willmore-nlp: error: --steps must be an integer >= 1 (the total "
+                                               "number of steps), got -3")
 
 
 def test_existing_output_and_resume_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

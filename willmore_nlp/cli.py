@@ -29,6 +29,10 @@ def cmd_run(args: argparse.Namespace) -> int:
             raise ConfigError("--resume DIR continues a run as configured: give no TARGET, --out, --set or --overwrite "
                               "(--steps/--t-end set a new total length)")
         return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet)
+    if args.steps is not None and args.steps < 1:
+        raise ConfigError(f"--steps must be an integer >= 1 (the total number of steps), got {args.steps}")
+    if args.t_end is not None and not args.t_end > 0:
+        raise ConfigError(f"--t-end must be a number > 0, got {args.t_end}")
     if not args.target or not args.out:
         raise ConfigError("run needs a TARGET (problem name or .toml) and --out DIR, or --resume DIR")
     overrides: dict[str, Any] = parse_overrides(args.set or [])

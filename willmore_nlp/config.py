@@ -50,6 +50,10 @@ MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".npz", ".txt", ".curve", ".xy"
 """A run target with one of these suffixes is a mesh file: problem ``file`` with ``path = TARGET``."""
 
 
+MAX_TOML_BYTES = 1_000_000
+"""Larger .toml files are refused before they are read (a config is a few lines)."""
+
+
 class ConfigError(UserInputError):
     """A configuration file or override is invalid; the message names the file and key."""
 
@@ -104,10 +108,15 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
 
 def read_toml(path: Path) -> dict[str, Any]:
     """Read a TOML config and flatten ``[ipopt]`` into ``ipopt.KEY`` entries."""
+    if path.is_file() and path.stat().st_size > MAX_TOML_BYTES:
+        raise ConfigError(f"{path}: {path.stat().st_size / 1e6:.3g} MB is not a config file (the limit is "
+                          f"{MAX_TOML_BYTES / 1e6:g} MB; meshes go in their own file: mesh = \"FILE\")")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # -sig: a BOM (Windows editors) is dropped
     except FileNotFoundError as exc:
         raise ConfigError(f"{path}: no such config file") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
     flat: dict[str, Any] = {}

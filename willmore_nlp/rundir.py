@@ -484,9 +484,9 @@ class Run:
 def load_run(run_dir: str | os.PathLike[str]) -> Run:
     """Read a run directory written by :class:`RunWriter`.
 
-    Only trusted states are returned (see :func:`scan_states`); the history rows are those of
-    history.csv, or stored in the states when history.csv lacks them (a crash between writing a
-    state and appending its row).
+    Only trusted states are returned (see :func:`scan_states`); the history rows are those stored
+    in the states (the record, as for a resume), or of history.csv for states written before
+    they held their row.
 
     Raises
     ------
@@ -505,7 +505,7 @@ def load_run(run_dir: str | os.PathLike[str]) -> Run:
         states = [Mesh(ck.vertices, simplices, str(d / "states" / f"state_{ck.step:06d}.npz")) for ck in trusted]
     except MeshError as exc:
         raise RunError(str(exc)) from exc
-    history = [csv_rows.get(ck.step) or ck.row or {"step": ck.step, "t": ck.t} for ck in trusted]
+    history = [ck.row or csv_rows.get(ck.step) or {"step": ck.step, "t": ck.t} for ck in trusted]
     try:
         status = json.loads((d / "status.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):

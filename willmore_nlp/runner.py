@@ -336,6 +336,10 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
         try:
             for note in notes:
                 print(f"willmore-nlp: note: {note}", file=sys.stderr)
+            done_k, done_t = (0, 0.0) if ck is None else (ck.step, ck.t)
+            if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
+                raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
+                               f"new total length, which cannot be shorter (the run is unchanged)")
             if (spec.steps, spec.t_end) != (cfg.get("steps"), cfg.get("t_end")):
                 cfg.update({"steps": spec.steps, "t_end": spec.t_end})
                 write_text_atomic(d / "config.json", json.dumps(cfg, indent=2, sort_keys=True, default=str))

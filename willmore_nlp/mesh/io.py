@@ -8,8 +8,9 @@ Formats
 -------
 ``.obj``, ``.off``
     Read and written here (strict, line-numbered errors; 17 significant digits, so a
-    round trip is exact). Polygons with more than three corners are split into a fan of
-    triangles from their first corner. No merging or repair: what is in the file is what
+    round trip is exact). Convex polygons with more than three corners are split into a fan
+    of triangles from their first corner; non-convex ones are refused (a fan would fold).
+    Bytes that are not UTF-8 are allowed in ``#`` comments. No merging or repair: what is in the file is what
     gets validated.
 ``.ply``, ``.stl``
     Through trimesh (STL stores every triangle with its own corners, so equal positions
@@ -53,20 +54,62 @@ _OBJ_IGNORED = frozenset({
 
 # -- helpers -------------------------------------------------------------------------------
 def _read_text(path: Path) -> list[str]:
-    """Lines of a UTF-8 text file; decoding errors become a MeshError naming the byte."""
+    """Lines of a UTF-8 text file; undecodable bytes are allowed in ``#`` comments only (a MeshError
+    naming the line and byte elsewhere)."""
+    head = _head(path)
+    if b"\x00" in head:  # fail fast on a binary file, before reading all of it
+        line = head[: head.index(b"\x00")].count(b"\n") + 1
+        raise MeshError(f"{path}:{line}: not a text file (contains a NUL byte)")
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise MeshError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = data[: exc.start].count(b"\n") + 1
-        raise MeshError(f"{path}:{line}: not a UTF-8 text file (byte {exc.start}: {exc.reason})") from exc
-    if "\x00" in text:
-        line = text[: text.index("\x00")].count("\n") + 1
+    if b"\x00" in data:
+        line = data[: data.index(b"\x00")].count(b"\n") + 1
         raise MeshError(f"{path}:{line}: not a text file (contains a NUL byte)")
-    return text.splitlines()
+    lines = data.decode("utf-8", "surrogateescape").splitlines()
+    for lineno, line in enumerate(lines, start=1):
+        code = line.split("#", 1)[0]
+        bad = next((i for i, ch in enumerate(code) if "\udc80" <= ch <= "\udcff"), None)
+        if bad is not None:
+            raise MeshError(f"{path}:{lineno}: not a UTF-8 text file (byte 0x{ord(code[bad]) - 0xDC00:02x} in column "
+                            f"{bad + 1})")
+    return lines
+
+
+SNIFF_BYTES = 1 << 16
+"""How much of a file is read to recognise its format before it is read whole."""
+
+
+def _head(path: Path, n: int = SNIFF_BYTES) -> bytes:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(n)
+    except OSError as exc:
+        raise MeshError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
+
+
+def _sniff_trimesh(path: Path, ext: str) -> None:
+    """Refuse a .ply/.stl that is not one before trimesh reads it whole (MeshError)."""
+    head = _head(path)
+    size = path.stat().st_size
+    if ext == ".ply":
+        if not head.startswith((b"ply\n", b"ply\r\n")):
+            raise MeshError(f"{path}: not a PLY file (it does not start with the line 'ply')")
+        if b"end_header" not in head:
+            raise MeshError(f"{path}: not a PLY file (no 'end_header' in its first {SNIFF_BYTES} bytes)")
+        return
+    if size >= 84:
+        n = int(np.frombuffer(head[80:84], dtype="<u4")[0])
+        if size == 84 + 50 * n:
+            return  # a binary STL of n triangles
+    if head.lstrip().startswith(b"solid") and b"\x00" not in head:
+        return  # ASCII STL
+    if size < 84:
+        raise MeshError(f"{path}: not an STL file ({size} bytes, shorter than a binary STL header)")
+    raise MeshError(f"{path}: not a valid STL file: as binary STL its header promises {n} triangles "
+                    f"(84 + 50 x {n} = {84 + 50 * n} bytes) but the file has {size} bytes (truncated?), and it "
+                    f"is not ASCII STL ('solid ...')")
 
 
 def _number(tok: str, path: Path, lineno: int, what: str) -> float:
@@ -88,6 +131,20 @@ def _integer(tok: str, path: Path, lineno: int, what: str) -> int:
 
 def _fan(corners: Sequence[int]) -> list[list[int]]:
     return [[corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)]
+
+
+def _check_convex(polygons: Sequence[tuple[Sequence[int], int]], V: np.ndarray, path: Path) -> None:
+    """Refuse polygons (corners, line) that are not convex: their fan triangulation would fold."""
+    for corners, lineno in polygons:
+        P = V[list(corners)]
+        nxt = np.roll(P, -1, axis=0)
+        normal = np.cross(P, nxt).sum(axis=0)  # Newell's normal of the polygon
+        e = nxt - P
+        turn = np.cross(np.roll(e, 1, axis=0), e) @ normal  # > 0 at every corner of a convex polygon
+        bad = np.flatnonzero(turn <= 1e-12 * float(normal @ normal))
+        if bad.size:
+            raise MeshError(f"{path}:{lineno}: a face with {len(corners)} corners is not convex (at its corner "
+                            f"{bad[0] + 1}); it would be split into folded triangles: triangulate it in the file")
 
 
 def _locate(exc: MeshError, vlines: Sequence[int], slines: Sequence[int]) -> str:
@@ -168,6 +225,7 @@ def _read_obj(path: Path) -> Mesh:
     tris: list[list[int]] = []
     tlines: list[int] = []
     pending: list[tuple[int, int, int]] = []  # (triangle, corner, line) with a positive index to check later
+    polygons: list[tuple[list[int], int]] = []  # faces with more than three corners, checked for convexity
     n_lines = 0
     for lineno, raw in enumerate(_read_text(path), start=1):
         s = raw.split("#", 1)[0].strip()
@@ -205,6 +263,8 @@ def _read_obj(path: Path) -> Mesh:
                     corners.append(i - 1)
             if len(set(corners)) != len(corners):
                 raise MeshError(f"{path}:{lineno}: face repeats a vertex: {s!r}")
+            if len(corners) > 3:
+                polygons.append((corners, lineno))
             for tri in _fan(corners):
                 for c, v in enumerate(tri):
                     if v >= len(verts):
@@ -225,6 +285,7 @@ def _read_obj(path: Path) -> Mesh:
         extra = f" (it has {n_lines} 'l' polyline statements: save curves as .npz or text)" if n_lines else ""
         raise MeshError(f"{path}: no faces ('f' statements) found{extra}")
     V = np.array(verts, dtype=float) if verts else np.zeros((0, 3))
+    _check_convex(polygons, V, path)
     return _mesh(V, np.array(tris, dtype=np.int64), path, vlines, tlines)
 
 
@@ -272,6 +333,7 @@ def _read_off(path: Path) -> Mesh:
         vlines.append(lineno)
     tris: list[list[int]] = []
     tlines: list[int] = []
+    polygons: list[tuple[list[int], int]] = []
     for lineno, tok in rows[pos + nv : pos + nv + nf]:
         k = _integer(tok[0], path, lineno, "face corner count")
         if k < 3 or len(tok) < k + 1:
@@ -282,6 +344,8 @@ def _read_off(path: Path) -> Mesh:
                 raise MeshError(f"{path}:{lineno}: face index {c} is out of range [0, {nv})")
         if len(set(corners)) != k:
             raise MeshError(f"{path}:{lineno}: face repeats a vertex: {' '.join(tok)!r}")
+        if k > 3:
+            polygons.append((corners, lineno))
         for tri in _fan(corners):
             tris.append(tri)
             tlines.append(lineno)
@@ -291,6 +355,7 @@ def _read_off(path: Path) -> Mesh:
     if not tris:
         raise MeshError(f"{path}: no faces found")
     V = np.array(verts, dtype=float) if verts else np.zeros((0, 3))
+    _check_convex(polygons, V, path)
     return _mesh(V, np.array(tris, dtype=np.int64), path, vlines, tlines)
 
 
@@ -312,6 +377,7 @@ def _read_trimesh(path: Path) -> Mesh:
     import trimesh
 
     ext = path.suffix.lower()
+    _sniff_trimesh(path, ext)
     try:
         tm = trimesh.load(path, force="mesh", process=False, validate=False)
     except Exception as exc:  # trimesh raises many types for malformed files
