@@ -92,3 +92,42 @@ def test_cli_cache_info_and_clear(cache) -> None:
     r = subprocess.run([*cli, "clear"], capture_output=True, text=True, env=env, check=True)
     assert "removed 1" in r.stdout
     assert not list(cache.glob("*.so"))
+
+
+def test_unwritable_cache_falls_back(tmp_path, monkeypatch) -> None:
+    """A cache path that cannot be created (here below a regular file; read-only or full disks raise
+    OSError the same way) compiles into a temporary directory; with no writable directory at all the
+    kernels run in the virtual machine, with a warning naming codegen=false."""
+    import tempfile
+
+    (tmp_path / "file").write_text("not a directory")
+    monkeypatch.setenv("WILLMORE_NLP_CACHE", str(tmp_path / "file" / "cache"))
+    mesh = shapes.regular_polygon(8)
+    with pytest.warns(UserWarning, match="cannot write the kernel cache .* temporary directory"):
+        flow = WillmoreFlow(mesh, mesh.h, 0.25 * mesh.h**2, codegen=True)
+    assert flow.codegen_info["enabled"] and str(tmp_path) not in flow.codegen_info["library"]
+    X1 = flow.step().vertices
+    monkeypatch.setattr(tempfile, "mkdtemp", lambda **kw: str(tmp_path / "file" / "tmp"))
+    with pytest.warns(UserWarning) as caught:
+        vm = WillmoreFlow(mesh, mesh.h, 0.25 * mesh.h**2, codegen=True)
+    assert any("virtual machine" in str(w.message) and "codegen=false" in str(w.message) for w in caught)
+    assert not vm.codegen_info["enabled"]
+    np.testing.assert_allclose(vm.step().vertices, X1, rtol=0, atol=1e-12)
+
+
+def test_cache_clear_removes_build_dirs_of_killed_compilations(cache) -> None:
+    import os
+    import subprocess
+
+    cache.mkdir()
+    p = subprocess.Popen(["true"])
+    p.wait()
+    killed = cache / ".build_abc123"
+    killed.mkdir()
+    (killed / "pid").write_text(str(p.pid))
+    (killed / "willmore_kernels.c").write_text("int x;")
+    live = cache / ".build_def456"
+    live.mkdir()
+    (live / "pid").write_text(str(os.getpid()))  # this process: a compilation under way
+    cgm.cache_clear()
+    assert not killed.exists() and live.exists()

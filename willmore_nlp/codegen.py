@@ -12,6 +12,7 @@ processes building the same key are safe.
 
 from __future__ import annotations
 
+import atexit
 import fcntl
 import hashlib
 import json
@@ -23,6 +24,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from functools import cache
@@ -190,6 +192,7 @@ def build_library(
             _remove(lib, manifest)
         t0 = time.perf_counter()
         with tempfile.TemporaryDirectory(dir=d, prefix=".build_") as tmp:
+            (Path(tmp) / "pid").write_text(str(os.getpid()), encoding="utf-8")  # cache_clear: is it abandoned?
             c_file = Path(tmp) / f"{name}.c"
             c_file.write_text(source, encoding="utf-8")
             out = Path(tmp) / f"{name}.so"
@@ -228,7 +231,15 @@ def compile_kernels(
     info : if given, filled with the build information (key, cached, compile time, ...)
     """
     source = generate_source(kernels)
-    lib, meta = build_library(source, flags=flags, directory=directory)
+    try:
+        lib, meta = build_library(source, flags=flags, directory=directory)
+    except OSError as exc:  # read-only or full cache directory: build in a temporary one this time
+        where = cache_dir() if directory is None else Path(directory)
+        tmp = Path(tempfile.mkdtemp(prefix="willmore_nlp_kernels_"))
+        atexit.register(shutil.rmtree, tmp, True)
+        warnings.warn(f"cannot write the kernel cache {where} ({exc.strerror or exc}): compiling into the temporary "
+                      f"directory {tmp} this time (set $WILLMORE_NLP_CACHE to a writable directory)", stacklevel=2)
+        lib, meta = build_library(source, flags=flags, directory=tmp)
     if info is not None:
         info.update(meta)
     return {k: ca.external(kernels[k].name(), str(lib)) for k in KERNEL_NAMES}
@@ -246,8 +257,24 @@ def cache_info(directory: Path | None = None) -> dict[str, Any]:
     }
 
 
+def _abandoned_build(p: Path) -> bool:
+    """True for a ``.build_*`` directory whose compiling process is gone (killed mid-compilation)."""
+    try:
+        pid = int((p / "pid").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return time.time() - p.stat().st_mtime > 3600  # no pid yet: only when clearly stale
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False
+
+
 def cache_clear(directory: Path | None = None) -> int:
-    """Delete every cache entry; returns how many libraries were removed."""
+    """Delete every cache entry and the build directories of killed compilations; returns how many
+    libraries were removed."""
     d = cache_dir() if directory is None else Path(directory)
     if not d.is_dir():
         return 0
@@ -257,4 +284,6 @@ def cache_clear(directory: Path | None = None) -> int:
             n += 1
         if p.is_file() and (p.suffix in (".so", ".json", ".tmp", ".lock")):
             p.unlink()
+        elif p.is_dir() and p.name.startswith(".build_") and _abandoned_build(p):
+            shutil.rmtree(p, ignore_errors=True)
     return n

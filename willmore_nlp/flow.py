@@ -309,7 +309,12 @@ class WillmoreFlow:
                               "(slower; set $CC or install gcc to compile them)", stacklevel=2)
         if codegen:
             self.codegen_info = {"enabled": True}
-            kernels = compile_kernels(self.problem.kernels, info=self.codegen_info)
+            try:
+                kernels = compile_kernels(self.problem.kernels, info=self.codegen_info)
+            except OSError as exc:  # not even a temporary directory is writable
+                self.codegen_info = {"enabled": False, "error": str(exc)}
+                warnings.warn(f"cannot compile the element kernels ({exc}): they run in CasADi's virtual machine "
+                              f"(slower); set codegen=false to skip compiling", stacklevel=2)
         self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
         self.solver_name = solver
         self.solver = make_solver(solver, self.evaluator, options)
