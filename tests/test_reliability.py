@@ -33,6 +33,15 @@ ARGS = ["circle", "--set", "n=24", "--set", "tau=0.01", "--quiet"]
 TIMING = {"wall_time", "t_wall_eval", "t_wall_solver", "t_wall_total"}
 
 
+@pytest.fixture(autouse=True)
+def _restore_signal_handlers() -> object:
+    """cli.main leaves SIGINT/SIGTERM ignored after a signal (it is about to exit); pytest goes on."""
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for s, h in saved.items():
+        signal.signal(s, h)
+
+
 def run_cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=600)
 
@@ -459,3 +468,23 @@ def test_resume_with_a_shorter_length_is_refused_and_changes_nothing(tmp_path: P
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "holds 3 steps" in err and "cannot be shorter" in err
     assert (out / "config.json").read_text() == config and len(load_run(out).states) == 4
+
+
+def test_rapid_double_signals_never_leave_status_running(tmp_path: Path) -> None:
+    """Two signals a few milliseconds apart at random moments: a clean exit 130 always records its status."""
+    rng = random.Random(11)
+    for trial in range(4):
+        out = tmp_path / f"run{trial}"
+        p = start_cli("run", *ARGS, "--steps", STEPS, "--out", out)
+        wait_for(out / "states" / f"state_{rng.randint(1, 8):06d}.npz", p)
+        time.sleep(rng.uniform(0.0, 0.05))
+        p.send_signal(signal.SIGINT)
+        time.sleep(rng.uniform(0.0, 0.02))
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=300)
+        assert p.returncode == 130 and "Traceback" not in err, err
+        status = json.loads((out / "status.json").read_text())
+        assert status["state"] in ("interrupted", "abandoned"), status
+        run = load_run(out)
+        assert run.ignored == [] and status["step"] == len(run.states) - 1
+        assert not (out / "run.lock").exists()

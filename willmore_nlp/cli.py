@@ -28,7 +28,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.target or args.out or args.set or args.overwrite:
             raise ConfigError("--resume DIR continues a run as configured: give no TARGET, --out, --set or --overwrite "
                               "(--steps/--t-end set a new total length)")
-        return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet)
+        return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet,
+                             ignore_late_signals=True)
     if args.steps is not None and args.steps < 1:
         raise ConfigError(f"--steps must be an integer >= 1 (the total number of steps), got {args.steps}")
     if args.t_end is not None and not args.t_end > 0:
@@ -43,7 +44,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     spec = resolve(args.target, overrides)
     if spec.steps is None and spec.t_end is None:
         raise ConfigError(f"{args.target}: give --steps or --t-end")
-    return runner.start(spec, args.out, quiet=args.quiet, overwrite=args.overwrite)
+    return runner.start(spec, args.out, quiet=args.quiet, overwrite=args.overwrite, ignore_late_signals=True)
 
 
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,

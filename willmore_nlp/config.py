@@ -13,12 +13,16 @@ from __future__ import annotations
 
 import difflib
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import tomllib
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10: the same parser as the package tomli
+    import tomli as tomllib
 
 from willmore_nlp import registry
 from willmore_nlp.errors import UserInputError

@@ -104,10 +104,13 @@ class SignalGuard:
     before every attempt and IPOPT once per iteration, so the step under way is abandoned within
     one solver iteration and never retried. A second signal raises KeyboardInterrupt once (for
     solvers that do not poll); later ones are ignored, so the exit path that records the status
-    cannot itself be interrupted. Use as a context manager; the previous handlers are restored on exit.
+    cannot itself be interrupted. Use as a context manager; the previous handlers are restored on exit,
+    unless a signal arrived and ``ignore_after`` is set (the command line, which is about to exit: a
+    late second signal must not kill it before it returns its exit code).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, ignore_after: bool = False) -> None:
+        self.ignore_after = ignore_after
         self.signum: int | None = None
         self.count = 0
         self._old: dict[int, Any] = {}
@@ -139,7 +142,7 @@ class SignalGuard:
 
     def __exit__(self, *exc: object) -> None:
         for s, h in self._old.items():
-            signal.signal(s, h)
+            signal.signal(s, signal.SIG_IGN if self.ignore_after and self.count else h)
 
 
 # -- progress ------------------------------------------------------------------------------
@@ -231,12 +234,14 @@ def _abandoned(writer: RunWriter, guard: SignalGuard) -> int:
     return 128 + signum
 
 
-def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, overwrite: bool = False) -> int:
+def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, overwrite: bool = False,
+          ignore_late_signals: bool = False) -> int:
     """Run ``spec`` into the new run directory ``out``; returns the exit code.
 
     Nothing is written when the flow cannot be built (bad mesh or options). With ``overwrite``
     an existing run directory ``out`` is cleared first (:func:`~willmore_nlp.rundir.clear_run_dir`:
     only the files the run wrote; others stay), once the new flow has been built.
+    ``ignore_late_signals``: see :class:`SignalGuard` (``ignore_after``).
     """
     if spec.steps is None and spec.t_end is None:
         raise ConfigError("give --steps or --t-end")
@@ -253,7 +258,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     cfg = spec.config()
     cfg["cwd"] = os.getcwd()
     cfg["environment"] = thread_environment()
-    with SignalGuard() as guard:
+    with SignalGuard(ignore_late_signals) as guard:
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
         try:
             writer.set_status("running")
@@ -296,7 +301,7 @@ def spec_from_config(cfg: dict[str, Any], where: str, run_dir: Path | None = Non
 
 
 def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: float | None = None,
-           quiet: bool = False) -> int:
+           quiet: bool = False, ignore_late_signals: bool = False) -> int:
     """Continue the run in ``run_dir`` from its last trusted state; returns the exit code.
 
     Parameters
@@ -304,6 +309,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
     run_dir : a directory written by :func:`start` (interrupted, killed, failed or completed)
     steps, t_end : a new total length (extends the run; stored in config.json); default: as configured
     quiet : no progress bar
+    ignore_late_signals : see :class:`SignalGuard` (``ignore_after``)
 
     The problem is rebuilt from config.json and must reproduce the stored initial mesh and
     step sizes exactly; otherwise nothing is changed and :class:`RunError` names the difference.
@@ -331,7 +337,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
             raise RunError(f"{where}: cannot resume: {k} = {cfg.get(k)!r} but the problem now gives "
                            f"{getattr(pb, k)!r}")
     flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **flow_kwargs(spec))
-    with SignalGuard() as guard:
+    with SignalGuard(ignore_late_signals) as guard:
         writer, _, ck, notes = RunWriter.resume(d)
         try:
             for note in notes:
