@@ -215,7 +215,9 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
     except OSError as exc:  # disk full, read-only: the CLI reports it in one line (exit 74)
         with contextlib.suppress(OSError):
             writer.set_status("failed", message=f"cannot write: {exc}")
-        raise
+        k = int(writer.rows[-1]["step"]) if writer.rows else -1
+        raise OSError(exc.errno, f"{exc.strerror or exc} (steps 0..{k} are kept; when it can be written again: "
+                                 f"willmore-nlp run --resume {out})", str(exc.filename or out)) from exc
     except Exception as exc:  # an internal error: record it, then let the traceback show
         writer.set_status("crashed", message=f"{type(exc).__name__}: {exc}")
         raise
