@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import errno
 import os
 import sys
 import warnings
@@ -13,13 +12,11 @@ from typing import Any
 
 from willmore_nlp import runner
 from willmore_nlp.config import ConfigError, parse_overrides, resolve
-from willmore_nlp.errors import EXIT_IO, EXIT_USAGE, UserInputError
+from willmore_nlp.errors import EXIT_IO, EXIT_USAGE, IO_ERRNOS, UserInputError
 from willmore_nlp.runner import flow_kwargs
 
 __all__ = ["build_parser", "flow_kwargs", "main"]
 
-IO_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
-"""OSErrors reported as one line with exit :data:`~willmore_nlp.errors.EXIT_IO` (the environment, not a bug)."""
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -7,6 +7,8 @@ is a :class:`UserInputError`: the CLI prints its message as one line and exits w
 
 from __future__ import annotations
 
+import errno
+
 EXIT_OK = 0
 EXIT_FAILED = 1
 """A run stopped because a step failed after every retry (the run directory is kept)."""
@@ -14,6 +16,8 @@ EXIT_USAGE = 2
 """Bad input: file, option, parameter, run directory or environment setting (one-line message)."""
 EXIT_IO = 74
 """The output could not be written (disk full, read-only or no permission; sysexits' EX_IOERR)."""
+IO_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
+"""OSErrors of the environment, reported in one line with :data:`EXIT_IO` (any other OSError is a bug)."""
 
 
 class UserInputError(ValueError):

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
+from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS
 from willmore_nlp.flow import FlowError, StepInterrupted, StepResult, WillmoreFlow
 from willmore_nlp.rundir import (
     RunError,
@@ -50,7 +51,6 @@ from willmore_nlp.rundir import (
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 """Environment variables that set BLAS/OpenMP thread counts (recorded in config.json)."""
 
-EXIT_FAILED = 1
 
 
 def flow_kwargs(spec: RunSpec) -> dict[str, Any]:
@@ -212,14 +212,14 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
               f"attempts (last: {last}); all attempts are in {out / 'status.json'}; steps 0..{flow.k} are kept",
               file=sys.stderr)
         return EXIT_FAILED
-    except OSError as exc:  # disk full, read-only: the CLI reports it in one line (exit 74)
-        with contextlib.suppress(OSError):
-            writer.set_status("failed", message=f"cannot write: {exc}")
-        k = int(writer.rows[-1]["step"]) if writer.rows else -1
-        raise OSError(exc.errno, f"{exc.strerror or exc} (steps 0..{k} are kept; when it can be written again: "
-                                 f"willmore-nlp run --resume {out})", str(exc.filename or out)) from exc
-    except Exception as exc:  # an internal error: record it, then let the traceback show
-        writer.set_status("crashed", message=f"{type(exc).__name__}: {exc}")
+    except Exception as exc:
+        if isinstance(exc, OSError) and exc.errno in IO_ERRNOS:  # disk full, read-only: one line, exit 74
+            with contextlib.suppress(OSError):
+                writer.set_status("failed", message=f"cannot write: {exc}")
+            k = int(writer.rows[-1]["step"]) if writer.rows else -1
+            raise OSError(exc.errno, f"{exc.strerror or exc} (steps 0..{k} are kept; when it can be written "
+                                     f"again: willmore-nlp run --resume {out})", str(exc.filename or out)) from exc
+        writer.set_status("crashed", message=f"{type(exc).__name__}: {exc}")  # a bug: record it, show the traceback
         raise
     finally:
         bar.close()
