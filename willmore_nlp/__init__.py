@@ -4,7 +4,8 @@ Each time step is a CasADi NLP in the new positions X and the implicit mean-curv
 solved by IPOPT with exact element-assembled Hessians.
 """
 
-from willmore_nlp.flow import FlowError, StepResult, WillmoreFlow
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.flow import FlowError, StepInterrupted, StepResult, WillmoreFlow
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import Mesh, MeshError
 from willmore_nlp.rundir import Run, load_run
@@ -14,7 +15,9 @@ __all__ = [
     "Mesh",
     "MeshError",
     "Run",
+    "StepInterrupted",
     "StepResult",
+    "UserInputError",
     "WillmoreFlow",
     "load_run",
     "willmore_energy",
