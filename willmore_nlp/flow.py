@@ -265,7 +265,7 @@ class WillmoreFlow:
         return self.evaluator.solve_y(X, self.params(X, tau), Y0)
 
     def discrete_energy(self, X: np.ndarray, Y: np.ndarray | None = None) -> float:
-        """e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X], the energy the scheme decreases."""
+        """``e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X]``, the energy the scheme decreases."""
         p = self.params(X, 1.0)
         Y = self.evaluator.solve_y(X, p) if Y is None else Y
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0

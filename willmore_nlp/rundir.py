@@ -253,6 +253,8 @@ class RunWriter:
     config : resolved configuration, stored as JSON
     mesh : initial mesh
 
+    Notes
+    -----
     Use :meth:`resume` to continue writing an existing run directory.
     """
 
