@@ -38,7 +38,7 @@ class FlowError(RuntimeError):
 
 
 class StepSizeWarning(UserWarning):
-    """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (DESIGN.md section 1)."""
+    """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (docs/theory/tau_tilde.md)."""
 
 
 TAU_TILDE_WARN_FACTOR = 2.0
@@ -121,7 +121,7 @@ class StepResult:
 
 
 class WillmoreFlow:
-    """Isotropic Willmore flow by the nested variational scheme (DESIGN.md section 1).
+    """Isotropic Willmore flow by the nested variational scheme (docs/theory/scheme.md).
 
     Parameters
     ----------
@@ -214,7 +214,7 @@ class WillmoreFlow:
             warnings.warn(StepSizeWarning(
                 f"tau_tilde = {tau_tilde:.3g} is {tau_tilde / (h * h):.3g} h^2 (h = {h:.3g}, the mean edge "
                 f"length): above about h^2 the step loses tangential convexity and the optimiser clusters "
-                f"nodes (DESIGN.md section 1); use tau_tilde <= h^2 and take large steps in tau instead"),
+                f"nodes (docs/theory/tau_tilde.md); use tau_tilde <= h^2 and take large steps in tau instead"),
                 stacklevel=2)
         self.mesh = mesh
         self.tau = float(tau)

@@ -18,7 +18,8 @@ def main(n: int = 64, steps: int = 60) -> dict[str, float]:
     wulff = wulff_widths("gamma1")       # the Wulff shape's widths 2 gamma(n)
     ratio, target = w[1] / w[0], wulff[1] / wulff[0]
     print(f"after {steps} steps (t = {results[-1].t:.3g}): width ratio x2/x1 = {ratio:.3f}, "
-          f"Wulff shape {target:.3f}; anisotropic Willmore energy {results[-1].willmore_gamma:.4f}")
+          f"Wulff shape {target:.3f}; anisotropic Willmore energy {results[-1].willmore_gamma:.4f}; "
+          f"edge ratio {results[-1].quality['edge_ratio']:.2f}")
     return {"ratio": ratio, "target": target,
             "energies": [r.energy for r in results]}
 

@@ -10,10 +10,11 @@ from willmore_nlp import WillmoreFlow, willmore_energy
 from willmore_nlp.mesh import shapes
 
 
-def main(n: int = 128, t_end: float = 0.1) -> dict[str, float]:
+def main(n: int = 128, t_end: float = 0.1, tau: float | None = None) -> dict[str, float]:
     mesh = shapes.regular_polygon(n, radius=1.0)       # a closed polygon in R^2
     h = mesh.h                                         # mean edge length
-    flow = WillmoreFlow(mesh, tau=h / 10, tau_tilde=h**2 / 10, lam=0.0)   # keep tau_tilde << h^2
+    tau = h / 10 if tau is None else tau                # the outer step; the error is O(h^2 + tau + tau_tilde)
+    flow = WillmoreFlow(mesh, tau=tau, tau_tilde=h**2 / 10, lam=0.0)      # keep tau_tilde << h^2
     print(f"n = {n}, h = {h:.4f}, initial Willmore energy {willmore_energy(mesh):.5f} (pi = {np.pi:.5f})")
     energies = []
     for r in flow.run(t_end=t_end):                    # one StepResult per accepted step
