@@ -82,7 +82,7 @@ def gallery_markdown() -> str:
         lines = sec.splitlines()
         parts += [f"## {lines[0]}", ""]
         for ln in lines[1:]:
-            if ln.startswith(("**Paper:**", "**Match", "**Differ", "**Partly", "**Verdict")):
+            if ln.startswith(("**Paper:**", "**Verdict", "**Comment:**")):
                 parts += [ln, ""]
             for alt, src in re.findall(r"!\[([^\]]*)\]\(figures/([^)]+)\)", ln):
                 parts += [f"![{alt}](figures/{src})", ""]

@@ -143,3 +143,30 @@ def test_reproduce_section_writes_document(tmp_path) -> None:
     # the deviation quoted in the document is the computed one and small
     dev = float(re.search(r"exact radius: ([0-9.e+-]+)", text).group(1))
     assert 0 < dev < 1e-3
+    # the verdict states its criterion, value and tolerance, and follows from them
+    m = re.search(r"\*\*Verdict: (\w+)\*\* \(1 of 1 criteria hold\)\. .* = ([0-9.e+-]+) <= ([0-9.e+-]+): yes", text)
+    assert m is not None and m.group(1) == "Match" and float(m.group(2)) <= float(m.group(3)) == 0.05
+
+
+def test_verdicts_are_computed_never_literal() -> None:
+    """Verdict words come from the numbers: Match / Partly / Differs by how many checks hold."""
+    import inspect
+
+    from willmore_nlp import reproduce
+    from willmore_nlp.reproduce import Check, verdict
+
+    ok, bad = Check("a", 1.0, "<=", 2.0), Check("b", 3.0, "<=", 2.0)
+    assert verdict([ok, Check("c", 5.0, ">=", 4.0)]).startswith("**Verdict: Match** (2 of 2")
+    assert verdict([ok, bad]).startswith("**Verdict: Partly** (1 of 2")
+    assert verdict([bad, Check("nan", float("nan"), ">=", 0.0)]).startswith("**Verdict: Differs** (0 of 2")
+    assert "b = 3 <= 2: no" in verdict([bad])
+    with pytest.raises(ValueError):
+        verdict([])
+    with pytest.raises(ValueError):
+        _ = Check("x", 1.0, "<", 2.0).ok
+    src = inspect.getsource(reproduce)
+    for word in ("Match", "Partly", "Differs"):  # no section writes a verdict word itself
+        assert re.search(rf"\*\*{word}|{word}:\*\*|\*\*{word}s", src) is None, word
+    # every section of the paper returns a computed verdict line
+    for name, fn in reproduce.SECTIONS:
+        assert "verdict(" in inspect.getsource(fn), name
