@@ -2,6 +2,8 @@
 
 * ``reference/cli.md``: the help of every ``willmore-nlp`` subcommand, taken from the argparse parser
   (:func:`willmore_nlp.cli.build_parser`), replacing the marker ``<!-- generated:cli -->``.
+* ``reference/options.md``: the flow options of configs and ``--set`` (:data:`willmore_nlp.config.FLOW_KEYS`)
+  with the meaning from the ``WillmoreFlow`` docstring, replacing ``<!-- generated:options -->``.
 * ``reference/problems.md``: the registered problems with their parameters and defaults
   (:func:`willmore_nlp.registry.load_all`), replacing ``<!-- generated:problems -->``.
 * ``gallery/index.md``: every section of ``reports/REPRODUCTION.md`` (heading, verdicts, figures),
@@ -61,6 +63,25 @@ def cli_markdown() -> str:
     return "\n".join(parts)
 
 
+def flow_options_markdown() -> str:
+    """Table of the flow options (config keys, ``--set KEY=VALUE``) with defaults and the docstring's meaning."""
+    import inspect
+
+    import griffe
+
+    from willmore_nlp.config import FLOW_KEYS
+    from willmore_nlp.flow import WillmoreFlow
+
+    sections = griffe.Docstring(inspect.getdoc(WillmoreFlow) or "").parse("numpy", warn_missing_types=False)
+    meaning = {p.name: " ".join(p.description.split()) for sec in sections if sec.kind.value == "parameters"
+               for p in sec.value}
+    rows = ["| key | default | meaning |", "|---|---|---|"]
+    for key, default in FLOW_KEYS.items():
+        text = meaning.get(key, "solver option (see the solver's documentation)").replace("|", "\\|")
+        rows.append(f"| `{key}` | `{default!r}` | {text} |")
+    return "\n".join(rows)
+
+
 def problems_markdown() -> str:
     """Markdown list of the registered problems with their parameters and defaults."""
     from willmore_nlp.registry import load_all
@@ -91,6 +112,7 @@ def gallery_markdown() -> str:
 
 GENERATED = {
     "reference/cli.md": ("<!-- generated:cli -->", cli_markdown),
+    "reference/options.md": ("<!-- generated:options -->", flow_options_markdown),
     "reference/problems.md": ("<!-- generated:problems -->", problems_markdown),
     "gallery/index.md": ("<!-- generated:gallery -->", gallery_markdown),
 }

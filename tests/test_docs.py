@@ -42,6 +42,10 @@ def test_docs_build_strict(tmp_path: Path) -> None:
         for a in p._actions:
             for opt in a.option_strings if a.dest != "help" else ():
                 assert opt in cli, (name, opt)
+    from willmore_nlp.config import FLOW_KEYS
+
+    options = (site / "reference" / "options" / "index.html").read_text(encoding="utf-8")
+    assert all(f"<code>{k}</code>" in options for k in FLOW_KEYS) and "arc-length spacing" in options
     from willmore_nlp.registry import load_all
 
     problems = (site / "reference" / "problems" / "index.html").read_text(encoding="utf-8")
