@@ -81,6 +81,17 @@ def test_readme_example_runs() -> None:
     assert np.all(np.diff(energies) <= 0)
 
 
+def test_getting_started_example_runs(capsys: pytest.CaptureFixture[str]) -> None:
+    """The Python block of docs/getting_started.md, executed as written: the 128-gon's energy is pi/2."""
+    code = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "getting_started.md").read_text(encoding="utf-8"), re.S)
+    assert len(code) == 1
+    ns: dict[str, object] = {}
+    exec(compile(code[0], "getting_started.md", "exec"), ns)
+    w, ref = (float(x) for x in capsys.readouterr().out.split("\n")[-2].split())
+    assert ref == pytest.approx(np.pi / 2) and w == pytest.approx(ref, rel=1e-3)  # polygon bias O(h^2)
+    assert ns["flow"].t == pytest.approx(0.1)  # type: ignore[attr-defined]
+
+
 def test_tutorial_closed_curve_second_order() -> None:
     """The closed-curve tutorial's radius error against the exact circle falls at order 2 in h.
 
