@@ -714,13 +714,15 @@ def fig11(fig_dir: Path) -> str:
         "| s/step | note |",
         "|---|---|---|---|---|---|---|---|---|---|", *rows, "",
         verdict(checks), "",
-        "**Comment:** gamma0 gives a circle, gamma1 an ellipse-like convex curve elongated along x2 with the "
-        "Wulff shape's axis ratio, and gamma2 with eps = 1e-2 (and 0.1) the rounded square of its Wulff shape"
-        " (diag/axis beside the Wulff shape's), at both scales; at the paper's scale every step after the "
-        "first 20-40 is taken at the paper's tau = h. Deviations: (1) at the paper's scale the first steps "
+        "**Comment:** gamma0 gives a circle, gamma1 an ellipse-like convex curve elongated along x2, and gamma2 "
+        "with eps = 1e-2 (and 0.1) the diagonal-to-axial width ratio of its Wulff shape (a rounded square); at "
+        "h = 0.05 the two axial widths of the gamma2 cases have not equalised by t = 30 (the x2/x1 column), "
+        "which is what fails their criterion. At the paper's scale every step after the first 20-40 is taken "
+        "at the paper's tau = h. Deviations: (1) at the paper's scale the first steps "
         "need tau far below h (the ears' time scale, size^4, is about 1e-6; adaptive steps start near h/4000 "
-        "and reach h within 20-40 steps), and gamma1 ends with edge ratio above 200 (tt = h^2 there, the "
-        "scheme's tangential pitfall); (2) gamma2 needs a tangential weight (the discrete energy rewards "
+        "and reach h within 20-40 steps), and gamma1 ends with x2/x1 above the Wulff shape's and edge ratio "
+        "above 200 (tt = h^2 there, the scheme's tangential pitfall); (2) gamma2 needs a tangential weight "
+        "(the discrete energy rewards "
         "nodes that slide away from the corners of the Wulff shape: they cluster within a few steps) and, for"
         " eps = 1e-2, a redistribution of the nodes along the curve after every step (docs: guide/anisotropy.md, "
         "\"Tangential weight and redistribution\"; neither is in the paper). With the paper's eps = 1e-7 the "
