@@ -6,6 +6,7 @@
   with the meaning from the ``WillmoreFlow`` docstring, replacing ``<!-- generated:options -->``.
 * ``reference/problems.md``: the registered problems with their parameters and defaults
   (:func:`willmore_nlp.registry.load_all`), replacing ``<!-- generated:problems -->``.
+* ``evidence/*.md``: the measured studies committed in ``reports/`` (anisotropy, boundaries, scale).
 * ``gallery/index.md``: every section of ``reports/REPRODUCTION.md`` (heading, verdicts, figures),
   replacing ``<!-- generated:gallery -->``; the figures of ``reports/figures`` are added to the site.
 """
@@ -118,10 +119,19 @@ GENERATED = {
 }
 
 
+EVIDENCE = ("anisotropic_study.md", "boundary_study.md", "benchmark_scale.md")
+"""Measured studies of ``reports/`` shown under ``evidence/`` as they are committed."""
+
+
 def on_files(files: Files, config: Any, **kwargs: Any) -> Files:
-    """Add the committed figures of ``reports/figures`` to the site under ``gallery/figures``."""
+    """Add the committed figures of ``reports/figures`` under ``gallery/figures``, and the measured
+    studies of ``reports/`` (with the images they show) under ``evidence/``."""
     for png in sorted(FIGURES.glob("*.png")):
         files.append(File.generated(config, f"{GALLERY_FIGURES}/{png.name}", abs_src_path=str(png)))
+    for name in EVIDENCE:
+        files.append(File.generated(config, f"evidence/{name}", abs_src_path=str(REPORTS / name)))
+    for png in sorted(REPORTS.glob("*.png")):
+        files.append(File.generated(config, f"evidence/{png.name}", abs_src_path=str(png)))
     return files
 
 

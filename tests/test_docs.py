@@ -55,6 +55,8 @@ def test_docs_build_strict(tmp_path: Path) -> None:
     assert linked
     for png in linked:
         assert f'src="figures/{png}"' in gallery and (site / "gallery" / "figures" / png).stat().st_size > 1000
+    for page in ("anisotropic_study", "boundary_study", "benchmark_scale"):
+        assert (site / "evidence" / page / "index.html").stat().st_size > 5000
     api = (site / "reference" / "api" / "index.html").read_text(encoding="utf-8")
     assert "WillmoreFlow" in api and "tangential_weight" in api
 
