@@ -7,7 +7,7 @@ from willmore_nlp.registry import Problem, register
 
 
 def _steps(h: float, tau: float | None, tau_tilde: float | None, tt_factor: float = 1.0) -> tuple[float, float]:
-    """Defaults tau = h and tau_tilde = tt_factor * h^2 (DESIGN.md: keep tau_tilde <= h^2)."""
+    """Defaults tau = h and tau_tilde = tt_factor * h^2 (docs/theory/tau_tilde.md: keep tau_tilde <= h^2)."""
     return (h if tau is None else float(tau)), (tt_factor * h * h if tau_tilde is None else float(tau_tilde))
 
 
@@ -17,7 +17,7 @@ def circle(n: int = 200, R: float = 2.0, tau: float | None = None, tau_tilde: fl
     """Circle of radius R expanding by Willmore flow, R(t) = (R^4 + 2t)^(1/4) (Fig. 2, Table 1).
 
     Defaults: 200 vertices, R(0) = 2, tau = h, tau_tilde = h^2 (the paper's Fig. 2 used
-    tau_tilde = h, which DESIGN.md warns against for non-symmetric shapes).
+    tau_tilde = h, which docs/theory/tau_tilde.md warns against for non-symmetric shapes).
     """
     mesh = shapes.regular_polygon(n, R)
     tau_, tt_ = _steps(mesh.h, tau, tau_tilde)

@@ -128,7 +128,7 @@ def test_planar_disk_in_planar_ring_is_stationary(variant) -> None:
 
 
 def test_reversed_conormal_is_not_stationary() -> None:
-    """The sign check of DESIGN.md: with the inward co-normal the planar disk bends."""
+    """Sign check (docs/theory/scheme.md, 'Clamped boundaries'): with the inward co-normal the planar disk bends."""
     mesh = shapes.disk(6)
     r = np.linalg.norm(mesh.vertices[:, :2], axis=1) * 6
     free = r < 4.5

@@ -38,11 +38,98 @@ def test_report_artefacts(tmp_path, problem: str, sets: list[str]) -> None:
 
 
 def test_snapshot_indices_and_html() -> None:
-    assert snapshot_indices(1) == [0]
-    assert snapshot_indices(10) == [0, 3, 6, 9]
-    h = markdown_to_html("# T\n\n| a | b |\n|---|---|\n| 1 | `x<y` |\n\n![c](f.png)\n")
-    assert "<h1>T</h1>" in h and "<th>a</th>" in h and "<td><code>x&lt;y</code></td>" in h
-    assert '<img alt="c" src="f.png"' in h
+    assert snapshot_indices(np.zeros(1)) == [0]
+    assert snapshot_indices(np.arange(10.0)) == [0, 3, 6, 9]
+    # adaptive steps: tiny first steps, then large ones: spaced by time, not by index
+    t = np.concatenate([np.cumsum(np.full(20, 1e-4)) - 1e-4, 0.002 + np.arange(1, 11) * 0.1])
+    idx = snapshot_indices(t)
+    assert idx[0] == 0 and idx[-1] == len(t) - 1 and max(np.diff(t[idx])) < 0.45
+    # a stalled run (the last steps at tiny tau) shows no two panels at the same time; energy fills in
+    t = np.array([0.0, 1.0, 1.0 + 1e-9, 1.0 + 2e-9, 1.0 + 3e-9])
+    e = np.array([10.0, 5.0, 4.9, 4.8, 4.7])
+    assert snapshot_indices(t, e) == [0, 1, 4]  # energies 10, 5, 4.7 differ
+    # stalled: nothing moves after step 1: two panels, not three identical ones
+    assert snapshot_indices(t, np.array([3.0, 2.0, 2.0, 2.0, 2.0])) == [0, 4]
+    assert snapshot_indices(t) == [0, 4]
+    h = markdown_to_html("# T\n\n| a | b |\n|---|---|\n| 1 | `x<y` \\| z |\n\n![c](f.png)\n**S**\n")
+    assert "<h1>T</h1>" in h and "<th>a</th>" in h and "<td><code>x&lt;y</code> | z</td>" in h
+    assert '<img alt="c" src="f.png"' in h and "<strong>S</strong>" in h
+
+
+def test_failed_single_state_run_report(tmp_path) -> None:
+    """A run whose first step fails: status, message and every rejected attempt at the top; no warnings."""
+    import warnings
+
+    from willmore_nlp.report import write_report
+
+    run = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "circle", "--out", str(run), "--steps", "3",
+                        "--quiet", "--set", "n=16", "--set", "max_iter=1", "--set", "max_retries=2"],
+                       capture_output=True, text=True, check=False)
+    assert r.returncode == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        md = write_report(run).read_text()
+    head = md[: md.index("## Summary")]
+    assert "**Status: failed** after step 0" in head and "Message: `step 1" in head
+    attempts = re.findall(r"^\| (\d) \| (tau=[^|]*) \|$", head, re.M)
+    assert [a[0] for a in attempts] == ["1", "2", "3"]
+    assert all("Maximum_Iterations_Exceeded" in a[1] for a in attempts)
+    assert "steps taken | none" in md
+
+
+def test_mesh_matched_references() -> None:
+    """Mesh-matched references: computed, equal to independently built target meshes and closed forms."""
+    from willmore_nlp.analysis import fit_order
+    from willmore_nlp.geometry import willmore_energy
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.references import references
+
+    t = np.zeros(1)
+    (ref,), note = references(shapes.icosphere(3), 0.0, 1e-4, t, {})
+    assert note == "sphere" and ref.smooth == pytest.approx(8 * np.pi)
+    assert ref.matched == pytest.approx(25.0212, abs=1e-4)
+    # a moved and scaled icosphere projected back onto the unit sphere is the icosphere again
+    ico = shapes.icosphere(2)
+    (ref,), _ = references(ico.with_vertices(ico.vertices * 2.5 + [1, 2, 3]), 0.0, 1e-4, t, {})
+    assert ref.matched == pytest.approx(willmore_energy(ico), rel=1e-12)
+    # Clifford torus: the 48 x 24 grid of a fat torus moved onto it equals the Clifford grid built directly
+    (ref,), note = references(shapes.torus(1.0, 0.5, 48, 24), 0.0, 1e-4, t, {})
+    direct = willmore_energy(shapes.torus(np.sqrt(2), 1.0, 48, 24))
+    assert note == "Clifford torus" and ref.matched == pytest.approx(direct, rel=1e-12)
+    assert ref.matched == pytest.approx(39.0158, abs=1e-4) and ref.smooth == pytest.approx(4 * np.pi**2)
+    # mesh-matched sphere values converge to 8 pi at second order in h
+    gaps = [8 * np.pi - references(shapes.icosphere(s), 0.0, 1e-4, t, {})[0][0].matched for s in (2, 3, 4)]
+    hs = [shapes.icosphere(s).h for s in (2, 3, 4)]
+    assert 1.8 < fit_order(hs, gaps) < 2.2
+    # 5-fold circle with length energy: closed form of a regular k-fold n-gon, w = n sin(pi k / n) / R
+    refs, _ = references(shapes.hypocycloid(200), 0.025, 1e-3, t, {})
+    R = 1 / np.sqrt(0.05)
+    w_ref = next(r for r in refs if r.column == "willmore_energy")
+    assert w_ref.smooth == pytest.approx(5 * np.pi / R)
+    assert w_ref.matched == pytest.approx(200 * np.sin(np.pi * 5 / 200) / R)
+    r_ref = next(r for r in refs if r.column == "radius")
+    assert r_ref.smooth == pytest.approx(R) and abs(r_ref.matched / R - 1) < 5e-3
+    # no reference where the target is unknown
+    assert references(shapes.icosphere(2), 0.0, 1e-4, t, {"boundary": "..."})[0] == []
+    assert references(shapes.ellipse(32, 2.0, 1.0), 0.0, 1e-3, t, {})[0] == []
+    assert references(shapes.ellipse(32, 2.0, 1.0), 0.1, 1e-3, t, {"anisotropy": "gamma1"})[0] == []
+
+
+def test_report_references_and_log_tau(tmp_path) -> None:
+    """A sphere run's report lists the smooth and the mesh-matched reference it computed; tau on a log axis."""
+    from willmore_nlp import load_run
+    from willmore_nlp.report import _series_figure, write_report
+
+    run = tmp_path / "run"
+    subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "sphere", "--out", str(run), "--steps", "2",
+                    "--quiet", "--set", "subdivisions=2"], check=True, capture_output=True)
+    md = write_report(run).read_text()
+    assert "**Status: completed** after step 2" in md
+    row = next(ln for ln in md.splitlines() if ln.startswith("| willmore_energy |"))
+    assert "25.1327 (8 pi" in row and "this mesh's vertices moved onto the sphere" in row
+    fig = _series_figure(load_run(run), [("tau", "tau")], "Solver", tmp_path / "f.png", log=("tau",))
+    assert fig.axes[0].get_yscale() == "log"
 
 
 def test_reproduce_section_writes_document(tmp_path) -> None:
@@ -56,3 +143,30 @@ def test_reproduce_section_writes_document(tmp_path) -> None:
     # the deviation quoted in the document is the computed one and small
     dev = float(re.search(r"exact radius: ([0-9.e+-]+)", text).group(1))
     assert 0 < dev < 1e-3
+    # the verdict states its criterion, value and tolerance, and follows from them
+    m = re.search(r"\*\*Verdict: (\w+)\*\* \(1 of 1 criteria hold\)\. .* = ([0-9.e+-]+) <= ([0-9.e+-]+): yes", text)
+    assert m is not None and m.group(1) == "Match" and float(m.group(2)) <= float(m.group(3)) == 0.05
+
+
+def test_verdicts_are_computed_never_literal() -> None:
+    """Verdict words come from the numbers: Match / Partly / Differs by how many checks hold."""
+    import inspect
+
+    from willmore_nlp import reproduce
+    from willmore_nlp.reproduce import Check, verdict
+
+    ok, bad = Check("a", 1.0, "<=", 2.0), Check("b", 3.0, "<=", 2.0)
+    assert verdict([ok, Check("c", 5.0, ">=", 4.0)]).startswith("**Verdict: Match** (2 of 2")
+    assert verdict([ok, bad]).startswith("**Verdict: Partly** (1 of 2")
+    assert verdict([bad, Check("nan", float("nan"), ">=", 0.0)]).startswith("**Verdict: Differs** (0 of 2")
+    assert "b = 3 <= 2: no" in verdict([bad])
+    with pytest.raises(ValueError):
+        verdict([])
+    with pytest.raises(ValueError):
+        _ = Check("x", 1.0, "<", 2.0).ok
+    src = inspect.getsource(reproduce)
+    for word in ("Match", "Partly", "Differs"):  # no section writes a verdict word itself
+        assert re.search(rf"\*\*{word}|{word}:\*\*|\*\*{word}s", src) is None, word
+    # every section of the paper returns a computed verdict line
+    for name, fn in reproduce.SECTIONS:
+        assert "verdict(" in inspect.getsource(fn), name

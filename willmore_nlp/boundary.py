@@ -1,7 +1,7 @@
 """Clamped (C^1) boundary conditions: a free patch inside a fixed mesh (paper Secs. 2.2, 3.2).
 
 A :class:`Boundary` says which vertices move (the *free* vertices, the interior of the patch)
-and which variant of the paper is used (DESIGN.md section 1):
+and which variant of the paper is used (docs/theory/scheme.md, 'Clamped boundaries'):
 
 ``"conormal"`` (variant 1, prescribed co-normal)
     The boundary nodes Gamma of the patch are fixed; Y lives on all patch nodes and the inner
@@ -329,7 +329,7 @@ def ring_conormal(mesh: Mesh, ring: np.ndarray, gamma: np.ndarray) -> np.ndarray
     """(N, m) co-normal term of a fixed outer ring: ``Nco = -(L_ring X)`` on Gamma, zero elsewhere.
 
     ``L_ring`` is the stiffness matrix of the ring simplices. On a flat ring this is exactly
-    ``int_Gamma N^co Phi_i`` with the per-facet co-normal of DESIGN.md (divergence theorem on each
+    ``int_Gamma N^co Phi_i`` with the per-facet co-normal of docs/theory/scheme.md (divergence theorem on each
     simplex); on a curved ring it adds the ring's own O(h^2) curvature terms, which makes the
     boundary nodes' equation consistent with the ring variant. Measured: with the per-facet
     formula a restored sphere cap (12 rings, tau = h, tau_tilde = h^2/100) collapses triangles at

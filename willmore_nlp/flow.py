@@ -59,7 +59,7 @@ def _never() -> bool:
 
 
 class StepSizeWarning(UserWarning):
-    """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (DESIGN.md section 1)."""
+    """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (docs/theory/tau_tilde.md)."""
 
 
 MAX_MESH_SIZE = 1e5
@@ -176,7 +176,7 @@ def _check_initial_mesh(mesh: Mesh, min_angle: float, max_edge_ratio: float) -> 
 
 
 class WillmoreFlow:
-    """Isotropic Willmore flow by the nested variational scheme (DESIGN.md section 1).
+    """Isotropic Willmore flow by the nested variational scheme (docs/theory/scheme.md).
 
     Parameters
     ----------
@@ -280,7 +280,7 @@ class WillmoreFlow:
             warnings.warn(StepSizeWarning(
                 f"tau_tilde = {tau_tilde:.3g} is {tau_tilde / (h * h):.3g} h^2 (h = {h:.3g}, the mean edge "
                 f"length): above about h^2 the step loses tangential convexity and the optimiser clusters "
-                f"nodes (DESIGN.md section 1); use tau_tilde <= h^2 and take large steps in tau instead"),
+                f"nodes (docs/theory/tau_tilde.md); use tau_tilde <= h^2 and take large steps in tau instead"),
                 stacklevel=2)
         self.mesh = mesh
         self.tau = float(tau)
@@ -340,7 +340,7 @@ class WillmoreFlow:
         return self.evaluator.solve_y(X, self.params(X, tau), Y0)
 
     def discrete_energy(self, X: np.ndarray, Y: np.ndarray | None = None) -> float:
-        """e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X], the energy the scheme decreases."""
+        """``e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X]``, the energy the scheme decreases."""
         p = self.params(X, 1.0)
         Y = self.evaluator.solve_y(X, p) if Y is None else Y
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0

@@ -51,7 +51,7 @@ def gauss_curvature(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     return (2 * np.pi - ang) / lumped_mass(V, S)
 
 
-def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None) -> float:
+def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None, vertices: np.ndarray | None = None) -> float:
     """w = 1/2 int h^2 with h the sum of principal curvatures.
 
     Uses the stiffness matrix and the lumped mass: w = 1/2 sum_i |(L X)_i|^2 / m_i, over
@@ -63,8 +63,11 @@ def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None) -> float:
     mesh : Mesh
     nodes : (N,) bool array, optional
         Sum over these vertices only (e.g. a clamped patch and its boundary nodes).
+    vertices : (N, m) float array, optional
+        Positions to use instead of ``mesh.vertices`` with the mesh's connectivity (not validated:
+        e.g. a k-fold covered circle, whose vertices coincide in pairs).
     """
-    V, S = mesh.vertices, mesh.simplices
+    V, S = (mesh.vertices if vertices is None else np.asarray(vertices, float)), mesh.simplices
     _, L = mass_stiffness(V, S)
     LX = L @ V
     mi = lumped_mass(V, S)

@@ -10,17 +10,24 @@ from __future__ import annotations
 
 import html
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
 
+from willmore_nlp.references import Reference, references
 from willmore_nlp.rundir import Run, load_run
 
 
 def _col(run: Run, key: str) -> np.ndarray:
-    return np.array([float(r[key]) if r.get(key, "") != "" else np.nan for r in run.history])
+    return np.array([float(r[key]) if r.get(key, "") not in ("", None) else np.nan for r in run.history])
+
+
+def mean_radius(V: np.ndarray) -> float:
+    """Mean distance of the vertices ((N, m) array) to their mean."""
+    return float(np.linalg.norm(V - V.mean(axis=0), axis=1).mean())
 
 
 def _save(fig: Figure, path: Path) -> None:
@@ -28,29 +35,78 @@ def _save(fig: Figure, path: Path) -> None:
     fig.savefig(path, dpi=100)
 
 
-def _series_figure(run: Run, keys: list[tuple[str, str]], title: str, path: Path, log: bool = False) -> None:
+def _ref_lines(ax: Any, t: np.ndarray, refs: Sequence[Reference]) -> None:
+    for j, ref in enumerate(refs):
+        lines = ((ref.smooth, "--", ref.label), (ref.matched, ":", f"mesh-matched: {ref.matched_label}"))
+        for value, style, label in lines:
+            if value is None:
+                continue
+            v = np.broadcast_to(np.asarray(value, float), t.shape)
+            ax.plot(t, v, style, color=f"C{j + 1}", lw=1.2, label=label)
+    if refs:
+        ax.legend(fontsize=6)
+
+
+def _series_figure(run: Run, keys: list[tuple[str, str]], title: str, path: Path, log: tuple[str, ...] = (),
+                   refs: Sequence[Reference] = (), extra: dict[str, np.ndarray] | None = None) -> Figure:
     t = run.times
     fig = Figure(figsize=(4.2 * len(keys), 3.2))
     axes = fig.subplots(1, len(keys), squeeze=False)
     for ax, (key, label) in zip(axes[0], keys, strict=True):
-        y = _col(run, key)
+        y = extra[key] if extra and key in extra else _col(run, key)
         ax.plot(t, y, "o-", ms=3)
         ax.set_xlabel("t")
         ax.set_title(label)
-        if log and np.all(y[np.isfinite(y)] > 0):
+        _ref_lines(ax, t, [r for r in refs if r.column == key])
+        if key in log and np.any(np.isfinite(y)) and np.all(y[np.isfinite(y)] > 0):
             ax.set_yscale("log")
         ax.grid(alpha=0.3)
     fig.suptitle(title)
     _save(fig, path)
+    return fig
 
 
-def snapshot_indices(n: int, count: int = 4) -> list[int]:
-    """Up to ``count`` state indices spread evenly over ``n`` states (first and last included)."""
-    return sorted({round(float(x)) for x in np.linspace(0, n - 1, min(count, n))})
+def snapshot_indices(times: np.ndarray, energies: np.ndarray | None = None, count: int = 4) -> list[int]:
+    """Up to ``count`` state indices spaced evenly in time, first and last included.
+
+    A state is chosen nearest to each of ``count`` equally spaced times. When that gives fewer
+    distinct states than wanted (a run whose time is spent in one long step, or stalled with tiny
+    steps), states nearest to equally spaced values of ``energies`` are added. Of two chosen states
+    within 1e-3 of the run's span in both time and energy only one is kept, so a stalled run shows
+    no identical panels.
+
+    Parameters
+    ----------
+    times : (n,) nondecreasing times of the states
+    energies : (n,) energies of the states, optional
+    count : wanted number of snapshots
+    """
+    t = np.asarray(times, float)
+    e = np.full(t.shape, np.nan) if energies is None else np.asarray(energies, float)
+    n = t.size
+    want = min(count, n)
+    chosen = {0, n - 1}
+    for target in np.linspace(t[0], t[-1], want)[1:-1]:
+        chosen.add(int(np.argmin(np.abs(t - target))))
+    if len(chosen) < want and np.all(np.isfinite(e)):
+        for target in np.linspace(e[0], e[-1], want)[1:-1]:
+            chosen.add(int(np.argmin(np.abs(e - target))))
+    # states closer than 1e-3 of the run's span in both time and energy look the same: keep one (the later)
+    t_tol = 1e-3 * (t[-1] - t[0])
+    e_tol = 1e-3 * np.ptp(e) if np.all(np.isfinite(e)) else np.inf
+    out: list[int] = []
+    for i in sorted(chosen):
+        if out and abs(t[i] - t[out[-1]]) <= t_tol and not abs(e[i] - e[out[-1]]) > e_tol:
+            out[-1] = i if out[-1] != 0 else 0
+            continue
+        out.append(i)
+    if out[-1] != n - 1:
+        out.append(n - 1)
+    return out
 
 
 def _snapshots(run: Run, path: Path, count: int = 4) -> list[int]:
-    idx = snapshot_indices(len(run.states), count)
+    idx = snapshot_indices(run.times, _col(run, "energy"), count)
     mesh0 = run.states[0]
     if mesh0.d == 1:
         fig = Figure(figsize=(4.0 * len(idx), 4.0))
@@ -62,7 +118,7 @@ def _snapshots(run: Run, path: Path, count: int = 4) -> list[int]:
                 ax.plot(*s.T, "-", color="C0", lw=1.2)
             if m.m == 2:
                 ax.set_aspect("equal")
-            ax.set_title(f"t = {run.times[k]:.4g}")
+            ax.set_title(f"step {run.history[k]['step']}, t = {run.times[k]:.4g}")
     else:
         fig = Figure(figsize=(4.0 * len(idx), 4.0))
         lo = min(s.vertices.min() for s in run.states)
@@ -77,71 +133,126 @@ def _snapshots(run: Run, path: Path, count: int = 4) -> list[int]:
             ax.set_ylim(lo, hi)
             ax.set_zlim(lo, hi)
             ax.set_box_aspect((1, 1, 1))
-            ax.set_title(f"t = {run.times[k]:.4g}")
+            ax.set_title(f"step {run.history[k]['step']}, t = {run.times[k]:.4g}")
     _save(fig, path)
     return idx
 
 
 def _table(rows: list[list[Any]], header: list[str]) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(_fmt(v) for v in r) + " |" for r in rows]
+    out += ["| " + " | ".join(_fmt(v).replace("|", "\\|") for v in r) + " |" for r in rows]
     return "\n".join(out)
 
 
 def _fmt(v: Any) -> str:
-    if isinstance(v, float):
+    if isinstance(v, float | np.floating):
         return f"{v:.6g}"
     return str(v)
+
+
+FAILED_STATES = ("failed", "interrupted", "abandoned", "crashed")
+"""Run states whose report opens with the failure message and the rejected attempts."""
+
+
+def status_lines(run: Run) -> list[str]:
+    """Markdown lines of the run's status: state, message, failed step, rejected attempts, ignored files."""
+    st = run.status
+    state = str(st.get("state", "unknown (no status.json)"))
+    last = run.history[-1]
+    lines = [f"**Status: {state}** after step {last['step']} (t = {float(run.times[-1]):.6g}).", ""]
+    if state == "running":
+        lines += ["The run is still running, or its process died without a clean exit (`willmore-nlp run "
+                  "--resume` continues it).", ""]
+    if state in FAILED_STATES or st.get("message"):
+        if st.get("message"):
+            lines += [f"Message: `{st['message']}`", ""]
+        if st.get("failed_step") is not None:
+            lines += [f"Failed step: {st['failed_step']}. Steps 0..{last['step']} are kept.", ""]
+        rejected = st.get("rejected") or []
+        if rejected:
+            lines += [f"Rejected attempts of the failed step ({len(rejected)}):", "",
+                      _table([[i + 1, r] for i, r in enumerate(rejected)], ["attempt", "reason"]), ""]
+    retried = [[r["step"], r["rejected"]] for r in run.history if r.get("rejected") not in (None, "", "nan")]
+    if retried:
+        lines += [f"Accepted steps that needed retries ({len(retried)}):", "",
+                  _table(retried, ["step", "rejected attempts"]), ""]
+    if run.ignored:
+        lines += ["Files not trusted (damaged, temporary, or after a gap):", "",
+                  *[f"- `{f}`" for f in run.ignored], ""]
+    return lines
 
 
 def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None = None) -> Path:
     """Write ``report.md``, ``report.html`` and ``fig_*.png`` for a run; returns the Markdown path.
 
-    ``out`` defaults to ``RUN_DIR/report``.
+    The report opens with the run's status (for a failed, interrupted or abandoned run: the
+    message and every rejected attempt), draws the smooth and the mesh-matched reference values
+    (:mod:`willmore_nlp.references`) where the target shape is known, plots tau on a log axis, and
+    shows snapshots spaced by time (or energy), not by index. ``out`` defaults to ``RUN_DIR/report``.
     """
     run = load_run(run_dir)
     d = Path(out) if out is not None else Path(run_dir) / "report"
     d.mkdir(parents=True, exist_ok=True)
+    cfg = run.config
+    flow_options = cfg.get("effective_flow_options", cfg.get("flow_options", {}))  # older runs lack the effective
+    refs, ref_note = references(run.states[0], float(cfg.get("lam") or 0.0), float(cfg.get("tau_tilde") or 0.0),
+                                run.times, flow_options)
+    radius = np.array([mean_radius(s.vertices) for s in run.states])
     figs: list[tuple[str, str]] = []
     _series_figure(run, [("energy", "scheme energy e(X)"), ("willmore_energy", "Willmore energy 1/2 int h^2")],
-                   "Energies", d / "fig_energy.png")
+                   "Energies", d / "fig_energy.png", refs=refs)
     figs.append(("Energies against time", "fig_energy.png"))
-    _series_figure(run, [("measure", "length / area"), ("volume", "enclosed area / volume")], "Geometry",
-                   d / "fig_geometry.png")
+    geo = [("measure", "length / area"), ("volume", "enclosed area / volume")]
+    if any(r.column == "radius" for r in refs):
+        geo.append(("radius", "mean distance to the centroid"))
+    _series_figure(run, geo, "Geometry", d / "fig_geometry.png", refs=refs, extra={"radius": radius})
     figs.append(("Geometry against time", "fig_geometry.png"))
     qkeys = [(k, k.removeprefix("q_")) for k in run.history[0] if k.startswith("q_")]
     _series_figure(run, qkeys, "Mesh quality", d / "fig_quality.png")
     figs.append(("Mesh quality against time", "fig_quality.png"))
     _series_figure(run, [("iterations", "solver iterations"), ("wall_time", "wall time per step [s]"),
-                         ("tau", "step size tau")], "Solver", d / "fig_solver.png")
+                         ("tau", "step size tau (log axis)")], "Solver", d / "fig_solver.png", log=("tau",))
     figs.append(("Solver statistics per step", "fig_solver.png"))
     idx = _snapshots(run, d / "fig_snapshots.png")
     figs.append(("Shape at t = " + ", ".join(f"{run.times[k]:.4g}" for k in idx), "fig_snapshots.png"))
 
-    cfg = run.config
     params = [["problem", cfg.get("problem", "")], ["tau", cfg.get("tau", "")], ["tau_tilde", cfg.get("tau_tilde", "")],
               ["lam", cfg.get("lam", "")]]
     params += [[k, v] for k, v in sorted(cfg.get("params", {}).items()) if k not in ("tau", "tau_tilde", "lam")]
-    flow_options = cfg.get("effective_flow_options", cfg.get("flow_options", {}))  # older runs lack the effective
     params += [[k, v] for k, v in sorted(flow_options.items())]
-    mesh = cfg.get("mesh", {})
-    params += [[f"mesh {k}", v] for k, v in mesh.items()]
+    params += [[f"mesh {k}", v] for k, v in cfg.get("mesh", {}).items()]
     steps = [r for r in run.history if int(r["step"]) > 0]
-    it = np.array([float(r["iterations"]) for r in steps]) if steps else np.array([np.nan])
-    wt = np.array([float(r["wall_time"]) for r in steps]) if steps else np.array([np.nan])
-    retries = int(sum(int(r.get("retries") or 0) for r in steps))
     first, last = run.history[0], run.history[-1]
-    summary = [
+    summary: list[list[Any]] = [
         ["states", len(run.states)], ["final time", float(run.times[-1])],
         ["scheme energy (first -> last)", f"{first['energy']:.6g} -> {last['energy']:.6g}"],
         ["Willmore energy (first -> last)", f"{first['willmore_energy']:.6g} -> {last['willmore_energy']:.6g}"],
-        ["iterations per step (mean / max)", f"{np.nanmean(it):.3g} / {np.nanmax(it):.0f}"],
-        ["wall time per step (median / total) [s]", f"{np.nanmedian(wt):.3g} / {np.nansum(wt):.3g}"],
-        ["retries (tau halved)", retries],
     ]
-    md = [f"# Run report: {html.escape(str(cfg.get('problem', run.path.name)))}", "",
-          f"Run directory: `{run.path}`", "", "## Parameters", "", _table(params, ["parameter", "value"]), "",
-          "## Summary", "", _table(summary, ["quantity", "value"]), ""]
+    if steps:
+        it = np.array([float(r["iterations"]) for r in steps])
+        wt = np.array([float(r["wall_time"]) for r in steps])
+        summary += [["iterations per step (mean / max)", f"{it.mean():.3g} / {it.max():.0f}"],
+                    ["wall time per step (median / total) [s]", f"{np.median(wt):.3g} / {wt.sum():.3g}"],
+                    ["retries (tau halved)", int(sum(int(r.get("retries") or 0) for r in steps))]]
+    else:
+        summary.append(["steps taken", "none (only the initial state)"])
+    ref_rows = []
+    final = {"willmore_energy": float(last["willmore_energy"]), "radius": float(radius[-1])}
+    for r in refs:
+        smooth = float(np.asarray(r.smooth, float).reshape(-1)[-1])
+        matched = None if r.matched is None else float(np.asarray(r.matched, float).reshape(-1)[-1])
+        ref_rows.append([r.column, final[r.column], f"{smooth:.6g} ({r.label})",
+                         "-" if matched is None else f"{matched:.6g} ({r.matched_label})",
+                         "-" if matched is None else f"{final[r.column] - matched:+.3g}"])
+    md = [f"# Run report: {html.escape(str(cfg.get('problem', run.path.name)))}", "", *status_lines(run),
+          f"Run directory: `{run.path}`", "", "## Summary", "", _table(summary, ["quantity", "value"]), "",
+          "## References", "", f"Target: {ref_note}.", ""]
+    if ref_rows:
+        md += [_table(ref_rows, ["quantity", "final", "smooth reference", "mesh-matched reference",
+                                 "final - mesh-matched"]), "",
+               "The mesh-matched value is the discrete energy of the exact target shape at this run's resolution: "
+               "the gap between it and the smooth value is discretisation bias, not an error.", ""]
+    md += ["## Parameters", "", _table(params, ["parameter", "value"]), ""]
     for title, f in figs:
         md += [f"## {title}", "", f"![{title}]({f})", ""]
     versions = cfg.get("versions", {})
@@ -161,6 +272,7 @@ def markdown_to_html(text: str, title: str = "report") -> str:
     def inline(s: str) -> str:
         s = html.escape(s, quote=False)
         s = re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", r'<img alt="\1" src="\2" style="max-width:100%">', s)
+        s = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", s)
         return re.sub(r"`([^`]+)`", r"<code>\1</code>", s)
 
     body: list[str] = []
@@ -175,7 +287,8 @@ def markdown_to_html(text: str, title: str = "report") -> str:
             rows = []
             while i < len(lines) and lines[i].startswith("|"):
                 if not set(lines[i].replace("|", "").strip()) <= set("-: "):
-                    rows.append([c.strip() for c in lines[i].strip().strip("|").split("|")])
+                    cells = re.split(r"(?<!\\)\|", lines[i].strip()[1:-1])  # "\|" is a pipe inside a cell
+                    rows.append([c.strip().replace("\\|", "|") for c in cells])
                 i += 1
             body.append("<table>")
             for j, r in enumerate(rows):

@@ -334,6 +334,8 @@ class RunWriter:
     mesh : initial mesh
     keep_foreign : allow files that are not the program's (left by :func:`clear_run_dir`)
 
+    Notes
+    -----
     Use :meth:`resume` to continue writing an existing run directory.
     """
 

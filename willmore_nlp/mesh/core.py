@@ -27,6 +27,8 @@ class Mesh:
     source : str, optional
         Where the mesh came from (a file name), used in error messages.
 
+    Notes
+    -----
     The arrays are copied and made read-only. Construction validates shapes, indices,
     finiteness, degenerate and duplicate simplices; manifoldness and orientation are
     checked for every mesh (see :func:`willmore_nlp.mesh.topology.check_manifold`).

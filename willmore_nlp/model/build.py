@@ -82,7 +82,7 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None,
 
 
 def _build_clamped(mesh: Mesh, boundary: Boundary, beta: float) -> StepSetup:
-    """Step problem of a free patch with a clamped boundary (both variants, DESIGN.md section 1).
+    """Step problem of a free patch with a clamped boundary (both variants; docs/theory/scheme.md).
 
     The inner problem lives on patch + ring (when there is a ring): X is unknown on the free
     vertices, Y on the patch nodes (free vertices and Gamma) and equal to X on the ring's outer

@@ -1,4 +1,4 @@
-"""Element energies of the nested scheme (DESIGN.md section 1), one function per variant.
+"""Element energies of the nested scheme (docs/theory/scheme.md), one function per variant.
 
 Each takes the element's nodal matrices X, Y, Xk ((m, d+1) SX), the scalar parameters
 ``par = (tau, tt, lam, ...)`` and the per-element constants ``c``, and returns the local
@@ -68,7 +68,7 @@ def isotropic(beta: float = 1.0) -> Callable[..., tuple[ca.SX, ca.SX]]:
     free patch and 0 on the fixed outer ring (distance and length/area terms of W, constant
     there), ``stiff`` = 0 on the ring of the co-normal variant, where the co-normal term replaces
     the ring's stiffness, and 1 otherwise. Ring elements keep their mass in W and E so that the
-    boundary nodes Gamma carry their full mass (DESIGN.md section 1, note on boundary weights).
+    boundary nodes Gamma carry their full mass (docs/theory/pitfalls.md, 'Boundary weights').
     """
 
     def energy(X: ca.SX, Y: ca.SX, Xk: ca.SX, par: ca.SX, c: ca.SX) -> tuple[ca.SX, ca.SX]:
@@ -80,7 +80,7 @@ def isotropic(beta: float = 1.0) -> Callable[..., tuple[ca.SX, ca.SX]]:
 
 
 def anisotropic(gamma: Callable[[ca.SX], ca.SX], beta: float = 1.0) -> Callable[..., tuple[ca.SX, ca.SX]]:
-    """Energies of the fully nonlinear anisotropic scheme (DESIGN.md section 1, paper (3.3)).
+    """Energies of the fully nonlinear anisotropic scheme (docs/theory/scheme.md, 'Anisotropic flow'; paper (3.3)).
 
     ``E_T = M[X](Y-X).(Y-X) + 2 tt gamma(z_T(Y))`` with ``z_T = rot90(Y1 - Y0)`` (segments in R^2)
     or ``(Y1 - Y0) x (Y2 - Y0) / 2`` (triangles); the outer objective is the isotropic one (the

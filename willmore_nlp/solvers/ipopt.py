@@ -19,7 +19,7 @@ IPOPT_DEFAULTS: dict[str, Any] = {
     "mu_strategy": "monotone",  # no inequalities or bounds: the barrier plays no role, adaptive costs time
     "constr_mult_init_max": 0.0,  # start multipliers at 0: saves the least-squares factorisation (~25% per step)
     "linear_solver": "mumps",
-    "mumps_pivot_order": 5,  # METIS: decisive at scale (DESIGN.md section 3)
+    "mumps_pivot_order": 5,  # METIS: decisive at scale (docs/theory/pitfalls.md, 'Sparse factorisation ordering')
     "sb": "yes",
 }
 """IPOPT options used unless overridden (keys without the ``ipopt.`` prefix)."""
