@@ -18,12 +18,13 @@ def scheme_energy(X: np.ndarray, S: np.ndarray, tt: float, lam: float) -> float:
 
 
 def test_energy_inequality_every_step() -> None:
-    """|X^{k+1} - X^k|^2_{M[X^k]} + 2 tau e(X^{k+1}) <= 2 tau e(X^k) for every accepted step."""
+    """|X^{k+1} - X^k|^2_{M[X^k]} + 2 tau e(X^{k+1}) <= 2 tau e(X^k) for every accepted step of the
+    paper's scheme (mesh_control="off": a remeshing between steps changes the state and its energy)."""
     cases = ((shapes.ellipse(48, 2.0, 1.0), 0.1, None, 0.25), (shapes.torus(1.0, 0.5, 24, 12), 0.0, 1e-3, 0.01))
     for mesh, lam, tau, tt_factor in cases:
         h = mesh.h
         tau, tt = tau or h, tt_factor * h * h
-        flow = WillmoreFlow(mesh, tau, tt, lam=lam)
+        flow = WillmoreFlow(mesh, tau, tt, lam=lam, mesh_control="off")
         S = mesh.simplices
         e_prev = scheme_energy(flow.X, S, tt, lam)
         for _ in range(6):
@@ -82,9 +83,11 @@ def test_hypocycloid_keeps_winding_and_reaches_fivefold_circle() -> None:
 
 
 def test_torus_moves_toward_clifford() -> None:
-    """A coarse torus (R/r = 2) lowers its Willmore energy and its radius ratio toward sqrt 2."""
+    """A coarse torus (R/r = 2) lowers its Willmore energy and its radius ratio toward sqrt 2 at every
+    step of the paper's scheme (mesh_control="off"; with the default mesh control the repair at step 9
+    changes W by +0.04, see test_remesh)."""
     mesh = shapes.torus(1.0, 0.5, 24, 12)
-    flow = WillmoreFlow(mesh, 1e-3, mesh.h**2 / 100)
+    flow = WillmoreFlow(mesh, 1e-3, mesh.h**2 / 100, mesh_control="off")
 
     def ratio(V: np.ndarray) -> float:
         rho = np.hypot(V[:, 0], V[:, 1])

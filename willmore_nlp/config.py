@@ -45,6 +45,12 @@ FLOW_KEYS: dict[str, Any] = {
     "tangential_weight": 1.0,
     "redistribute": False,
     "adaptive": False,
+    "min_tau": None,
+    "mesh_control": "auto",
+    "remesh": "auto",
+    "remesh_min_angle": 20.0,
+    "remesh_max_edge_ratio": 10.0,
+    "remesh_target": None,
 }
 """Flow and solver options accepted in configs, with their defaults."""
 
@@ -248,6 +254,14 @@ RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "energy_rtol": ("a number >= 0", lambda v: _is_number(v) and math.isfinite(v) and v >= 0),
     "tol": ("a number > 0", lambda v: _is_number(v) and math.isfinite(v) and v > 0),
     "max_iter": ("an integer >= 0", lambda v: _is_number(v) and float(v).is_integer() and v >= 0),
+    "min_tau": ("a number >= 0 or unset (0.01 h^4)", lambda v: v is None or (_is_number(v) and math.isfinite(v)
+                                                                            and v >= 0)),
+    "mesh_control": ("'auto' or 'off'", lambda v: v in ("auto", "off")),
+    "remesh": ("'auto' or 'off'", lambda v: v in ("auto", "off")),
+    "remesh_min_angle": ("a number in [0, 60)", lambda v: _is_number(v) and 0 <= v < 60),
+    "remesh_max_edge_ratio": ("a number >= 1", lambda v: _is_number(v) and v >= 1),
+    "remesh_target": ("a number > 0 or unset (the initial mean edge)",
+                      lambda v: v is None or (_is_number(v) and math.isfinite(v) and v > 0)),
 }
 """Allowed values of the numeric and boolean configuration keys: (description, test)."""
 

@@ -7,7 +7,8 @@ grid of lines (curves) or triangles (surfaces), 3-D points (curves in R^2 get z 
 * ``mean_curvature_vector``: -M_lumped^{-1} L X (:func:`willmore_nlp.geometry.mean_curvature_vector`),
 * ``normal``: unit vertex normal (surfaces: area-weighted face normals; planar curves: the tangent
   turned by -90 degrees, outward for counter-clockwise curves; zero for curves in R^3),
-* ``velocity``: (X^k - X^{k-1}) / (t^k - t^{k-1}) (zero for the initial state),
+* ``velocity``: (X^k - X^{k-1}) / (t^k - t^{k-1}) (zero for the initial state and for a state whose
+  vertices differ from the previous one's because the mesh control remeshed it),
 * ``normal_speed``: velocity . normal.
 
 The .pvd index (a small VTK XML file listing the .vtu files with their times) is written with the
@@ -55,7 +56,8 @@ def _points3(V: np.ndarray) -> np.ndarray:
 def state_mesh(mesh: Mesh, Y: np.ndarray, prev: np.ndarray | None, dt: float) -> meshio.Mesh:
     """meshio mesh of one state with its point data (see module docstring)."""
     nrm = vertex_normals(mesh)
-    vel = np.zeros_like(mesh.vertices) if prev is None or dt <= 0 else (mesh.vertices - prev) / dt
+    same = prev is not None and prev.shape == mesh.vertices.shape
+    vel = (mesh.vertices - prev) / dt if same and dt > 0 else np.zeros_like(mesh.vertices)
     H = mean_curvature_vector(mesh)
     cell = "line" if mesh.d == 1 else "triangle"
     return meshio.Mesh(
@@ -80,6 +82,8 @@ def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> 
     coll = ET.SubElement(root, "Collection")
     prev, t_prev = None, 0.0
     for row, mesh, Y, t in zip(run.history, run.states, run.Y, run.times, strict=True):
+        if int(row.get("remeshed") or 0):
+            prev = None  # the vertices are not those of the previous state
         name = f"state_{int(row['step']):06d}.vtu"
         m = state_mesh(mesh, Y, prev, float(t) - t_prev)
         atomic_write(d / name, lambda p, m=m: meshio.write(p, m, file_format="vtu"))

@@ -102,6 +102,10 @@ class StepResult:
     retries : how many times tau was halved
     stats : solver statistics (evaluations, timings, KKT residual)
     rejected : reasons of rejected attempts
+    simplices : (K, d + 1) connectivity of the state (changes when the mesh control remeshes)
+    free : (N,) bool free-vertex mask of a clamped problem on that connectivity (None without boundary)
+    remeshed : the mesh-control action taken after this step ("" none; "flips", "smooth", "remesh"
+        joined by "+"); ``stats`` then holds ``energy_before_remesh`` and ``energy_after_remesh``
     """
 
     step: int
@@ -123,6 +127,9 @@ class StepResult:
     stats: dict[str, Any] = field(default_factory=dict)
     rejected: list[str] = field(default_factory=list)
     willmore_gamma: float = float("nan")
+    simplices: np.ndarray | None = None
+    free: np.ndarray | None = None
+    remeshed: str = ""
 
     def row(self) -> dict[str, Any]:
         """Flat dict for history.csv."""
@@ -142,6 +149,12 @@ class StepResult:
             "wall_time": self.wall_time,
             "retries": self.retries,
             "rejected": " | ".join(self.rejected),
+            "vertices": int(self.vertices.shape[0]),
+            "remeshed": int(bool(self.remeshed)),
+            "remesh_action": self.remeshed,
+            "energy_before_remesh": self.stats.get("energy_before_remesh", float("nan")),
+            "energy_after_remesh": self.stats.get("energy_after_remesh", float("nan")),
+            "min_angle_before_remesh": self.stats.get("min_angle_before_remesh", float("nan")),
         }
         r.update({f"q_{k}": v for k, v in self.quality.items()})
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "n_eval_hess", "energy_before_redistribution",
@@ -229,6 +242,29 @@ class WillmoreFlow:
         Step-size control for stiff starts: a step first tries twice the previous accepted step
         (the same step if that one needed retries), never more than ``tau``; failures halve it as
         usual (``max_retries`` per step). Off, every step first tries ``tau``.
+    min_tau : float, optional
+        Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
+        fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
+        (h = initial mean edge): below the paper's smallest step h^4 by more than the four
+        default halvings, and so small that reaching t = O(1) would take > 100 h^-4 steps.
+    mesh_control : {"auto", "off"}
+        Master switch of the mesh-quality control of surfaces ("off": the paper's scheme, no
+        mesh control whatever the other options say).
+    remesh : {"auto", "off"}
+        Surfaces in R^3 only (curves ignore it): after an accepted step whose patch triangles have
+        a smallest angle below ``remesh_min_angle`` or an edge ratio above ``remesh_max_edge_ratio``,
+        repair the mesh (:mod:`willmore_nlp.remesh`): Delaunay edge flips, then tangential smoothing
+        projected onto the surface, then isotropic remeshing toward ``remesh_target``, stopping at
+        the first that meets the thresholds; then rebuild the step NLP for the new connectivity
+        and solve Y[X] again. Boundary vertices and the fixed part of a clamped problem never move.
+        Changes the state by O(h^2) (recorded: ``StepResult.remeshed``, ``stats`` energies before
+        and after), so e(X^k) is not guaranteed to decrease across a remeshing.
+    remesh_min_angle : float
+        Smallest triangle angle (degrees) that triggers the mesh control (default 20).
+    remesh_max_edge_ratio : float
+        Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
+    remesh_target : float, optional
+        Target edge length of the isotropic remeshing (default: the initial mean edge h).
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
 
@@ -261,6 +297,12 @@ class WillmoreFlow:
         tangential_weight: float = 1.0,
         redistribute: bool = False,
         adaptive: bool = False,
+        min_tau: float | None = None,
+        mesh_control: str = "auto",
+        remesh: str = "auto",
+        remesh_min_angle: float = 20.0,
+        remesh_max_edge_ratio: float = 10.0,
+        remesh_target: float | None = None,
         **options: Any,
     ) -> None:
         for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
@@ -296,30 +338,33 @@ class WillmoreFlow:
         self.redistribute = bool(redistribute)
         self.adaptive = bool(adaptive)
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
-        self.setup = build_step(mesh, boundary=boundary, anisotropy=anisotropy, tangential_weight=tangential_weight)
-        self.problem = self.setup.problem
-        bd = self.setup.boundary
-        self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes
-        kernels = self.problem.kernels
+        for name, val in (("mesh_control", mesh_control), ("remesh", remesh)):
+            if val not in ("auto", "off"):
+                raise ValueError(f"{name} must be 'auto' or 'off', got {val!r}")
+        self.initial_mesh = mesh
+        self.min_tau = 1e-2 * h**4 if min_tau is None else float(min_tau)
+        if not (np.isfinite(self.min_tau) and self.min_tau >= 0):
+            raise ValueError(f"min_tau must be a number >= 0, got {min_tau}")
+        self.remesh = (remesh == "auto" and mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
+        self.remesh_min_angle = float(remesh_min_angle)
+        self.remesh_max_edge_ratio = float(remesh_max_edge_ratio)
+        self.remesh_target = h if remesh_target is None else float(remesh_target)
+        if not (np.isfinite(self.remesh_target) and self.remesh_target > 0):
+            raise ValueError(f"remesh_target must be a positive number, got {remesh_target}")
+        self._anisotropy = anisotropy
+        self._tangential_weight = tangential_weight
         self.codegen_info: dict[str, Any] = {"enabled": False}
         if codegen is None:
             codegen = find_compiler() is not None
             if not codegen:
                 warnings.warn("no C compiler found: element kernels run in CasADi's virtual machine "
                               "(slower; set $CC or install gcc to compile them)", stacklevel=2)
-        if codegen:
-            self.codegen_info = {"enabled": True}
-            try:
-                kernels = compile_kernels(self.problem.kernels, info=self.codegen_info)
-            except OSError as exc:  # not even a temporary directory is writable
-                self.codegen_info = {"enabled": False, "error": str(exc)}
-                warnings.warn(f"cannot compile the element kernels ({exc}): they run in CasADi's virtual machine "
-                              f"(slower); set codegen=false to skip compiling", stacklevel=2)
-        self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
+        self._codegen = bool(codegen)
+        self._compiled: dict[str, Any] | None = None
         self.solver_name = solver
-        self.solver = make_solver(solver, self.evaluator, options)
+        self._options = dict(options)
         self.stop_requested: Callable[[], bool] = _never
-        self.solver.should_stop = lambda: self.stop_requested()
+        self._build(mesh, boundary)
         self.build_time = time.perf_counter() - t0
         self.X = np.array(mesh.vertices, float)
         self.t = 0.0
@@ -330,6 +375,40 @@ class WillmoreFlow:
             raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
+
+    def _build(self, mesh: Mesh, boundary: Any) -> None:
+        """Step problem, evaluator and solver for the connectivity of ``mesh``.
+
+        Called once at construction and after every connectivity change: the element kernels
+        (and their compiled C library) are the same, only the assembly patterns are new.
+        """
+        self.mesh = mesh
+        self.boundary = boundary
+        self.setup = build_step(mesh, boundary=boundary, anisotropy=self._anisotropy,
+                                tangential_weight=self._tangential_weight)
+        self.problem = self.setup.problem
+        bd = self.setup.boundary
+        self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes
+        kernels = self.problem.kernels
+        if self._codegen and self._compiled is None:
+            self.codegen_info = {"enabled": True}
+            try:
+                self._compiled = compile_kernels(self.problem.kernels, info=self.codegen_info)
+            except OSError as exc:  # not even a temporary directory is writable
+                self._codegen = False
+                self.codegen_info = {"enabled": False, "error": str(exc)}
+                warnings.warn(f"cannot compile the element kernels ({exc}): they run in CasADi's virtual machine "
+                              f"(slower); set codegen=false to skip compiling", stacklevel=3)
+        if self._compiled is not None:
+            kernels = self._compiled
+        self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
+        self.solver = make_solver(self.solver_name, self.evaluator, self._options)
+        self.solver.should_stop = lambda: self.stop_requested()
+
+    @property
+    def free(self) -> np.ndarray | None:
+        """(N,) free-vertex mask of the current connectivity (None without clamped boundary)."""
+        return None if self.setup.boundary is None else self.setup.boundary.free
 
     # -- helpers -----------------------------------------------------------------------
     def params(self, Xk: np.ndarray, tau: float) -> np.ndarray:
@@ -373,6 +452,8 @@ class WillmoreFlow:
             rejected=rejected,
             willmore_gamma=(float("nan") if self.setup.anisotropy is None
                             else anisotropic_willmore_energy(mesh, self.setup.anisotropy)),
+            simplices=self.mesh.simplices,
+            free=self.free,
         )
 
     def _reject_reason(self, res: Any, f0: float, X: np.ndarray) -> str | None:
@@ -412,9 +493,15 @@ class WillmoreFlow:
         t0 = time.perf_counter()
         tau = min(self.tau, self._tau_adapt) if self.adaptive else self.tau
         rejected: list[str] = []
+        floor = min(self.min_tau, self.tau)
         for attempt in range(self.max_retries + 1):
             if self.stop_requested():
                 raise StepInterrupted(self.k + 1)
+            if tau < floor:
+                rejected.append(f"tau={tau:.6g}: step size below min_tau = {floor:.3g}")
+                raise FlowError(f"step {self.k + 1} at t={self.t:.6g} failed: the step size fell to {tau:.3g}, "
+                                f"below min_tau = {floor:.3g} (the clock would freeze); rejected: "
+                                + "; ".join(rejected), step=self.k + 1, t=self.t, rejected=rejected)
             p = self.params(self.X, tau)
             z0 = self.problem.pack_z(self.X, self.Y)
             f0 = self.evaluator.f(z0, p)
@@ -443,8 +530,11 @@ class WillmoreFlow:
                 self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
                 self.lam_g = res.lam_g
                 self._tau_adapt = 2 * tau if attempt == 0 else tau
-                result = self._result(X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
+                action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
+                result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
                 result.stats.update(moved)
+                result.stats.update(mstats)
+                result.remeshed = action
                 return result
             if self.stop_requested():  # the solve was cut short (or failed): do not retry
                 raise StepInterrupted(self.k + 1)
@@ -456,8 +546,74 @@ class WillmoreFlow:
             step=self.k + 1, t=self.t, rejected=rejected,
         )
 
+    # -- mesh control ------------------------------------------------------------------
+    def _needs_repair(self, X: np.ndarray, F: np.ndarray) -> bool:
+        """Patch triangles below ``remesh_min_angle`` or patch edges above ``remesh_max_edge_ratio``."""
+        free = self.free
+        faces = F if free is None else F[free[F].any(axis=1)]
+        q = geometry.triangle_quality(X, faces)
+        return q["min_angle"] < self.remesh_min_angle or q["edge_ratio"] > self.remesh_max_edge_ratio
+
+    def _control_mesh(self, tau: float) -> tuple[str, dict[str, float]]:
+        """Repair the mesh of the accepted state when its quality dropped (see ``remesh``).
+
+        Tries, in order, Delaunay flips, tangential smoothing projected onto the surface (with
+        flips again) and isotropic remeshing, and stops at the first result that meets the
+        thresholds. Rebuilds the step NLP when the connectivity changed and solves Y[X] again.
+        Returns the actions taken ("" when none) and the energies before and after.
+        """
+        from willmore_nlp import remesh as rm
+
+        X, F = self.X, self.mesh.simplices
+        if not self._needs_repair(X, F):
+            return "", {}
+        free = self.free
+        actions: list[str] = []
+        boundary = self.boundary
+        F1, n = rm.delaunay_flips(X, F, free)
+        if n:
+            actions.append("flips")
+        X1 = X
+        if self._needs_repair(X1, F1):
+            X1 = rm.tangential_smooth(X, F1, free)
+            F1, _ = rm.delaunay_flips(X1, F1, free)
+            actions.append("smooth")
+        explicit = boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
+        if self._needs_repair(X1, F1) and not explicit:
+            try:
+                r = rm.isotropic_remesh(X1, F1, self.remesh_target, free)
+            except rm.RemeshError as exc:
+                warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=3)
+            else:
+                F2, _ = rm.delaunay_flips(r.vertices, r.simplices, r.free if boundary is not None else None)
+                X1, F1 = r.vertices, F2
+                if boundary is not None:
+                    boundary = rm.carry_boundary(boundary, r)
+                actions.append("remesh")
+        if not actions:
+            return "", {}
+        e_before = self.discrete_energy(X, self.Y)
+        angle_before = geometry.triangle_quality(X, F)["min_angle"]
+        old = (self.mesh, self.boundary)
+        if F1.shape != F.shape or not np.array_equal(F1, F):
+            self._build(Mesh(X1, F1, self.mesh.source), boundary)
+        try:
+            Y1 = self._solve_y(X1, tau)
+            if not np.all(np.isfinite(Y1)):
+                raise ArithmeticError("non-finite values")
+        except (RuntimeError, ValueError, ArithmeticError) as exc:
+            warnings.warn(f"step {self.k}: mesh repair dropped, Y[X] failed on the new mesh ({exc})", stacklevel=3)
+            if self.mesh is not old[0]:
+                self._build(*old)
+            return "", {}
+        self.X, self.Y, self.lam_g = X1, Y1, None
+        return "+".join(actions), {"energy_before_remesh": e_before,
+                                   "energy_after_remesh": self.discrete_energy(X1, Y1),
+                                   "min_angle_before_remesh": angle_before}
+
     def restart(self, X: np.ndarray, Y: np.ndarray, t: float, k: int,
-                lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0) -> None:
+                lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0,
+                simplices: np.ndarray | None = None, free: np.ndarray | None = None) -> None:
         """Continue from a saved state (X^k, Y[X^k], t, k), e.g. a run directory's checkpoint.
 
         With the ``Y`` and multipliers ``lam_g`` that the flow held at that state (both are in
@@ -472,10 +628,23 @@ class WillmoreFlow:
         lam_g : constraint multipliers of the step that produced it (warm starts), optional
         last_tau, last_retries : step size and retries of the step that produced it (adaptive
             step-size control continues from them; None when the state is the initial one)
+        simplices : (K, 3) connectivity of the state when the mesh control changed it (the step
+            NLP is rebuilt for it); None: the current connectivity
+        free : (N,) bool free-vertex mask of a clamped problem on that connectivity
         """
         X = np.array(X, dtype=float)
         Y = np.array(Y, dtype=float)
-        if X.shape != self.X.shape or Y.shape != self.X.shape:
+        if simplices is not None and not np.array_equal(simplices, self.mesh.simplices):
+            boundary = self.boundary
+            if boundary is not None and not np.array_equal(free, boundary.free):
+                from willmore_nlp.boundary import Boundary
+
+                if free is None or boundary.conormal is not None or boundary.ring is not None:
+                    raise ValueError("restart: a clamped problem on a new connectivity needs its free mask "
+                                     "(and has no explicit co-normal or ring)")
+                boundary = Boundary(np.asarray(free, bool), boundary.variant)
+            self._build(Mesh(X, np.asarray(simplices), self.mesh.source), boundary)
+        if X.shape != self.mesh.vertices.shape or Y.shape != X.shape:
             raise ValueError(f"restart: state has shape {X.shape}/{Y.shape}, the mesh has {self.X.shape}")
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
             raise ValueError("restart: the state has non-finite values")

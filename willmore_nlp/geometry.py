@@ -146,6 +146,19 @@ def redistribute_curve(mesh: Mesh) -> np.ndarray:
     return X
 
 
+def triangle_quality(V: np.ndarray, S: np.ndarray) -> dict[str, float]:
+    """Smallest angle (degrees) and longest/shortest edge ratio of the triangles ``S`` (a subset of a mesh).
+
+    Parameters
+    ----------
+    V : (N, 3) positions
+    S : (K, 3) triangles (may use only some of the vertices)
+    """
+    sides = _sides(np.asarray(V, float), np.asarray(S))
+    return {"min_angle": float(np.degrees(_corner_angles(sides)).min()),
+            "edge_ratio": float(sides.max() / sides.min())}
+
+
 def quality(mesh: Mesh) -> dict[str, float]:
     """Mesh quality figures.
 

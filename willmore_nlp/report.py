@@ -236,6 +236,14 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
                     ["retries (tau halved)", int(sum(int(r.get("retries") or 0) for r in steps))]]
     else:
         summary.append(["steps taken", "none (only the initial state)"])
+    remeshes = [r for r in steps if int(r.get("remeshed") or 0)]
+    if remeshes:
+        jumps = [float(r["energy_after_remesh"]) - float(r["energy_before_remesh"]) for r in remeshes]
+        summary += [["mesh repairs (steps)", f"{len(remeshes)} ({', '.join(str(r['step']) for r in remeshes[:10])}"
+                     f"{' ...' if len(remeshes) > 10 else ''})"],
+                    ["vertices (first -> last)", f"{first.get('vertices', '')} -> {last.get('vertices', '')}"],
+                    ["scheme energy change by repairs (sum / largest)",
+                     f"{sum(jumps):.3g} / {max(jumps, key=abs):.3g}"]]
     ref_rows = []
     final = {"willmore_energy": float(last["willmore_energy"]), "radius": float(radius[-1])}
     for r in refs:

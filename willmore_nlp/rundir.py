@@ -5,7 +5,9 @@ Layout::
     RUN/config.json          resolved configuration (problem, parameters, flow options, versions)
     RUN/mesh.npz             simplices and initial vertices
     RUN/states/state_KKKKKK.npz   vertices, Y, t, step, tau, multipliers and history row of every
-                                  accepted state (step 0 = initial)
+                                  accepted state (step 0 = initial); a state whose connectivity
+                                  differs from mesh.npz (the mesh control remeshed) also holds its
+                                  ``simplices`` and, for a clamped problem, its ``free`` mask
     RUN/history.csv          one row per state, appended as steps are accepted
     RUN/status.json          running / completed / interrupted / abandoned / failed, with the
                              sessions (start and resumes) and, for a failure, the rejected attempts
@@ -103,6 +105,8 @@ class Checkpoint:
     vertices, Y : (N, m) positions and inner step
     lam_g : constraint multipliers of the step that produced it (None for step 0 or old runs)
     row : its history row
+    simplices : (K, d + 1) its connectivity when it differs from mesh.npz, else None
+    free : (N,) bool free mask of a clamped problem on that connectivity, else None
     """
 
     step: int
@@ -111,6 +115,8 @@ class Checkpoint:
     Y: np.ndarray
     lam_g: np.ndarray | None
     row: dict[str, Any]
+    simplices: np.ndarray | None = None
+    free: np.ndarray | None = None
 
 
 def _parse(v: str | None) -> Any:
@@ -154,17 +160,25 @@ def _load_state(f: Path, step: int, shape: tuple[int, ...]) -> Checkpoint:
             k = int(s["step"])
             lam_g = np.array(s["lam_g"], dtype=float) if "lam_g" in s.files else None
             row = json.loads(str(s["row"])) if "row" in s.files else None
+            S = np.array(s["simplices"], dtype=np.int64) if "simplices" in s.files else None
+            free = np.array(s["free"], dtype=bool) if "free" in s.files else None
     except Exception as exc:  # np.load/zipfile raise many types for damaged archives
         raise RunError(f"{f}: unreadable state ({type(exc).__name__}: {exc})") from exc
     if k != step:
         raise RunError(f"{f}: holds step {k}, expected {step}")
+    if S is not None:  # remeshed: its own connectivity
+        if S.ndim != 2 or S.size == 0 or S.min() < 0 or S.max() >= V.shape[0] or V.shape[1:] != shape[1:]:
+            raise RunError(f"{f}: simplices do not match its {V.shape[0]} vertices")
+        shape = V.shape
+    if free is not None and free.shape != (V.shape[0],):
+        raise RunError(f"{f}: free mask has {free.shape} entries for {V.shape[0]} vertices")
     if V.shape != shape or Y.shape != shape:
         raise RunError(f"{f}: vertices have shape {V.shape}, the mesh has {shape}")
     if not (np.all(np.isfinite(V)) and np.all(np.isfinite(Y)) and np.isfinite(t)):
         raise RunError(f"{f}: non-finite values")
     if lam_g is not None and lam_g.size == 0:
         lam_g = None
-    return Checkpoint(k, t, V, Y, lam_g, row if isinstance(row, dict) else {})
+    return Checkpoint(k, t, V, Y, lam_g, row if isinstance(row, dict) else {}, S, free)
 
 
 def scan_states(run_dir: Path, shape: tuple[int, ...]) -> tuple[list[Checkpoint], list[tuple[Path, str]]]:
@@ -347,6 +361,7 @@ class RunWriter:
         self._lock = lock_run_dir(self.out)
         write_text_atomic(self.out / "config.json", json.dumps(config, indent=2, sort_keys=True, default=_json_default))
         _write_npz(self.out / "mesh.npz", vertices=mesh.vertices, simplices=mesh.simplices)
+        self.simplices0 = np.asarray(mesh.simplices)
         self.rows: list[dict[str, Any]] = []
         self.keys: list[str] = []
         self.status: dict[str, Any] = {"state": "new", "sessions": []}
@@ -371,7 +386,7 @@ class RunWriter:
         if not d.is_dir():
             raise RunError(f"{d}: no such run directory")
         config = read_config(d)
-        V0, _ = read_mesh_npz(d)
+        V0, S0 = read_mesh_npz(d)
         lock = lock_run_dir(d)
         trusted, untrusted = scan_states(d, V0.shape)
         notes = []
@@ -383,6 +398,7 @@ class RunWriter:
         self = cls.__new__(cls)
         self.out = d
         self._lock = lock
+        self.simplices0 = S0
         self.rows = []
         self.keys = []
         for ck in trusted:
@@ -419,7 +435,11 @@ class RunWriter:
             with warm starts)
         """
         row = r.row()
-        extra = {} if lam_g is None else {"lam_g": np.asarray(lam_g, dtype=float)}
+        extra: dict[str, np.ndarray] = {} if lam_g is None else {"lam_g": np.asarray(lam_g, dtype=float)}
+        if r.simplices is not None and not np.array_equal(r.simplices, self.simplices0):
+            extra["simplices"] = np.asarray(r.simplices)
+            if r.free is not None:
+                extra["free"] = np.asarray(r.free, dtype=bool)
         _write_npz(self.out / "states" / f"state_{r.step:06d}.npz",
                    vertices=r.vertices, Y=r.Y, t=r.t, step=r.step, tau=r.tau,
                    row=np.array(json.dumps(row, default=_json_default)), **extra)
@@ -466,7 +486,8 @@ class Run:
     ----------
     config : the resolved configuration
     history : one dict per state (numbers parsed)
-    states : accepted states as Meshes (same topology), step 0 first
+    states : accepted states as Meshes, step 0 first (each with its own connectivity: the mesh
+        control of surfaces may change it, see the history columns ``remeshed`` and ``vertices``)
     times : (len(states),) times of the states
     Y : list of (N, m) inner steps Y of the states
     status : content of status.json (empty for runs written before it existed)
@@ -504,7 +525,8 @@ def load_run(run_dir: str | os.PathLike[str]) -> Run:
         raise RunError(f"{d}: no readable state in {d / 'states'}{reason}")
     csv_rows = read_history_csv(d / "history.csv")
     try:
-        states = [Mesh(ck.vertices, simplices, str(d / "states" / f"state_{ck.step:06d}.npz")) for ck in trusted]
+        states = [Mesh(ck.vertices, simplices if ck.simplices is None else ck.simplices,
+                       str(d / "states" / f"state_{ck.step:06d}.npz")) for ck in trusted]
     except MeshError as exc:
         raise RunError(str(exc)) from exc
     history = [ck.row or csv_rows.get(ck.step) or {"step": ck.step, "t": ck.t} for ck in trusted]

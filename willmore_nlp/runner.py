@@ -356,7 +356,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                 writer.add(flow.state(), flow.lam_g)
             else:
                 last = ck.row if ck.step > 0 else {}
-                flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)))
+                flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)),
+                             simplices=ck.simplices, free=ck.free)
                 writer.set_status("running")
             if not quiet:
                 print(f"resuming {d} at step {flow.k} (t = {flow.t:.6g})")

@@ -187,3 +187,30 @@ def spherical_cap(rings: int = 8, angle: float = 45.0, radius: float = 1.0) -> M
     phi = np.arctan2(xy[:, 1], xy[:, 0])
     P = radius * np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.cos(th)], axis=1)
     return Mesh(P, D.simplices, f"spherical_cap(rings={rings}, angle={angle})")
+
+
+def genus2(h: float = 0.1, c: float = 0.035, grid: int = 80) -> Mesh:
+    """Closed genus-2 surface ("double torus") with mean edge about ``h``, outward normals.
+
+    The level set ``(x^4 - x^2 + y^2)^2 + z^2 = c`` (a thickened lemniscate of Gerono, two holes
+    around (+-0.7, 0)) by marching cubes on a ``grid^3`` grid, then isotropic remeshing to edge
+    length ``h`` with projection onto it (both from gpytoolbox). The Euler characteristic is
+    checked (-2).
+    """
+    import gpytoolbox
+
+    from willmore_nlp.remesh import euler_characteristic
+
+    ax = [np.linspace(-1.3, 1.3, grid), np.linspace(-0.8, 0.8, grid), np.linspace(-0.5, 0.5, grid)]
+    G = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3, order="F")  # x fastest
+    x, y, z = G.T
+    S = (x**4 - x**2 + y**2) ** 2 + z**2 - c
+    V, F = gpytoolbox.marching_cubes(S, G, grid, grid, grid)
+    V, F = gpytoolbox.remesh_botsch(np.asarray(V, float), np.asarray(F, np.int32), 20, h, True)
+    V, F = np.asarray(V, float), np.asarray(F, np.int64)
+    if np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])) < 0:
+        F = F[:, ::-1].copy()
+    if euler_characteristic(F) != -2:
+        raise MeshError(f"genus2(h={h}): marching cubes gave Euler characteristic {euler_characteristic(F)}, "
+                        "not -2 (refine the grid)")
+    return Mesh(V, F, f"genus2(h={h})")

@@ -1,0 +1,191 @@
+"""Mesh-quality control of surfaces: remeshing primitives, flow integration, run directories, min_tau."""
+
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import meshio
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import ConvexHull
+
+from willmore_nlp import FlowError, WillmoreFlow, geometry, load_run, registry
+from willmore_nlp import remesh as rm
+from willmore_nlp.boundary import boundary_data
+from willmore_nlp.export import export_run
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.core import Mesh
+
+
+def _jittered_sphere(amp: float, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Icosphere(2) with a random tangential displacement of amp * h, back on the unit sphere."""
+    m = shapes.icosphere(2)
+    V = np.array(m.vertices)
+    n = V / np.linalg.norm(V, axis=1, keepdims=True)
+    d = np.random.default_rng(seed).normal(size=V.shape) * amp * m.h
+    d -= np.einsum("ij,ij->i", d, n)[:, None] * n
+    V = V + d
+    return V / np.linalg.norm(V, axis=1, keepdims=True), np.array(m.simplices)
+
+
+def _distance_to_mesh(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Brute-force distance of each point to a triangle mesh (trimesh's point-triangle routine)."""
+    T = V[F]
+    Q = np.repeat(P, len(T), axis=0)
+    cp = trimesh.triangles.closest_point(np.tile(T, (len(P), 1, 1)), Q)
+    return np.linalg.norm(cp - Q, axis=1).reshape(len(P), len(T)).min(axis=1)
+
+
+def test_flips_give_the_delaunay_triangulation() -> None:
+    """After the flips every interior edge meets alpha + beta <= pi; for points on a sphere the result
+    is the convex hull (the spherical Delaunay triangulation, computed independently by qhull)."""
+    V, F = _jittered_sphere(0.2)
+    _, s0 = rm.opposite_angle_sums(V, F)
+    assert (s0 > np.pi).sum() > 5  # the jitter made the mesh non-Delaunay
+    F2, n = rm.delaunay_flips(V, F)
+    _, s = rm.opposite_angle_sums(V, F2)
+    assert n > 0 and s.max() <= np.pi + 1e-10
+    assert {tuple(sorted(t)) for t in F2.tolist()} == {tuple(sorted(t)) for t in ConvexHull(V).simplices.tolist()}
+    assert rm.euler_characteristic(F2) == rm.euler_characteristic(F) == 2
+    Mesh(V, F2)  # manifold and consistently oriented
+    assert geometry.triangle_quality(V, F2)["min_angle"] > geometry.triangle_quality(V, F)["min_angle"]
+
+
+def test_smoothing_stays_on_the_surface_and_improves_angles() -> None:
+    """Projected tangential smoothing: vertices on the old polyhedron (brute-force distance < 1e-12),
+    smallest angle up, fixed vertices bit-identical."""
+    V, F = _jittered_sphere(0.2)
+    F, _ = rm.delaunay_flips(V, F)
+    free = np.ones(len(V), bool)
+    free[::7] = False
+    X = rm.tangential_smooth(V, F, free)
+    assert _distance_to_mesh(X, V, F).max() < 1e-12
+    assert np.array_equal(X[~free], V[~free])
+    assert np.abs(X[free] - V[free]).max() > 0.05 * shapes.icosphere(2).h
+    assert geometry.triangle_quality(X, F)["min_angle"] > geometry.triangle_quality(V, F)["min_angle"] + 10
+
+
+@pytest.mark.parametrize("make", [lambda: shapes.torus(1.0, 0.5, 24, 12), lambda: shapes.genus2(0.12)],
+                         ids=["torus", "genus2"])
+def test_isotropic_remesh_keeps_the_topology(make) -> None:
+    m = make()
+    r = rm.isotropic_remesh(m.vertices, m.simplices, 0.8 * m.h)
+    assert rm.euler_characteristic(r.simplices) == rm.euler_characteristic(m.simplices)
+    mesh = Mesh(r.vertices, r.simplices)
+    assert abs(mesh.h / (0.8 * m.h) - 1) < 0.2
+    assert _distance_to_mesh(r.vertices[::5], np.asarray(m.vertices), np.asarray(m.simplices)).max() < 1e-3 * m.h
+    assert geometry.quality(mesh)["min_angle"] > 25
+
+
+@pytest.mark.parametrize("variant", ["conormal", "ring"])
+def test_clamped_remesh_never_moves_the_fixed_part(variant: str) -> None:
+    """Fixed vertices bit-identical and in their order, the fixed triangles (ring and beyond) kept,
+    the Boundary carried over: Gamma and the ring are the same point sets."""
+    pb, _ = registry.build("surface_blending", variant=variant)
+    bd = pb.flow_options["boundary"]
+    V, F = np.array(pb.mesh.vertices), np.array(pb.mesh.simplices)
+    r = rm.isotropic_remesh(V, F, 0.7 * pb.mesh.h, bd.free)
+    nb = rm.carry_boundary(bd, r)
+    new = Mesh(r.vertices, r.simplices)
+    assert np.array_equal(r.vertices[~r.free], V[~bd.free])
+    assert r.free.sum() > bd.free.sum()  # refined patch
+    d0, d1 = boundary_data(pb.mesh, bd), boundary_data(new, nb)
+    assert np.array_equal(r.vertices[d1.gamma], V[d0.gamma])
+    ring0 = {tuple(sorted(map(tuple, V[t]))) for t in F[d0.ring]}
+    ring1 = {tuple(sorted(map(tuple, r.vertices[t]))) for t in r.simplices[d1.ring]}
+    assert ring0 == ring1
+    F2, _ = rm.delaunay_flips(r.vertices, r.simplices, r.free)
+    fixed_faces = ~r.free[r.simplices].any(axis=1)
+    assert np.array_equal(F2[fixed_faces], r.simplices[fixed_faces])
+    X = rm.tangential_smooth(r.vertices, F2, r.free)
+    assert np.array_equal(X[~r.free], r.vertices[~r.free])
+
+
+def test_flow_remeshes_and_continues() -> None:
+    """A remeshing triggered after step 1 (threshold above the torus' angles) rebuilds the step NLP;
+    the run continues with converged steps and the energies before/after are recorded."""
+    m = shapes.torus(1.0, 0.5, 24, 12)
+    flow = WillmoreFlow(m, 1e-3, 0.01 * m.h**2, remesh_min_angle=35)
+    out = flow.run(steps=4)
+    assert out[0].remeshed.endswith("remesh") and out[0].vertices.shape[0] != m.n_vertices
+    assert all(r.converged for r in out) and not any(r.remeshed for r in out[1:])
+    row = out[0].row()
+    assert row["remeshed"] == 1 and row["vertices"] == out[0].vertices.shape[0]
+    assert np.isfinite(row["energy_before_remesh"]) and np.isfinite(row["energy_after_remesh"])
+    assert out[-1].quality["min_angle"] > 30
+    # energy inequality after the remesh: each step decreases the scheme energy on the new mesh
+    E = [r.energy for r in out]
+    assert np.all(np.diff(E) < 0)
+    off = WillmoreFlow(m, 1e-3, 0.01 * m.h**2, remesh_min_angle=35, mesh_control="off").run(steps=1)
+    assert off[0].remeshed == "" and off[0].vertices.shape[0] == m.n_vertices
+
+
+CLI = [sys.executable, "-m", "willmore_nlp.cli"]
+TORUS = ["torus", "--set", "remesh_min_angle=35", "--quiet"]
+
+
+def test_resume_export_and_load_across_a_remesh(tmp_path) -> None:
+    """2 + 2 steps with a remesh at step 1 equal 4 uninterrupted steps bit for bit; load_run, export
+    (.pvd over meshes of different sizes) and report read the run."""
+    full, part = tmp_path / "full", tmp_path / "part"
+    for out, steps in ((full, "4"), (part, "2")):
+        r = subprocess.run([*CLI, "run", *TORUS, "--steps", steps, "--out", str(out)], capture_output=True,
+                           text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+    r = subprocess.run([*CLI, "run", "--resume", str(part), "--steps", "4", "--quiet"], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    a, b = load_run(full), load_run(part)
+    assert [int(h["remeshed"]) for h in a.history] == [0, 1, 0, 0, 0]
+    assert a.states[1].n_vertices != a.states[0].n_vertices == 288
+    for sa, sb, ya, yb in zip(a.states, b.states, a.Y, b.Y, strict=True):
+        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)
+        assert np.array_equal(ya, yb)
+    pvd = export_run(full, tmp_path / "vtk")
+    files = [ds.get("file") for ds in ET.parse(pvd).getroot().iter("DataSet")]
+    sizes = [meshio.read(tmp_path / "vtk" / f).points.shape[0] for f in files]
+    assert sizes == [s.n_vertices for s in a.states]
+    from willmore_nlp.report import write_report
+
+    text = write_report(full).read_text()
+    assert "mesh repairs (steps) | 1 (1)" in text
+
+
+def test_min_tau_stops_a_frozen_clock(tmp_path) -> None:
+    """Adaptive steps that keep failing halve tau until the floor: status failed, exit 1, the reason
+    names min_tau (never 'completed' with a frozen clock)."""
+    sets = ["--set", "adaptive=true", "--set", "max_retries=60", "--set", "max_iter=0", "--set", "min_tau=1e-6"]
+    out = tmp_path / "run"
+    r = subprocess.run([*CLI, "run", "circle", *sets, "--steps", "3", "--out", str(out), "--quiet"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 1
+    assert "min_tau" in r.stderr.strip().splitlines()[-1]
+    status = json.loads((out / "status.json").read_text())
+    assert status["state"] == "failed" and "min_tau" in status["message"]
+    tau = [float(x.split(":")[0].removeprefix("tau=")) for x in status["rejected"]]
+    assert tau[-1] < 1e-6 <= tau[-2]
+
+
+def test_default_floor_is_below_the_papers_smallest_step() -> None:
+    m = shapes.torus(1.0, 0.5, 24, 12)
+    flow = WillmoreFlow(m, m.h**4, 0.01 * m.h**2)
+    assert flow.min_tau == pytest.approx(1e-2 * m.h**4)
+    with pytest.raises(FlowError, match="min_tau"):
+        WillmoreFlow(m, m.h**4, 0.01 * m.h**2, min_tau=m.h**4, max_iter=0).step()
+
+
+def test_mesh_file_gets_the_surface_defaults(tmp_path) -> None:
+    """`run MESH.obj`: a surface gets tau_tilde = h^2/100 and the mesh control; a curve h^2/4 and none."""
+    from willmore_nlp.config import resolve
+    from willmore_nlp.runner import flow_kwargs
+
+    m = shapes.icosphere(1)
+    trimesh.Trimesh(m.vertices, m.simplices).export(tmp_path / "s.obj")
+    spec = resolve(str(tmp_path / "s.obj"))
+    assert spec.problem.tau_tilde == pytest.approx(0.01 * m.h**2)
+    pb = spec.problem
+    assert WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, **flow_kwargs(spec)).remesh
+    spec = resolve(str(tmp_path / "s.obj"), {"remesh": "off"})
+    assert not WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, **flow_kwargs(spec)).remesh

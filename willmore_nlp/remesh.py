@@ -1,0 +1,294 @@
+"""Mesh-quality repair of triangulated surfaces between time steps (geometry only; the policy is in flow.py).
+
+Three operations, from the gentlest to the strongest:
+
+* :func:`delaunay_flips` — edge flips until every flippable interior edge satisfies the Delaunay
+  angle criterion alpha + beta <= pi (alpha, beta the angles opposite the edge, measured on the
+  surface). Positions do not move; only the connectivity changes.
+* :func:`tangential_smooth` — each free vertex moves toward the centroid of its neighbours, within
+  its tangent plane, and is then projected back onto the surface before the move (closest point,
+  :func:`gpytoolbox.squared_distance`), so the geometry is kept up to the projection tolerance.
+* :func:`isotropic_remesh` — split, collapse, flip and smooth toward a target edge length
+  (Botsch & Kobbelt, through :func:`gpytoolbox.remesh_botsch`, with projection onto the input).
+
+Fixed vertices (the mesh boundary and the fixed part of a clamped problem,
+:class:`~willmore_nlp.boundary.Boundary`) are never moved, and their positions are carried over
+bit for bit. For a clamped problem only the *patch* (the triangles with a free vertex) is
+changed: the fixed triangles (ring and beyond) keep their vertices, so Gamma and the ring are
+the same curves and triangles after every operation, and the :class:`Boundary` is carried over
+to the new connectivity (:func:`carry_boundary`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from willmore_nlp.mesh.core import Mesh, MeshError
+
+
+class RemeshError(MeshError):
+    """A remeshing operation would change the topology or produce an invalid mesh."""
+
+
+def euler_characteristic(F: np.ndarray) -> int:
+    """chi = V - E + F of a triangle mesh (vertices counted as those used by the triangles)."""
+    F = np.asarray(F)
+    e = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+    return int(np.unique(F).size - e.shape[0] + F.shape[0])
+
+
+def _normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(K, 3) face normals of length twice the area."""
+    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+
+
+def _angle(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Angle at p of the triangle (p, a, b), radians."""
+    u, v = a - p, b - p
+    return float(np.arctan2(np.linalg.norm(np.cross(u, v)), np.dot(u, v)))
+
+
+def opposite_angle_sums(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Interior edges and the sum of the two angles opposite each (the Delaunay test: <= pi).
+
+    Returns
+    -------
+    edges : (E, 2) int, interior edges (sorted vertex pairs)
+    sums : (E,) alpha + beta in radians
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F)
+    he = np.concatenate([F[:, [1, 2]], F[:, [2, 0]], F[:, [0, 1]]])  # half-edge opposite corner j
+    corner = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    p, a, b = V[corner], V[he[:, 0]], V[he[:, 1]]
+    u, v = a - p, b - p
+    ang = np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.einsum("ij,ij->i", u, v))
+    key = np.sort(he, axis=1)
+    uk, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    sums = np.bincount(inv.ravel(), weights=ang, minlength=uk.shape[0])
+    interior = cnt == 2
+    return uk[interior], sums[interior]
+
+
+def _patch_ok(free: np.ndarray, *tris: tuple[int, int, int]) -> bool:
+    """Every triangle has a free vertex (a flip keeps the patch of a clamped problem)."""
+    return all(free[list(t)].any() for t in tris)
+
+
+def delaunay_flips(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None, *, tol: float = 1e-10,
+                   max_dihedral: float = 60.0, max_flips: int | None = None) -> tuple[np.ndarray, int]:
+    """Flip edges until every flippable interior edge is Delaunay (alpha + beta <= pi + tol).
+
+    An edge is flippable when it is interior, its flipped edge does not exist yet, the two
+    triangles meet at a dihedral angle below ``max_dihedral`` degrees (a flip across a fold would
+    change the shape), both new triangles keep the orientation of the pair, and, when ``free`` is
+    given, the four triangles involved each have a free vertex (so the patch of a clamped problem,
+    its boundary Gamma and the fixed ring are unchanged). Each flip strictly lowers the sum of
+    circumcircle-violating angles of the pair, so the loop ends; ``max_flips`` (default 20 per
+    edge) is a safety net.
+
+    Parameters
+    ----------
+    V : (N, 3) float, positions (not changed)
+    F : (K, 3) int, consistently oriented triangles
+    free : (N,) bool, optional, vertices that may be moved (default: all)
+
+    Returns
+    -------
+    F : (K, 3) int, the flipped triangles (same count, same orientation)
+    n : number of flips
+    """
+    V = np.asarray(V, float)
+    F = np.array(F, dtype=np.int64, copy=True)
+    free = np.ones(V.shape[0], bool) if free is None else np.asarray(free, bool)
+    cos_max = np.cos(np.radians(max_dihedral))
+    # directed half-edge (a, b) -> face containing a -> b
+    owner: dict[tuple[int, int], int] = {}
+    for f, (i, j, k) in enumerate(F.tolist()):
+        owner[(i, j)], owner[(j, k)], owner[(k, i)] = f, f, f
+    stack = sorted({(min(a, b), max(a, b)) for (a, b) in owner})
+    limit = 20 * len(stack) if max_flips is None else int(max_flips)
+    n = 0
+    while stack and n < limit:
+        a, b = stack.pop()
+        f1, f2 = owner.get((a, b)), owner.get((b, a))
+        if f1 is None or f2 is None:
+            continue
+        t1, t2 = F[f1].tolist(), F[f2].tolist()
+        c = t1[(t1.index(a) + 2) % 3]  # t1 = (a, b, c) up to rotation
+        d = t2[(t2.index(b) + 2) % 3]  # t2 = (b, a, d)
+        if c == d or (c, d) in owner or (d, c) in owner:
+            continue
+        if _angle(V[c], V[a], V[b]) + _angle(V[d], V[a], V[b]) <= np.pi + tol:
+            continue
+        n1, n2 = _normals(V, np.array([t1, t2]))
+        if np.dot(n1, n2) < cos_max * np.linalg.norm(n1) * np.linalg.norm(n2):
+            continue
+        new1, new2 = (c, a, d), (d, b, c)
+        m = n1 + n2
+        nn = _normals(V, np.array([new1, new2]))
+        if np.any(nn @ m <= 0):
+            continue
+        if not _patch_ok(free, tuple(t1), tuple(t2), new1, new2):
+            continue
+        for e in ((a, b), (b, c), (c, a)):
+            owner.pop(e, None)
+        for e in ((b, a), (a, d), (d, b)):
+            owner.pop(e, None)
+        F[f1], F[f2] = new1, new2
+        for f, t in ((f1, new1), (f2, new2)):
+            i, j, k = t
+            owner[(i, j)], owner[(j, k)], owner[(k, i)] = f, f, f
+        n += 1
+        stack.extend([(min(a, c), max(a, c)), (min(c, b), max(c, b)), (min(b, d), max(b, d)),
+                      (min(d, a), max(d, a))])
+    return F, n
+
+
+def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(N, 3) unit area-weighted vertex normals (zero rows for unused vertices)."""
+    fn = _normals(V, F)
+    n = np.zeros_like(V)
+    for j in range(3):
+        np.add.at(n, F[:, j], fn)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
+def project_to_surface(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(n, 3) closest points of ``P`` on the triangle mesh (V, F) (libigl's AABB tree via gpytoolbox)."""
+    import gpytoolbox
+
+    _, idx, bary = gpytoolbox.squared_distance(np.asarray(P, float), np.asarray(V, float),
+                                               np.asarray(F, dtype=np.int32), use_cpp=True)
+    tri = np.asarray(V, float)[np.asarray(F)[idx.astype(np.int64)]]  # n, 3, 3
+    return np.einsum("ij,ijk->ik", bary, tri)
+
+
+def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None, *, iterations: int = 3,
+                      step: float = 0.5) -> np.ndarray:
+    """Tangential Laplacian smoothing projected back onto the input surface.
+
+    Each iteration moves every free vertex by ``step`` times the tangential part (w.r.t. its
+    area-weighted vertex normal) of the vector to the centroid of its neighbours, then projects
+    the moved vertices onto the *input* triangle mesh, so the shape is kept up to the projection
+    (closest point) while the vertices spread evenly. Fixed vertices and the mesh boundary do not
+    move (their rows are returned bit-identical).
+
+    Returns
+    -------
+    (N, 3) float, new positions
+    """
+    V0 = np.asarray(V, float)
+    F = np.asarray(F, dtype=np.int64)
+    N = V0.shape[0]
+    move = np.ones(N, bool) if free is None else np.asarray(free, bool).copy()
+    bd = Mesh(V0, F).boundary_vertices
+    move[bd] = False
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    deg = np.bincount(e.ravel(), minlength=N).astype(float)
+    X = V0.copy()
+    idx = np.flatnonzero(move)
+    for _ in range(iterations):
+        s = np.zeros_like(X)
+        np.add.at(s, e[:, 0], X[e[:, 1]])
+        np.add.at(s, e[:, 1], X[e[:, 0]])
+        dvec = s / np.maximum(deg, 1)[:, None] - X
+        n = vertex_normals(X, F)
+        dvec -= np.einsum("ij,ij->i", dvec, n)[:, None] * n
+        P = X[idx] + step * dvec[idx]
+        X[idx] = project_to_surface(P, V0, F)
+    return X
+
+
+@dataclass
+class Remeshed:
+    """Result of :func:`isotropic_remesh`.
+
+    Attributes
+    ----------
+    vertices : (N', 3) float
+    simplices : (K', 3) int
+    free : (N',) bool, free vertices of the new mesh
+    vertex_map : (N,) int, new index of each old fixed vertex (-1 for old free vertices)
+    face_map : (K,) int, new index of each old fixed triangle (-1 for old patch triangles)
+    """
+
+    vertices: np.ndarray
+    simplices: np.ndarray
+    free: np.ndarray
+    vertex_map: np.ndarray
+    face_map: np.ndarray
+
+
+def isotropic_remesh(V: np.ndarray, F: np.ndarray, target: float, free: np.ndarray | None = None, *,
+                     iterations: int = 10) -> Remeshed:
+    """Isotropic remeshing of the free part toward edge length ``target`` (gpytoolbox.remesh_botsch).
+
+    Only the patch (triangles with a free vertex) is remeshed, with the new vertices projected
+    onto it; the fixed vertices and triangles are kept, fixed vertices first in their old order,
+    then the new free vertices. The Euler characteristic and manifoldness are checked.
+
+    Raises
+    ------
+    RemeshError
+        When the result has another Euler characteristic or is not a valid mesh.
+    """
+    import gpytoolbox
+
+    V = np.asarray(V, float)
+    F = np.asarray(F, dtype=np.int64)
+    N = V.shape[0]
+    free = np.ones(N, bool) if free is None else np.asarray(free, bool)
+    patch = free[F].any(axis=1)
+    used = np.unique(F[patch])
+    local = np.full(N, -1, dtype=np.int64)
+    local[used] = np.arange(used.size)
+    Fp = local[F[patch]]
+    feat_old = used[~free[used]]  # fixed vertices of the patch (Gamma), in old order
+    U, G = gpytoolbox.remesh_botsch(V[used].copy(), Fp.astype(np.int32), iterations, float(target), True,
+                                    feature=local[feat_old].astype(np.int32))
+    U = np.asarray(U, float)
+    G = np.asarray(G, dtype=np.int64)
+    nf = feat_old.size
+    fixed_old = np.flatnonzero(~free)
+    vmap = np.full(N, -1, dtype=np.int64)
+    vmap[fixed_old] = np.arange(fixed_old.size)
+    if nf and not np.array_equal(U[:nf], V[feat_old]):
+        raise RemeshError("remeshing moved a fixed vertex")
+    new_of_local = np.concatenate([vmap[feat_old], fixed_old.size + np.arange(U.shape[0] - nf)])
+    Vn = np.vstack([V[fixed_old], U[nf:]])
+    fmap = np.full(F.shape[0], -1, dtype=np.int64)
+    fmap[~patch] = np.arange(int((~patch).sum()))
+    Fn = np.vstack([vmap[F[~patch]], new_of_local[G]])
+    freen = np.concatenate([np.zeros(fixed_old.size, bool), np.ones(U.shape[0] - nf, bool)])
+    if euler_characteristic(Fn) != euler_characteristic(F):
+        raise RemeshError(f"remeshing changed the Euler characteristic {euler_characteristic(F)} -> "
+                          f"{euler_characteristic(Fn)}")
+    try:
+        Mesh(Vn, Fn)
+    except MeshError as exc:
+        raise RemeshError(f"remeshing produced an invalid mesh: {exc}") from exc
+    return Remeshed(Vn, Fn, freen, vmap, fmap)
+
+
+def carry_boundary(boundary: object, r: Remeshed) -> object:
+    """The :class:`~willmore_nlp.boundary.Boundary` of the remeshed mesh (free mask, co-normals, ring)."""
+    from willmore_nlp.boundary import Boundary
+
+    assert isinstance(boundary, Boundary)
+    conormal = boundary.conormal
+    if conormal is not None:
+        old = np.flatnonzero(r.vertex_map >= 0)
+        if isinstance(conormal, Mapping):
+            conormal = {int(r.vertex_map[k]): v for k, v in conormal.items()}
+        else:
+            arr = np.zeros((r.vertices.shape[0], r.vertices.shape[1]))
+            arr[r.vertex_map[old]] = np.asarray(conormal, float)[old]
+            conormal = arr
+    ring = None if boundary.ring is None else r.face_map[np.asarray(boundary.ring, dtype=np.int64)]
+    return Boundary(r.free.copy(), boundary.variant, conormal, ring)
