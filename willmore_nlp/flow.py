@@ -547,11 +547,14 @@ class WillmoreFlow:
         )
 
     # -- mesh control ------------------------------------------------------------------
+    @staticmethod
+    def _patch_quality(X: np.ndarray, F: np.ndarray, free: np.ndarray | None) -> dict[str, float]:
+        """:func:`geometry.triangle_quality` of the triangles with a free vertex (all without boundary)."""
+        return geometry.triangle_quality(X, F if free is None else F[free[F].any(axis=1)])
+
     def _needs_repair(self, X: np.ndarray, F: np.ndarray) -> bool:
         """Patch triangles below ``remesh_min_angle`` or patch edges above ``remesh_max_edge_ratio``."""
-        free = self.free
-        faces = F if free is None else F[free[F].any(axis=1)]
-        q = geometry.triangle_quality(X, faces)
+        q = self._patch_quality(X, F, self.free)
         return q["min_angle"] < self.remesh_min_angle or q["edge_ratio"] > self.remesh_max_edge_ratio
 
     def _control_mesh(self, tau: float) -> tuple[str, dict[str, float]]:
@@ -592,6 +595,10 @@ class WillmoreFlow:
                 actions.append("remesh")
         if not actions:
             return "", {}
+        q0 = self._patch_quality(X, F, free)
+        q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
+        if q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]:
+            return "", {}  # no improvement: keep the flow's own mesh rather than churn
         e_before = self.discrete_energy(X, self.Y)
         angle_before = geometry.triangle_quality(X, F)["min_angle"]
         old = (self.mesh, self.boundary)
