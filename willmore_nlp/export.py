@@ -24,29 +24,10 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from willmore_nlp.geometry import mean_curvature_vector
+from willmore_nlp.geometry import mean_curvature_vector, vertex_normals
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import atomic_write
 from willmore_nlp.rundir import load_run
-
-
-def vertex_normals(mesh: Mesh) -> np.ndarray:
-    """(N, m) unit vertex normals (zero rows where no normal is defined, e.g. curves in R^3)."""
-    V, S = mesh.vertices, mesh.simplices
-    n = np.zeros_like(V)
-    if mesh.d == 2:
-        fn = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])  # length = 2 * area
-        for j in range(3):
-            np.add.at(n, S[:, j], fn)
-    elif mesh.m == 2:
-        t = V[S[:, 1]] - V[S[:, 0]]
-        rot = np.stack([t[:, 1], -t[:, 0]], axis=1)  # outward for counter-clockwise curves
-        for j in range(2):
-            np.add.at(n, S[:, j], rot)
-    else:
-        return n
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
 def _points3(V: np.ndarray) -> np.ndarray:

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from willmore_nlp.geometry import vertex_normals
 from willmore_nlp.mesh.core import Mesh, MeshError
 
 
@@ -148,16 +149,6 @@ def delaunay_flips(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None,
     return F, n
 
 
-def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """(N, 3) unit area-weighted vertex normals (zero rows for unused vertices)."""
-    fn = _normals(V, F)
-    n = np.zeros_like(V)
-    for j in range(3):
-        np.add.at(n, F[:, j], fn)
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
-
-
 def project_to_surface(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """(n, 3) closest points of ``P`` on the triangle mesh (V, F) (libigl's AABB tree via gpytoolbox)."""
     import gpytoolbox
@@ -198,7 +189,7 @@ def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = No
         np.add.at(s, e[:, 0], X[e[:, 1]])
         np.add.at(s, e[:, 1], X[e[:, 0]])
         dvec = s / np.maximum(deg, 1)[:, None] - X
-        n = vertex_normals(X, F)
+        n = vertex_normals(Mesh(X, F))
         dvec -= np.einsum("ij,ij->i", dvec, n)[:, None] * n
         P = X[idx] + step * dvec[idx]
         X[idx] = project_to_surface(P, V0, F)
