@@ -47,14 +47,10 @@ def _pair(mesh: Mesh, **kw: object) -> tuple:
     return out
 
 
-def _cap(rings: int = 4) -> tuple[Mesh, np.ndarray]:
-    """A spherical cap on a disk mesh: free inside ``rings``, two fixed rings outside."""
-    D = shapes.disk(rings + 2)
-    r = np.linalg.norm(D.vertices[:, :2], axis=1) * (rings + 2)
-    th = np.radians(40) * r / rings
-    phi = np.arctan2(D.vertices[:, 1], D.vertices[:, 0])
-    V = np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.cos(th)], 1)
-    return Mesh(V, D.simplices), r < rings - 0.5
+def _cap() -> tuple[Mesh, np.ndarray]:
+    """A spherical cap of 6 rings (10 degrees each): free inside polar angle 35 degrees, two fixed rings outside."""
+    mesh = shapes.spherical_cap(6, 60.0)
+    return mesh, np.degrees(np.arccos(np.clip(mesh.vertices[:, 2], -1, 1))) < 35.0
 
 
 @pytest.mark.parametrize("case", ["curve", "surface", "clamped conormal", "clamped ring", "anisotropic curve"])
