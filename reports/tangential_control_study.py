@@ -80,9 +80,11 @@ def main() -> None:
     ap.add_argument("--out", default=str(Path(__file__).with_suffix(".md")))
     ap.add_argument("--quick", action="store_true", help="fewer steps (a smoke run)")
     args = ap.parse_args()
-    rows, extra = [], []
+    rows: list[str] = []
+    extra: list[str] = []
     clifford = geometry.willmore_energy(shapes.torus(np.sqrt(2.0), 1.0, 48, 24))
     for name, mesh, tau, tt, steps in cases(args.quick):
+        write(args, rows, extra, clifford)  # after every case: finished cases are never lost
         for control in ("off", "meanratio"):
             r = run(mesh, tau, tt, steps, control)
             print(name, control, {k: v for k, v in r.items() if k not in ("X", "angles", "times")}, flush=True)
@@ -95,6 +97,11 @@ def main() -> None:
                 extra.append(f"| {control} | {r['t']:.4g} | {circle_fit_ratio(r['X']):.4f} | {r['willmore']:.4f} | "
                              f"{100 * (r['willmore'] / clifford - 1):+.2f} % | "
                              + ", ".join(f"{a:.1f} (t={t:.2g})" for t, a in marks) + " |")
+    print(write(args, rows, extra, clifford))
+
+
+def write(args: argparse.Namespace, rows: list[str], extra: list[str], clifford: float) -> str:
+    """Write the Markdown report of the rows so far; returns its text."""
     text = "\n".join([
         "# Tangential control: the surface failure cases",
         "",
@@ -118,7 +125,7 @@ def main() -> None:
         "",
     ])
     Path(args.out).write_text(text, encoding="utf-8")
-    print(text)
+    return text
 
 
 if __name__ == "__main__":
