@@ -20,13 +20,14 @@ def l2_radius_error(X: np.ndarray, S: np.ndarray, R: float) -> float:
     return float(np.sqrt(np.sum(lumped_mass(X, S) * (np.linalg.norm(X, axis=1) - R) ** 2)))
 
 
-def test_one_step_follows_time_discrete_equation_as_h_to_0() -> None:
+@pytest.mark.parametrize("control", ["off", "meanratio"])
+def test_one_step_follows_time_discrete_equation_as_h_to_0(control: str) -> None:
     tau, tt = 0.01, 1e-4
     R_star = circle_step_radius(R0, tau, tt)
     hs, errs = [], []
     for n in (32, 64, 128, 256):
         mesh = shapes.regular_polygon(n, R0)
-        r = WillmoreFlow(mesh, tau, tt).step()
+        r = WillmoreFlow(mesh, tau, tt, tangential_control=control).step()
         R = np.linalg.norm(r.vertices, axis=1)
         assert R.std() < 1e-12  # the regular polygon stays regular
         hs.append(mesh.h)

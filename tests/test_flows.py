@@ -1,6 +1,7 @@
 """Closed flows: energy inequality, sphere, hypocycloid, torus (issue: core)."""
 
 import numpy as np
+import pytest
 import scipy.sparse.linalg as spla
 
 from willmore_nlp import WillmoreFlow, willmore_energy
@@ -66,11 +67,13 @@ def test_sphere_stays_round_and_follows_scheme_radius() -> None:
     assert abs((1.0 - R.mean()) - drift_pred) < 0.15 * drift_pred
 
 
-def test_hypocycloid_keeps_winding_and_reaches_fivefold_circle() -> None:
+@pytest.mark.parametrize("control", ["off", "meanratio"])
+def test_hypocycloid_keeps_winding_and_reaches_fivefold_circle(control: str) -> None:
     lam = 0.025
     mesh = shapes.hypocycloid(200)
     h = mesh.h
-    flow = WillmoreFlow(mesh, 1000.0, h * h / 100, lam=lam)  # large steps: the scheme stays stable
+    # large steps: the scheme stays stable
+    flow = WillmoreFlow(mesh, 1000.0, h * h / 100, lam=lam, tangential_control=control)
     assert round(winding_number(mesh.vertices)) == 5
     for _ in range(80):
         r = flow.step()
@@ -104,8 +107,10 @@ def test_torus_moves_toward_clifford() -> None:
     assert q[-1] > np.sqrt(2) - 0.02
 
 
-def test_sphere_one_step_converges_to_time_discrete_sphere_equation() -> None:
-    """As h -> 0 one step of a unit icosphere approaches the space-continuous scheme's radius."""
+@pytest.mark.parametrize("control", ["off", "meanratio"])
+def test_sphere_one_step_converges_to_time_discrete_sphere_equation(control: str) -> None:
+    """As h -> 0 one step of a unit icosphere approaches the space-continuous scheme's radius
+    (also with tangential control, whose target moves the icosphere's nodes tangentially)."""
     from willmore_nlp.analysis import fit_order
 
     tau, tt = 0.05, 2e-3
@@ -113,7 +118,7 @@ def test_sphere_one_step_converges_to_time_discrete_sphere_equation() -> None:
     hs, errs = [], []
     for s in (1, 2, 3):
         mesh = shapes.icosphere(s)
-        r = WillmoreFlow(mesh, tau, tt).step()
+        r = WillmoreFlow(mesh, tau, tt, tangential_control=control).step()
         hs.append(mesh.h)
         errs.append(abs(np.linalg.norm(r.vertices, axis=1).mean() - R_star))
     assert np.all(np.diff(errs) < 0)

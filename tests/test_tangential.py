@@ -42,7 +42,7 @@ def _tangential_distance(Xk: np.ndarray, X: np.ndarray, S: np.ndarray) -> float:
 
 
 @pytest.mark.parametrize("case", ["curve", "surface", "anisotropic curve"])
-def test_weighted_distance_matches_numpy_and_derivatives_fd(case: str) -> None:
+def test_weighted_distance_matches_numpy_and_derivatives_fd(case: str, check_step_derivatives) -> None:
     """W(beta) - W(1) = (beta - 1) sum_T int_T |P_T (X - Xk)|^2 (independent numpy assembly); the
     gradient of W and the Lagrangian Hessian against central differences."""
     base = shapes.ellipse(14, 1.0, 0.7) if case != "surface" else shapes.icosphere(1)
@@ -64,17 +64,7 @@ def test_weighted_distance_matches_numpy_and_derivatives_fd(case: str) -> None:
     assert expected > 1e-3 * evb.f(z, p)
     assert evb.f(z, p) - ev1.f(z, p) == pytest.approx(expected, rel=1e-10)
 
-    eps = 1e-6
-    d = rng.normal(size=z.size)
-    fd = (evb.f(z + eps * d, p) - evb.f(z - eps * d, p)) / (2 * eps)
-    assert evb.grad_f(z, p) @ d == pytest.approx(fd, rel=1e-6)
-    lam_g = rng.normal(size=P.ng)
-
-    def lag_grad(zz: np.ndarray) -> np.ndarray:
-        return 0.7 * evb.grad_f(zz, p) + evb.jac_g(zz, p).T @ lam_g
-
-    fdh = (lag_grad(z + eps * d) - lag_grad(z - eps * d)) / (2 * eps)
-    assert np.max(np.abs(evb.hess_lag(z, p, 0.7, lam_g) @ d - fdh)) <= 1e-5 * np.max(np.abs(fdh))
+    check_step_derivatives(evb, z, p, rng)
 
 
 def _tangential_motion(Xk: np.ndarray, X: np.ndarray) -> float:

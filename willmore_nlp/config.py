@@ -28,6 +28,7 @@ from willmore_nlp import registry
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import Problem, ProblemError, coerce
+from willmore_nlp.tangential import CONTROL_METHODS, DEFAULT_CONTROL_WEIGHT
 
 FLOW_KEYS: dict[str, Any] = {
     "solver": "ipopt",
@@ -43,6 +44,9 @@ FLOW_KEYS: dict[str, Any] = {
     "allow_components": False,
     "anisotropy": None,
     "tangential_weight": 1.0,
+    "tangential_control": "off",
+    "tangential_control_weight": DEFAULT_CONTROL_WEIGHT,
+    "tangential_control_time": 0.0,
     "redistribute": False,
     "adaptive": False,
     "min_tau": None,
@@ -262,6 +266,9 @@ RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "remesh_max_edge_ratio": ("a number >= 1", lambda v: _is_number(v) and v >= 1),
     "remesh_target": ("a number > 0 or unset (the initial mean edge)",
                       lambda v: v is None or (_is_number(v) and math.isfinite(v) and v > 0)),
+    "tangential_control": (" or ".join(map(repr, CONTROL_METHODS)), lambda v: v in CONTROL_METHODS),
+    "tangential_control_weight": ("a number > 0", lambda v: _is_number(v) and math.isfinite(v) and v > 0),
+    "tangential_control_time": ("a number >= 0", lambda v: _is_number(v) and math.isfinite(v) and v >= 0),
 }
 """Allowed values of the numeric and boolean configuration keys: (description, test)."""
 

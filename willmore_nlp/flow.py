@@ -18,6 +18,7 @@ from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.solvers import make_solver
+from willmore_nlp.tangential import DEFAULT_CONTROL_WEIGHT, TangentialControl
 
 
 class FlowError(RuntimeError):
@@ -232,6 +233,21 @@ class WillmoreFlow:
         part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
         motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
         discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000).
+    tangential_control : str
+        Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "off" (default, the
+        paper's scheme) or "meanratio": W gains ``beta_c sum_i m_i |P_i (X_i - X^k_i - S_i)|^2`` with P_i
+        the vertex tangent projector of X^k and S_i the tangential part of a mean-ratio mesh-improving
+        step of X^k, so that the nodes follow a mesh-improving tangential motion while the normal
+        component of every nodal equation, hence the geometric flow as h -> 0, is unchanged. Fixed
+        (boundary) nodes never move. The discrete energy may rise by at most
+        ``beta_c sum_i m_i |S_i|^2 / (2 tau)`` in a step (the energy check uses the full W).
+    tangential_control_weight : float
+        beta_c > 0 of ``tangential_control = "meanratio"`` (default 0.3): the tangential motion is about
+        beta_c / (1 + beta_c) of S plus 1 / (1 + beta_c) of what the energy asks for.
+    tangential_control_time : float
+        T_c >= 0: a step of size tau targets the fraction min(1, tau / T_c) of the mesh-improving
+        step (a tangential velocity of at most 1/T_c steps per unit time, consistent as tau -> 0);
+        0 (default) targets the whole step every time.
     redistribute : bool
         Closed curves only: after every accepted step move the vertices along the curve to equal
         arc-length spacing (:func:`willmore_nlp.geometry.redistribute_curve`) and solve Y[X] again.
@@ -295,6 +311,9 @@ class WillmoreFlow:
         boundary: Any = None,
         anisotropy: Any = None,
         tangential_weight: float = 1.0,
+        tangential_control: str = "off",
+        tangential_control_weight: float = DEFAULT_CONTROL_WEIGHT,
+        tangential_control_time: float = 0.0,
         redistribute: bool = False,
         adaptive: bool = False,
         min_tau: float | None = None,
@@ -353,6 +372,7 @@ class WillmoreFlow:
             raise ValueError(f"remesh_target must be a positive number, got {remesh_target}")
         self._anisotropy = anisotropy
         self._tangential_weight = tangential_weight
+        self._control = TangentialControl(tangential_control, tangential_control_weight, tangential_control_time)
         self.codegen_info: dict[str, Any] = {"enabled": False}
         if codegen is None:
             codegen = find_compiler() is not None
@@ -385,7 +405,7 @@ class WillmoreFlow:
         self.mesh = mesh
         self.boundary = boundary
         self.setup = build_step(mesh, boundary=boundary, anisotropy=self._anisotropy,
-                                tangential_weight=self._tangential_weight)
+                                tangential_weight=self._tangential_weight, tangential_control=self._control)
         self.problem = self.setup.problem
         bd = self.setup.boundary
         self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes

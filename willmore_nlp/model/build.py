@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -13,6 +13,7 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.energies import anisotropic, isotropic
 from willmore_nlp.model.step import StepProblem
+from willmore_nlp.tangential import TangentialControl, n_nodal, nodal_parameters
 
 
 @dataclass
@@ -23,16 +24,27 @@ class StepSetup:
     ----------
     problem : StepProblem
     extra : (N, m) nodal vector for problems with ``g_extra`` (the co-normal term), else None
+    boundary : clamped-boundary data, or None
+    anisotropy : the anisotropy, or None
+    control : the tangential control (:mod:`willmore_nlp.tangential`); when enabled, the parameter
+        vector carries its weight and the per-node data of Xk over ``simplices``
+    simplices : (K, d + 1) all simplices of the mesh (the control's neighbourhoods and tangent spaces)
     """
 
     problem: StepProblem
     extra: np.ndarray | None = None
     boundary: BoundaryData | None = None
     anisotropy: Anisotropy | None = None
+    control: TangentialControl = field(default_factory=TangentialControl)
+    simplices: np.ndarray | None = None
 
     def params(self, Xk: np.ndarray, tau: float, tt: float, lam: float) -> np.ndarray:
         """Parameter vector of a step from Xk."""
-        return self.problem.pack_p(Xk, tau, tt, lam, self.extra)
+        if not self.control.enabled:
+            return self.problem.pack_p(Xk, tau, tt, lam, self.extra)
+        S = self.problem.simplices if self.simplices is None else self.simplices
+        Q = nodal_parameters(np.asarray(Xk, float), S, self.problem.x_free, self.control.fraction(tau))
+        return self.problem.pack_p(Xk, tau, tt, lam, self.extra, more=(self.control.weight,), nodal=Q)
 
 
 def _tag(beta: float) -> str:
@@ -40,8 +52,15 @@ def _tag(beta: float) -> str:
     return "" if beta == 1.0 else f"_tw{beta:g}"
 
 
+def _control_layout(mesh: Mesh, control: TangentialControl) -> dict[str, Any]:
+    """StepProblem keywords of a tangential control: one more scalar (its weight) and per-node data."""
+    if not control.enabled:
+        return {}
+    return {"n_par": 4, "n_nodal": n_nodal(mesh.m)}
+
+
 def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None,
-               tangential_weight: float = 1.0) -> StepSetup:
+               tangential_weight: float = 1.0, tangential_control: TangentialControl | None = None) -> StepSetup:
     """The step problem of ``mesh``.
 
     Parameters
@@ -58,7 +77,15 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None,
     tangential_weight : float
         beta >= 1: the distance term charges tangential displacement beta times
         (:func:`willmore_nlp.model.energies.distance`); 1 is the paper's scheme.
+    tangential_control : TangentialControl, optional
+        Tangential motion inside the step (:mod:`willmore_nlp.tangential`); None or method "off"
+        is the paper's scheme.
     """
+    control = TangentialControl() if tangential_control is None else tangential_control
+    if not isinstance(control, TangentialControl):
+        raise TypeError(f"tangential_control must be a TangentialControl, got {type(control).__name__}")
+    if control.enabled and mesh.d == 2 and mesh.m != 3:
+        raise MeshError(f"{mesh.source}: tangential_control needs surfaces in R^3, got R^{mesh.m}")
     beta = float(tangential_weight)
     if not (np.isfinite(beta) and beta >= 1.0):
         raise UserInputError(f"tangential_weight must be a number >= 1 (1 = the paper's L^2 distance), "
@@ -68,20 +95,21 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None,
     if anisotropy is not None:
         if boundary is not None:
             raise NotImplementedError("anisotropic flow with clamped boundaries is not implemented")
-        return _build_anisotropic(mesh, anisotropy, beta)
+        return _build_anisotropic(mesh, anisotropy, beta, control)
     if boundary is not None:
-        return _build_clamped(mesh, boundary, beta)
+        return _build_clamped(mesh, boundary, beta, control)
     if not mesh.is_closed:
         raise MeshError(
             f"{mesh.source}: the mesh has a boundary ({len(mesh.boundary_facets)} boundary "
             "facets) but closed-surface flow needs a closed mesh; pass boundary=... for a clamped flow"
         )
     problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, isotropic(beta),
-                          name=f"iso_d{mesh.d}_m{mesh.m}{_tag(beta)}", tangential_weight=beta)
-    return StepSetup(problem)
+                          name=f"iso_d{mesh.d}_m{mesh.m}{_tag(beta)}{control.tag}", tangential_weight=beta,
+                          **_control_layout(mesh, control))
+    return StepSetup(problem, control=control)
 
 
-def _build_clamped(mesh: Mesh, boundary: Boundary, beta: float) -> StepSetup:
+def _build_clamped(mesh: Mesh, boundary: Boundary, beta: float, control: TangentialControl) -> StepSetup:
     """Step problem of a free patch with a clamped boundary (both variants; docs/theory/scheme.md).
 
     The inner problem lives on patch + ring (when there is a ring): X is unknown on the free
@@ -97,12 +125,14 @@ def _build_clamped(mesh: Mesh, boundary: Boundary, beta: float) -> StepSetup:
     stiff = patch if bd.variant == "conormal" else np.ones_like(patch)
     problem = StepProblem(mesh.simplices[cells], mesh.n_vertices, mesh.m, isotropic(beta), x_free=bd.free,
                           y_free=bd.patch_nodes, element_const=np.column_stack([patch, stiff]),
-                          g_extra=bd.variant == "conormal", name=f"clamped_d{mesh.d}_m{mesh.m}{_tag(beta)}",
-                          tangential_weight=beta)
-    return StepSetup(problem, bd.nco if bd.variant == "conormal" else None, bd)
+                          g_extra=bd.variant == "conormal",
+                          name=f"clamped_d{mesh.d}_m{mesh.m}{_tag(beta)}{control.tag}",
+                          tangential_weight=beta, **_control_layout(mesh, control))
+    return StepSetup(problem, bd.nco if bd.variant == "conormal" else None, bd, control=control,
+                     simplices=mesh.simplices)
 
 
-def _build_anisotropic(mesh: Mesh, anisotropy: Any, beta: float) -> StepSetup:
+def _build_anisotropic(mesh: Mesh, anisotropy: Any, beta: float, control: TangentialControl) -> StepSetup:
     """Step problem of the fully nonlinear anisotropic scheme on a closed mesh."""
     if not mesh.is_closed:
         raise MeshError(f"{mesh.source}: anisotropic flow needs a closed curve or surface")
@@ -111,6 +141,6 @@ def _build_anisotropic(mesh: Mesh, anisotropy: Any, beta: float) -> StepSetup:
                         f"R^{mesh.m} is not a vector), got R^{mesh.m}")
     an = get_anisotropy(anisotropy, mesh.m)
     problem = StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, anisotropic(an.gamma, beta),
-                          name=f"aniso_{an.name}_d{mesh.d}_m{mesh.m}{_tag(beta)}", anisotropic=True,
-                          tangential_weight=beta)
-    return StepSetup(problem, anisotropy=an)
+                          name=f"aniso_{an.name}_d{mesh.d}_m{mesh.m}{_tag(beta)}{control.tag}", anisotropic=True,
+                          tangential_weight=beta, **_control_layout(mesh, control))
+    return StepSetup(problem, anisotropy=an, control=control)

@@ -15,7 +15,9 @@ Symbolic form -> element kernels -> assembled global functions:
   the assembly.
 
 Unknowns ``z = [X_free, Y_free]`` in node-major order (node a, coordinate c at ``a*m + c``).
-Parameters ``p = [Xk (N*m, all nodes), tau, tt, lam, extra...]``. Fixed nodes (boundary
+Parameters ``p = [Xk (N*m, all nodes), tau, tt, lam, nodal (N*n_nodal), extra...]``: ``nodal``
+holds per-node parameters that every element gathers with its nodes (the tangential-control data,
+:mod:`willmore_nlp.tangential`), ``extra`` the co-normal term. Fixed nodes (boundary
 conditions) take their X and Y values from ``Xk``, which never changes on fixed nodes.
 """
 
@@ -30,18 +32,20 @@ import numpy as np
 # names of the five element kernels, in a fixed order (also the order in compiled libraries)
 KERNEL_NAMES = ("k_f", "k_g", "k_grad", "k_jac", "k_hess")
 
-EnergyFn = Callable[[ca.SX, ca.SX, ca.SX, ca.SX, ca.SX], tuple[ca.SX, ca.SX]]
-"""(X, Y, Xk, par, c) -> (w_T, e_T); X, Y, Xk are (m, d+1) SX; par = (tau, tt, lam, ...); c per-element data."""
+EnergyFn = Callable[[ca.SX, ca.SX, ca.SX, ca.SX, ca.SX, ca.SX], tuple[ca.SX, ca.SX]]
+"""(X, Y, Xk, par, c, Q) -> (w_T, e_T); X, Y, Xk are (m, d+1) SX; par = (tau, tt, lam, ...); c per-element
+data; Q the (n_nodal, d+1) per-node parameters of the element's nodes (0 rows when there are none)."""
 
 
 @dataclass(frozen=True)
 class KernelSpec:
-    """Shape of an element kernel: d, m, number of scalar parameters and per-element constants."""
+    """Shape of an element kernel: d, m, number of scalar parameters, per-element constants and per-node parameters."""
 
     d: int
     m: int
     n_par: int = 3
     n_const: int = 0
+    n_nodal: int = 0
 
     @property
     def nl(self) -> int:
@@ -59,16 +63,18 @@ def element_kernels(spec: KernelSpec, energy: EnergyFn, name: str = "step") -> d
         (2 nl), ``k_jac(xe, par) -> (g, vec(dg/dz))`` (nl x 2nl, column-major),
         ``k_hess(xe, par, lf, lg) -> triu(H)`` (packed upper triangle, row-major over
         ``np.triu_indices(2 nl)``) of ``lf * w + lg . g`` in ``z_T = [X_T, Y_T]``.
-        ``xe = [X_T, Y_T, Xk_T, c_T]`` with node-major nodal blocks.
+        ``xe = [X_T, Y_T, Xk_T, Q_T, c_T]`` with node-major nodal blocks (Q_T: ``n_nodal`` per node).
     """
     nv, m, nl = spec.d + 1, spec.m, spec.nl
-    xe = ca.SX.sym("xe", 3 * nl + spec.n_const)
+    xe = ca.SX.sym("xe", 3 * nl + spec.n_nodal * nv + spec.n_const)
     par = ca.SX.sym("par", spec.n_par)
     X = ca.reshape(xe[0:nl], m, nv)
     Y = ca.reshape(xe[nl : 2 * nl], m, nv)
     Xk = ca.reshape(xe[2 * nl : 3 * nl], m, nv)
-    c = xe[3 * nl :]
-    w, e = energy(X, Y, Xk, par, c)
+    nq = spec.n_nodal * nv
+    Q = ca.reshape(xe[3 * nl : 3 * nl + nq], spec.n_nodal, nv)
+    c = xe[3 * nl + nq :]
+    w, e = energy(X, Y, Xk, par, c, Q)
     z = xe[0 : 2 * nl]
     g = 0.5 * ca.gradient(e, xe[nl : 2 * nl])
     lf = ca.SX.sym("lf")
@@ -135,6 +141,9 @@ class StepProblem:
         Per-element constants passed to the energy (e.g. a weight of the outer objective).
     n_par : int
         Scalar parameters after Xk: at least (tau, tt, lam).
+    n_nodal : int
+        Per-node parameters after the scalar ones (``p`` carries an (N, n_nodal) block, node-major),
+        gathered into every element with its nodes (the energy's ``Q``).
     g_extra : (N, m) bool mask or None
         If given, ``p`` carries an extra (N*m) block ``b`` and ``g -= tt * b`` on free-Y rows
         (the co-normal term of the boundary variant).
@@ -153,6 +162,7 @@ class StepProblem:
     y_free: np.ndarray | None = None
     element_const: np.ndarray | None = None
     n_par: int = 3
+    n_nodal: int = 0
     g_extra: bool = False
     name: str = "step"
     anisotropic: bool = False
@@ -169,7 +179,7 @@ class StepProblem:
         self.y_free = np.ones(N, bool) if self.y_free is None else np.asarray(self.y_free, bool)
         C = np.zeros((self.K, 0)) if self.element_const is None else np.asarray(self.element_const, float)
         self.element_const = C.reshape(self.K, -1)
-        self.spec = KernelSpec(self.d, m, self.n_par, self.element_const.shape[1])
+        self.spec = KernelSpec(self.d, m, self.n_par, self.element_const.shape[1], self.n_nodal)
         self.kernels = element_kernels(self.spec, self.energy, self.name)
         self._layout()
 
@@ -183,7 +193,7 @@ class StepProblem:
         self.nY = int(self.y_free.sum())
         self.nx = (self.nX + self.nY) * m
         self.ng = self.nY * m
-        self.np_ = N * m + self.n_par + (N * m if self.g_extra else 0)
+        self.np_ = N * m + self.n_par + N * self.n_nodal + (N * m if self.g_extra else 0)
         coord = np.arange(m)
         node_c = S[:, :, None] * m + coord  # K, nv, m: position of (node, c) in Xk block
         xfree_e = self.x_free[S][:, :, None].repeat(m, 2)
@@ -196,8 +206,10 @@ class StepProblem:
         gx = np.where(xfree_e, xvar, pk)
         gy = np.where(yfree_e, yvar, pk)
         n_const = self.element_const.shape[1]
+        q = self.n_nodal
+        qidx = (self.nx + N * m + self.n_par + S[:, :, None] * q + np.arange(q)).reshape(K, (self.d + 1) * q)
         cidx = self.nx + self.np_ + np.arange(K * n_const).reshape(K, n_const)
-        self.gather = np.hstack([gx, gy, pk, cidx])  # K x (3 nl + n_const)
+        self.gather = np.hstack([gx, gy, pk, qidx, cidx])  # K x (3 nl + (d+1) n_nodal + n_const)
         # local z_T -> global variable (-1 when fixed)
         self.zmap = np.hstack([np.where(xfree_e, xvar, -1), np.where(yfree_e, yvar, -1)])  # K x 2nl
         self.gmap = np.where(yfree_e, (self.y_index[S][:, :, None] * m + coord).reshape(K, nl), -1)
@@ -254,7 +266,7 @@ class StepProblem:
         H = ca.sparsity_cast(_scatter_add(ca.vec(hl), self.hess_map, self.hess_sparsity.nnz()), self.hess_sparsity)
         if self.g_extra:
             tt = p[N * m + 1]
-            b = p[N * m + self.n_par :]
+            b = p[N * m + self.n_par + N * self.n_nodal :]
             rows = self._free_y_rows()
             g = g - tt * b[rows]
             gjac = gjac - tt * b[rows]
@@ -294,9 +306,13 @@ class StepProblem:
         return X, Y
 
     def pack_p(self, Xk: np.ndarray, tau: float, tt: float, lam: float, extra: np.ndarray | None = None,
-               more: tuple[float, ...] = ()) -> np.ndarray:
-        """(np,) parameter vector."""
+               more: tuple[float, ...] = (), nodal: np.ndarray | None = None) -> np.ndarray:
+        """(np,) parameter vector; ``nodal`` is the (N, n_nodal) per-node block (needed when n_nodal > 0)."""
         parts = [np.asarray(Xk, float).ravel(), [tau, tt, lam], list(more)]
+        if self.n_nodal:
+            if nodal is None or np.shape(nodal) != (self.n_vertices, self.n_nodal):
+                raise ValueError(f"this step problem needs the ({self.n_vertices}, {self.n_nodal}) per-node parameters")
+            parts.append(np.asarray(nodal, float).ravel())
         if self.g_extra:
             if extra is None:
                 raise ValueError("this step problem needs the extra nodal vector (co-normal term)")

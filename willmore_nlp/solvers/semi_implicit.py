@@ -62,6 +62,9 @@ class SemiImplicitSolver:
         if P.tangential_weight != 1.0:
             raise UserInputError("solver semi-implicit: the baseline has no tangential weight (it does not "
                                  "minimise W); use tangential_weight=1")
+        if P.n_nodal:
+            raise UserInputError("solver semi-implicit: the baseline has no tangential control (it does not "
+                                 "minimise W); use tangential_control=off")
         self.ev = evaluator
         self.P = P
 

@@ -1,0 +1,243 @@
+"""Tangential control inside the step: a mesh-improving tangential target for the distance term.
+
+With ``tangential_control = "meanratio"`` the outer objective of the step gets the term
+
+    beta * sum_i m_i |P_i (X_i - Xk_i - S_i)|^2            (m_i = lumped mass of node i in Xk)
+
+(:func:`willmore_nlp.model.energies.control_term`). ``P_i`` is the orthogonal projector onto the
+tangent space of the mesh at node i in Xk (``t t^T`` along the unit vertex tangent of a curve,
+``I - n n^T`` with the area-weighted unit vertex normal of a surface) and ``S_i = P_i U_i`` the
+tangential part of a mesh-improving step U of Xk: on a surface a diagonally scaled descent step of
+the scale-invariant mean-ratio distortion of the triangles (:func:`surface_displacement`), on a
+curve the step to the midpoint of the neighbours, equidistribution (:func:`curve_displacement`). The gradient of
+the term with respect to X_i is ``2 beta m_i P_i (...)``, a tangent vector at node i: the normal
+component of every nodal equation of the step is the paper's,
+so the normal velocity, hence the geometric flow as h -> 0, is unchanged, while the tangential
+motion follows S (by the factor beta / (1 + beta) when nothing else pulls) and keeps the nodes spread.
+
+This module computes the per-node data ``Q_i = [vec(P_i), S_i]`` ((m*m + m) numbers) of Xk that the
+step problem carries as per-node parameters (:class:`willmore_nlp.model.step.StepProblem`, ``n_nodal``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from willmore_nlp.errors import UserInputError
+
+CONTROL_METHODS = ("off", "meanratio")
+"""Values of the ``tangential_control`` option: "off" is the paper's scheme."""
+
+DEFAULT_CONTROL_WEIGHT = 0.3
+"""Default beta of ``tangential_control = "meanratio"`` (``tangential_control_weight``)."""
+
+
+@dataclass(frozen=True)
+class TangentialControl:
+    """A tangential control of the step.
+
+    Attributes
+    ----------
+    method : "off" or "meanratio"
+    weight : beta > 0, the weight of the tangential target term relative to the distance term
+    time : relaxation time T_c >= 0 of the mesh: a step of size tau takes the fraction
+        ``min(1, tau / T_c)`` of the mesh-improving step as its target (:meth:`fraction`); 0 takes all of it
+    """
+
+    method: str = "off"
+    weight: float = DEFAULT_CONTROL_WEIGHT
+    time: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.method not in CONTROL_METHODS:
+            raise UserInputError(f"tangential_control must be one of {', '.join(map(repr, CONTROL_METHODS))}, "
+                             f"got {self.method!r}")
+        w = self.weight
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not (np.isfinite(w) and w > 0):
+            raise UserInputError(f"tangential_control_weight must be a number > 0, got {w!r}")
+        t = self.time
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not (np.isfinite(t) and t >= 0):
+            raise UserInputError(f"tangential_control_time must be a number >= 0, got {t!r}")
+
+    def fraction(self, tau: float) -> float:
+        """Fraction ``min(1, tau / T_c)`` of the mesh-improving step targeted by a step of size tau (1 if T_c = 0)."""
+        return 1.0 if self.time == 0 else min(1.0, tau / self.time)
+
+    @property
+    def enabled(self) -> bool:
+        """True unless the method is "off"."""
+        return self.method != "off"
+
+    @property
+    def tag(self) -> str:
+        """Problem-name suffix (empty when off; the weight is a runtime parameter, not part of the name)."""
+        return "" if not self.enabled else f"_tc{self.method}"
+
+
+def n_nodal(m: int) -> int:
+    """Per-node parameters of the control in R^m: the projector (m*m) and the target S (m)."""
+    return m * m + m
+
+
+def vertex_projectors(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Orthogonal projectors onto the vertex tangent spaces of a curve or a triangle surface in R^3.
+
+    Curves: ``t t^T`` with t the normalised sum of the unit directions of the (at most two) edges
+    at the node, oriented along the curve. Surfaces: ``I - n n^T`` with n the normalised sum of the
+    incident triangles' area vectors. Nodes without simplices get the zero projector.
+
+    Parameters
+    ----------
+    V : (N, m) vertices
+    S : (K, d + 1) simplices, d = 1 or 2 (d = 2 needs m = 3)
+
+    Returns
+    -------
+    (N, m, m) array
+    """
+    N, m = V.shape
+    d = S.shape[1] - 1
+    if d == 1:
+        e = V[S[:, 1]] - V[S[:, 0]]
+        u = e / np.linalg.norm(e, axis=1)[:, None]
+        t = np.zeros((N, m))
+        np.add.at(t, S[:, 0], u)
+        np.add.at(t, S[:, 1], u)
+        ln = np.linalg.norm(t, axis=1)
+        ok = ln > 0
+        t[ok] /= ln[ok, None]
+        return t[:, :, None] * t[:, None, :]
+    if d == 2 and m == 3:
+        a = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+        n = np.zeros((N, 3))
+        for j in range(3):
+            np.add.at(n, S[:, j], a)
+        ln = np.linalg.norm(n, axis=1)
+        ok = ln > 0
+        n[ok] /= ln[ok, None]
+        P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
+        P[~ok] = 0.0
+        return P
+    raise ValueError(f"tangential control: simplices of dimension {d} in R^{m} are not supported")
+
+
+def curve_displacement(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(N, m) step of each node of a curve to the midpoint of its neighbours (0 at curve ends).
+
+    Along the vertex tangent, ``(V_a + V_b) / 2 - V_i`` has the component ``(l_b - l_a) / 2`` (to first
+    order; l the lengths of the edges to the neighbours a, b): equidistribution by arc length. (A
+    1/length-weighted mean would have no tangential part at all: like the cotangent Laplacian of a
+    surface it reproduces linear functions and sees only curvature, never the spacing.)
+    """
+    N = V.shape[0]
+    c = np.zeros_like(V)
+    deg = np.zeros(N)
+    for a, b in ((0, 1), (1, 0)):
+        np.add.at(c, S[:, a], V[S[:, b]])
+        np.add.at(deg, S[:, a], 1.0)
+    out = np.zeros_like(V)
+    two = deg == 2
+    out[two] = c[two] / 2 - V[two]
+    return out
+
+
+def mean_ratio(V: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean-ratio distortion of triangles and the gradient of its sum.
+
+    ``q_T = (|e_1|^2 + |e_2|^2 + |e_3|^2) / (4 sqrt(3) |T|)`` is 1 for an equilateral triangle and
+    grows without bound as the triangle degenerates; it is invariant under scaling, so summing it
+    over the mesh prefers no triangle size over another (unlike the spring energy of an umbrella
+    step, which pulls nodes to where edges are short).
+
+    Parameters
+    ----------
+    V : (N, 3) vertices
+    S : (K, 3) triangles
+
+    Returns
+    -------
+    q : (K,) distortions
+    grad : (N, 3) gradient of sum_T q_T
+    """
+    cr = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+    A2 = np.linalg.norm(cr, axis=1)
+    n = cr / A2[:, None]
+    area = A2 / 2
+    L2 = sum(np.sum((V[S[:, (j + 1) % 3]] - V[S[:, j]]) ** 2, axis=1) for j in range(3))
+    c = 4 * np.sqrt(3) * area
+    q = L2 / c
+    grad = np.zeros_like(V)
+    for i in range(3):
+        xi, xj, xk = V[S[:, i]], V[S[:, (i + 1) % 3]], V[S[:, (i + 2) % 3]]
+        d_area = 0.5 * np.cross(n, xk - xj)
+        np.add.at(grad, S[:, i], 2 * (2 * xi - xj - xk) / c[:, None] - (q / area)[:, None] * d_area)
+    return q, grad
+
+
+RELAXATION = 0.5
+"""Step length of the mean-ratio descent of :func:`surface_displacement`, relative to its diagonal Newton step."""
+
+
+def surface_displacement(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(N, 3) descent step of the summed mean-ratio distortion (:func:`mean_ratio`), diagonally scaled.
+
+    ``-RELAXATION * grad_i / H_i`` with ``H_i = sum_{T at i} 1 / (sqrt(3) |T|)``, the second derivative
+    of ``sum_T q_T`` in X_i through the edge terms: a length, of the order of the distance that node
+    i would move to make its triangles equilateral.
+    """
+    _, grad = mean_ratio(V, S)
+    cr = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+    inv = 2 / (np.sqrt(3) * np.linalg.norm(cr, axis=1))
+    H = np.bincount(S.ravel(), weights=np.repeat(inv, 3), minlength=V.shape[0])
+    out = np.zeros_like(V)
+    ok = H > 0
+    out[ok] = -RELAXATION * grad[ok] / H[ok, None]
+    return out
+
+
+MAX_STEP = 0.2
+"""The target S_i is shortened to at most this fraction of the shortest edge at node i (no inversion from S)."""
+
+
+def shortest_edges(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(N,) length of the shortest edge at each node (inf for isolated nodes)."""
+    out = np.full(V.shape[0], np.inf)
+    d1 = S.shape[1]
+    for a in range(d1):
+        for b in range(a + 1, d1):
+            ln = np.linalg.norm(V[S[:, a]] - V[S[:, b]], axis=1)
+            np.minimum.at(out, S[:, a], ln)
+            np.minimum.at(out, S[:, b], ln)
+    return out
+
+
+def nodal_parameters(V: np.ndarray, S: np.ndarray, free: np.ndarray | None = None, fraction: float = 1.0) -> np.ndarray:
+    """Per-node data ``[vec(P_i), S_i]`` of the control at Xk = V (module docstring).
+
+    Parameters
+    ----------
+    V : (N, m) Xk
+    S : (K, d + 1) all simplices of the mesh (neighbours and tangent spaces are taken over all of them)
+    free : (N,) bool, optional
+        Nodes that move; fixed nodes get P = 0 and S = 0 (their term is constant anyway).
+    fraction : float
+        Factor of the mesh-improving step in S (:meth:`TangentialControl.fraction`).
+
+    Returns
+    -------
+    (N, m*m + m) array, node-major; ``P_i`` row-major (it is symmetric)
+    """
+    V = np.asarray(V, float)
+    N, m = V.shape
+    P = vertex_projectors(V, S)
+    U = curve_displacement(V, S) if S.shape[1] == 2 else surface_displacement(V, S)
+    T = np.einsum("nab,nb->na", P, U)
+    cap = MAX_STEP * shortest_edges(V, S) / np.maximum(np.linalg.norm(T, axis=1), 1e-300)
+    T *= fraction * np.minimum(1.0, cap)[:, None]
+    if free is not None:
+        fixed = ~np.asarray(free, bool)
+        P[fixed] = 0.0
+        T[fixed] = 0.0
+    return np.hstack([P.reshape(N, m * m), T])
