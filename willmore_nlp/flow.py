@@ -73,6 +73,9 @@ SMALL_MESH_SIZE = 0.1
 met by iterates that barely move (measured: the unit-size steps are reproduced to 2e-7 (ellipse) and
 2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4)."""
 
+BUDGET_WINDOW = 20
+"""The iteration budget is a multiple of the median iteration count of this many last accepted steps."""
+
 TAU_TILDE_WARN_FACTOR = 2.0
 """WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde > this factor times h^2 (h = mean edge)."""
 
@@ -107,6 +110,8 @@ class StepResult:
     free : (N,) bool free-vertex mask of a clamped problem on that connectivity (None without boundary)
     remeshed : the mesh-control action taken after this step ("" none; "flips", "smooth", "remesh"
         joined by "+"); ``stats`` then holds ``energy_before_remesh`` and ``energy_after_remesh``
+    relaxed : True on the step that ended a relaxation (``relax=True``: the relative energy change
+        of the step fell below ``relax_tol``)
     """
 
     step: int
@@ -131,6 +136,7 @@ class StepResult:
     simplices: np.ndarray | None = None
     free: np.ndarray | None = None
     remeshed: str = ""
+    relaxed: bool = False
 
     def row(self) -> dict[str, Any]:
         """Flat dict for history.csv."""
@@ -156,6 +162,7 @@ class StepResult:
             "energy_before_remesh": self.stats.get("energy_before_remesh", float("nan")),
             "energy_after_remesh": self.stats.get("energy_after_remesh", float("nan")),
             "min_angle_before_remesh": self.stats.get("min_angle_before_remesh", float("nan")),
+            "relaxed": int(self.relaxed),
         }
         r.update({f"q_{k}": v for k, v in self.quality.items()})
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "n_eval_hess", "energy_before_redistribution",
@@ -263,6 +270,28 @@ class WillmoreFlow:
         fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
         (h = initial mean edge): below the paper's smallest step h^4 by more than the four
         default halvings, and so small that reaching t = O(1) would take > 100 h^-4 steps.
+    iteration_budget : float
+        Iteration budget of a step's solve, as a multiple of the median iteration count of the
+        last accepted steps (default 4; 0 turns the budget off): a solve still unconverged after
+        ``max(iteration_budget_min, iteration_budget * median)`` iterations is cut (status
+        ``"Iteration_Budget"``) and the step retried with tau/2 at once, instead of running to
+        ``max_iter``. The last attempt of a step (``max_retries`` used up) has no budget. IPOPT only.
+    iteration_budget_min : int
+        Floor of that budget, and the budget before any step was accepted (default 30).
+    stall_iterations : int
+        Cut a solve (status ``"Stalled"``, then retried with tau/2) when its last ``stall_iterations``
+        iterations lowered neither the objective (by 1e-8 relative) nor the largest constraint
+        violation (by 10x); default 15, 0 turns it off. IPOPT only.
+    relax : bool
+        Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
+        every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``, and
+        :meth:`run` stops early, with ``relaxed`` set, after a step taken at its first attempt
+        with tau >= the nominal tau whose relative change of the discrete energy is below
+        ``relax_tol`` (not counting steps after which the mesh control acted).
+    relax_tol : float
+        Relative energy change per step that ends a relaxation (default 1e-6).
+    relax_max_tau : float, optional
+        Largest step size of a relaxation (default 1e4 tau).
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme, no
         mesh control whatever the other options say).
@@ -317,6 +346,12 @@ class WillmoreFlow:
         redistribute: bool = False,
         adaptive: bool = False,
         min_tau: float | None = None,
+        iteration_budget: float = 4.0,
+        iteration_budget_min: int = 30,
+        stall_iterations: int = 15,
+        relax: bool = False,
+        relax_tol: float = 1e-6,
+        relax_max_tau: float | None = None,
         mesh_control: str = "auto",
         remesh: str = "auto",
         remesh_min_angle: float = 20.0,
@@ -364,6 +399,25 @@ class WillmoreFlow:
         self.min_tau = 1e-2 * h**4 if min_tau is None else float(min_tau)
         if not (np.isfinite(self.min_tau) and self.min_tau >= 0):
             raise ValueError(f"min_tau must be a number >= 0, got {min_tau}")
+        for name, val, lo in (("iteration_budget", iteration_budget, 0), ("stall_iterations", stall_iterations, 0),
+                              ("iteration_budget_min", iteration_budget_min, 1), ("relax_tol", relax_tol, 0)):
+            if not (isinstance(val, (int, float)) and np.isfinite(val) and val >= lo):
+                raise UserInputError(f"{name} must be a number >= {lo}, got {val!r}")
+        for name, val in (("iteration_budget_min", iteration_budget_min), ("stall_iterations", stall_iterations)):
+            if not float(val).is_integer():
+                raise UserInputError(f"{name} must be an integer, got {val!r}")
+        self.iteration_budget = float(iteration_budget)
+        self.iteration_budget_min = int(iteration_budget_min)
+        self.stall_iterations = int(stall_iterations)
+        self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
+        self.relax = bool(relax)
+        self.relax_tol = float(relax_tol)
+        self.relax_max_tau = 1e4 * self.tau if relax_max_tau is None else relax_max_tau
+        if not (isinstance(self.relax_max_tau, (int, float)) and np.isfinite(self.relax_max_tau)
+                and self.relax_max_tau >= self.tau):
+            raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {relax_max_tau!r}")
+        self.relaxed = False
+        self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
         self.remesh = (remesh == "auto" and mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
         self.remesh_min_angle = float(remesh_min_angle)
         self.remesh_max_edge_ratio = float(remesh_max_edge_ratio)
@@ -424,6 +478,8 @@ class WillmoreFlow:
         self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
         self.solver = make_solver(self.solver_name, self.evaluator, self._options)
         self.solver.should_stop = lambda: self.stop_requested()
+        if hasattr(self.solver, "stall_iterations"):
+            self.solver.stall_iterations = self.stall_iterations
 
     @property
     def free(self) -> np.ndarray | None:
@@ -511,7 +567,11 @@ class WillmoreFlow:
             (no retry follows); the flow's state is unchanged.
         """
         t0 = time.perf_counter()
-        tau = min(self.tau, self._tau_adapt) if self.adaptive else self.tau
+        if self.relax:
+            grown = self.tau if np.isinf(self._tau_adapt) else self._tau_adapt
+            tau = min(self.relax_max_tau, self._time_left, grown)
+        else:
+            tau = min(self.tau, self._tau_adapt) if self.adaptive else self.tau
         rejected: list[str] = []
         floor = min(self.min_tau, self.tau)
         for attempt in range(self.max_retries + 1):
@@ -525,6 +585,8 @@ class WillmoreFlow:
             p = self.params(self.X, tau)
             z0 = self.problem.pack_z(self.X, self.Y)
             f0 = self.evaluator.f(z0, p)
+            if hasattr(self.solver, "iteration_limit"):
+                self.solver.iteration_limit = self._iteration_limit() if attempt < self.max_retries else None
             try:
                 res = self.solver.solve(z0, p, self.lam_g)
             except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
@@ -550,11 +612,15 @@ class WillmoreFlow:
                 self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
                 self.lam_g = res.lam_g
                 self._tau_adapt = 2 * tau if attempt == 0 else tau
+                self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
                 action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
                 result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
                 result.stats.update(moved)
                 result.stats.update(mstats)
                 result.remeshed = action
+                if self.relax and attempt == 0 and tau >= self.tau and not action:
+                    e0 = f0 / (2 * tau)  # W(X^k) = 2 tau e(X^k)
+                    result.relaxed = self.relaxed = abs(result.energy - e0) <= self.relax_tol * abs(result.energy)
                 return result
             if self.stop_requested():  # the solve was cut short (or failed): do not retry
                 raise StepInterrupted(self.k + 1)
@@ -565,6 +631,15 @@ class WillmoreFlow:
             + "; ".join(rejected),
             step=self.k + 1, t=self.t, rejected=rejected,
         )
+
+    def _iteration_limit(self) -> int | None:
+        """Iteration budget of the next attempt: ``max(iteration_budget_min, iteration_budget x median)``."""
+        if self.iteration_budget == 0:
+            return None
+        if not self._accepted_iterations:
+            return self.iteration_budget_min
+        med = float(np.median(self._accepted_iterations))
+        return max(self.iteration_budget_min, int(np.ceil(self.iteration_budget * med)))
 
     # -- mesh control ------------------------------------------------------------------
     @staticmethod
@@ -640,7 +715,8 @@ class WillmoreFlow:
 
     def restart(self, X: np.ndarray, Y: np.ndarray, t: float, k: int,
                 lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0,
-                simplices: np.ndarray | None = None, free: np.ndarray | None = None) -> None:
+                simplices: np.ndarray | None = None, free: np.ndarray | None = None,
+                iterations: list[int] | None = None) -> None:
         """Continue from a saved state (X^k, Y[X^k], t, k), e.g. a run directory's checkpoint.
 
         With the ``Y`` and multipliers ``lam_g`` that the flow held at that state (both are in
@@ -658,6 +734,8 @@ class WillmoreFlow:
         simplices : (K, 3) connectivity of the state when the mesh control changed it (the step
             NLP is rebuilt for it); None: the current connectivity
         free : (N,) bool free-vertex mask of a clamped problem on that connectivity
+        iterations : solver iterations of the accepted steps up to this state (the iteration budget
+            is a multiple of their median over the last ``BUDGET_WINDOW``); None: an empty history
         """
         X = np.array(X, dtype=float)
         Y = np.array(Y, dtype=float)
@@ -677,6 +755,7 @@ class WillmoreFlow:
             raise ValueError("restart: the state has non-finite values")
         self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
+        self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         self._tau_adapt = (float("inf") if last_tau is None
                            else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
 
@@ -688,7 +767,9 @@ class WillmoreFlow:
     ) -> list[StepResult]:
         """Step until ``t_end`` (the last step is shortened to hit it) or for ``steps`` steps.
 
-        ``callback`` is called with every accepted StepResult. Returns the accepted steps.
+        With ``relax=True`` it stops earlier, after the step that ended the relaxation
+        (:attr:`relaxed` is then True). ``callback`` is called with every accepted StepResult.
+        Returns the accepted steps.
         """
         if t_end is None and steps is None:
             raise ValueError("run needs t_end or steps")
@@ -703,10 +784,14 @@ class WillmoreFlow:
                     if remaining <= 1e-12 * max(1.0, abs(t_end)):
                         break
                     self.tau = min(nominal, remaining)
+                    self._time_left = remaining
                 r = self.step()
                 out.append(r)
                 if callback is not None:
                     callback(r)
+                if r.relaxed:
+                    break
         finally:
             self.tau = nominal
+            self._time_left = float("inf")
         return out

@@ -30,15 +30,18 @@ def _never() -> bool:
 
 
 class _StopHook(ca.Callback):
-    """IPOPT iteration callback: asks ``check()`` once per iteration; True stops the solve.
+    """IPOPT iteration callback: asks ``check(f, g)`` once per iteration; True stops the solve.
 
-    IPOPT then returns ``User_Requested_Stop`` (not converged). An exception raised in ``check``
-    (a KeyboardInterrupt from a signal handler) is caught by CasADi and stops the solve the same way.
+    ``f`` is the objective and ``g`` the (ng,) constraint values of the current iterate. IPOPT then
+    returns ``User_Requested_Stop`` (not converged). An exception raised in ``check`` (a
+    KeyboardInterrupt from a signal handler) is caught by CasADi and stops the solve the same way.
     """
 
-    def __init__(self, nx: int, ng: int, check: Callable[[], bool]) -> None:
+    def __init__(self, nx: int, ng: int, check: Callable[[float, np.ndarray], bool]) -> None:
         ca.Callback.__init__(self)
         self.nx, self.ng, self.check = nx, ng, check
+        names = [str(ca.nlpsol_out(i)) for i in range(int(ca.nlpsol_n_out()))]
+        self._i_f, self._i_g = names.index("f"), names.index("g")
         self.construct("willmore_stop_hook", {})
 
     def get_n_in(self) -> int:
@@ -64,7 +67,58 @@ class _StopHook(ca.Callback):
         return ca.Sparsity(0, 0)
 
     def eval(self, arg: list[Any]) -> list[Any]:
-        return [1 if self.check() else 0]
+        g = np.asarray(arg[self._i_g]).ravel()
+        return [1 if self.check(float(arg[self._i_f]), g) else 0]
+
+
+class SolveMonitor:
+    """Per-solve iteration budget and stall test, polled by :class:`_StopHook` once per iteration.
+
+    Parameters
+    ----------
+    iteration_limit : int or None
+        Stop (status ``"Iteration_Budget"``) when this many iterations are done without
+        convergence; None: no limit beyond IPOPT's ``max_iter``.
+    stall_iterations : int
+        Stop (status ``"Stalled"``) when the last ``stall_iterations`` iterations made no progress:
+        the objective did not fall below its best value so far by more than ``stall_rtol`` relative,
+        and the largest constraint violation did not fall below a tenth of its best value so far.
+        0 turns the test off.
+    stall_rtol : float
+        Relative objective decrease that counts as progress.
+
+    Attributes
+    ----------
+    cut : str
+        ``""`` while the solve runs or after a normal end; ``"Iteration_Budget"`` or ``"Stalled"``
+        after the monitor stopped it.
+    """
+
+    def __init__(self, iteration_limit: int | None = None, stall_iterations: int = 0,
+                 stall_rtol: float = 1e-8) -> None:
+        self.iteration_limit = iteration_limit
+        self.stall_iterations = int(stall_iterations)
+        self.stall_rtol = float(stall_rtol)
+        self.cut = ""
+        self._n = 0
+        self._best_f = float("inf")
+        self._best_g = float("inf")
+        self._last_progress = 0
+
+    def __call__(self, f: float, g: np.ndarray) -> bool:
+        """Record iterate number ``self._n`` (0 = the starting point); True: stop the solve."""
+        k = self._n
+        self._n += 1
+        viol = float(np.max(np.abs(g))) if g.size else 0.0
+        if f < self._best_f - self.stall_rtol * abs(self._best_f) or viol < 0.1 * self._best_g or k == 0:
+            self._last_progress = k
+        self._best_f = min(self._best_f, f)
+        self._best_g = min(self._best_g, viol)
+        if self.iteration_limit is not None and k >= self.iteration_limit:
+            self.cut = "Iteration_Budget"
+        elif self.stall_iterations and k - self._last_progress >= self.stall_iterations:
+            self.cut = "Stalled"
+        return bool(self.cut)
 
 
 class IpoptSolver:
@@ -85,6 +139,12 @@ class IpoptSolver:
     should_stop : callable () -> bool
         Polled once per IPOPT iteration; True ends the solve at once (``User_Requested_Stop``).
         The flow sets it (:attr:`willmore_nlp.flow.WillmoreFlow.stop_requested`).
+    iteration_limit : int or None
+        Iteration budget of the next solve (:class:`SolveMonitor`); the flow sets it per attempt.
+        A solve cut by it ends with status ``"Iteration_Budget"`` (not converged).
+    stall_iterations : int
+        Stall test of every solve (:class:`SolveMonitor`); a solve cut by it ends with status
+        ``"Stalled"``. 0 (default) turns it off.
     """
 
     name = "ipopt"
@@ -99,7 +159,10 @@ class IpoptSolver:
         nlp = {"x": fn["z"], "p": fn["p"], "f": fn["f_expr"], "g": fn["g_expr"]}
         self.options = opts
         self.should_stop: Callable[[], bool] = _never
-        self._hook = _StopHook(fn["z"].numel(), fn["g_expr"].numel(), lambda: self.should_stop())
+        self.iteration_limit: int | None = None
+        self.stall_iterations = 0
+        self._monitor = SolveMonitor()
+        self._hook = _StopHook(fn["z"].numel(), fn["g_expr"].numel(), self._poll)
         self._solver = ca.nlpsol(
             "willmore_step",
             "ipopt",
@@ -117,14 +180,24 @@ class IpoptSolver:
         )
         self.ng = evaluator.problem.ng
 
+    def _poll(self, f: float, g: np.ndarray) -> bool:
+        """The hook's test: a requested stop (signal) first, then the budget and stall test."""
+        return bool(self.should_stop()) or self._monitor(f, g)
+
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
-        """Solve from ``z0``; ``lam_g0`` is used when warm starting."""
+        """Solve from ``z0``; ``lam_g0`` is used when warm starting.
+
+        The status is IPOPT's, except ``"Iteration_Budget"`` or ``"Stalled"`` when the
+        :class:`SolveMonitor` cut the solve (a stop by :attr:`should_stop` keeps IPOPT's
+        ``User_Requested_Stop``).
+        """
+        self._monitor = SolveMonitor(self.iteration_limit, self.stall_iterations)
         args: dict[str, Any] = {"x0": z0, "p": p, "lbg": 0.0, "ubg": 0.0}
         if self.warm_start and lam_g0 is not None:
             args["lam_g0"] = lam_g0
         r = self._solver(**args)
         st = self._solver.stats()
-        status = str(st.get("return_status", "unknown"))
+        status = self._monitor.cut or str(st.get("return_status", "unknown"))
         it = st.get("iterations", {})
         stats = {
             "n_eval_f": st.get("n_call_nlp_f", 0),
