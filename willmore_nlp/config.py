@@ -54,7 +54,7 @@ FLOW_KEYS: dict[str, Any] = {
     "iteration_budget_min": 30,
     "stall_iterations": 15,
     "relax": False,
-    "relax_tol": 1e-6,
+    "relax_tol": 1e-4,
     "relax_max_tau": None,
     "mesh_control": "auto",
     "remesh": "auto",
@@ -271,7 +271,7 @@ RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "stall_iterations": ("an integer >= 0 (0: off)", lambda v: _is_number(v) and float(v).is_integer() and v >= 0),
     "relax": ("true or false", lambda v: isinstance(v, bool)),
     "relax_tol": ("a number >= 0", lambda v: _is_number(v) and math.isfinite(v) and v >= 0),
-    "relax_max_tau": ("a number > 0 or unset (1e4 tau)", lambda v: v is None or (_is_number(v) and math.isfinite(v)
+    "relax_max_tau": ("a number > 0 or unset (100 tau)", lambda v: v is None or (_is_number(v) and math.isfinite(v)
                                                                                 and v > 0)),
     "mesh_control": ("'auto' or 'off'", lambda v: v in ("auto", "off")),
     "remesh": ("'auto' or 'off'", lambda v: v in ("auto", "off")),

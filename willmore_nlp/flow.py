@@ -285,13 +285,18 @@ class WillmoreFlow:
     relax : bool
         Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
         every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``, and
-        :meth:`run` stops early, with ``relaxed`` set, after a step taken at its first attempt
-        with tau >= the nominal tau whose relative change of the discrete energy is below
-        ``relax_tol`` (not counting steps after which the mesh control acted).
+        :meth:`run` stops early, with ``relaxed`` set, after a step taken at its first attempt with
+        tau >= the nominal tau whose relative change of the Willmore energy
+        (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) is below ``relax_tol``
+        (not counting steps after which the mesh control acted). Not the scheme's discrete energy
+        e: with tau_tilde fixed, e(X) of a closed surface keeps falling as the surface shrinks
+        (a sphere's e = 8 pi / (1 + 2 tau_tilde / R^2)^2, a drift of speed ~ 8 tau_tilde / R^5), so e
+        has no resting state and very long relaxations (t ~ 100 on a unit ellipsoid with
+        tau_tilde = h^2 / 100) shrink the surface (docs/guide/solver_studies.md).
     relax_tol : float
-        Relative energy change per step that ends a relaxation (default 1e-6).
+        Relative change of the Willmore energy per step that ends a relaxation (default 1e-4).
     relax_max_tau : float, optional
-        Largest step size of a relaxation (default 1e4 tau).
+        Largest step size of a relaxation (default 100 tau).
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme, no
         mesh control whatever the other options say).
@@ -350,7 +355,7 @@ class WillmoreFlow:
         iteration_budget_min: int = 30,
         stall_iterations: int = 15,
         relax: bool = False,
-        relax_tol: float = 1e-6,
+        relax_tol: float = 1e-4,
         relax_max_tau: float | None = None,
         mesh_control: str = "auto",
         remesh: str = "auto",
@@ -412,7 +417,7 @@ class WillmoreFlow:
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
         self.relax = bool(relax)
         self.relax_tol = float(relax_tol)
-        self.relax_max_tau = 1e4 * self.tau if relax_max_tau is None else relax_max_tau
+        self.relax_max_tau = 100 * self.tau if relax_max_tau is None else relax_max_tau
         if not (isinstance(self.relax_max_tau, (int, float)) and np.isfinite(self.relax_max_tau)
                 and self.relax_max_tau >= self.tau):
             raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {relax_max_tau!r}")
@@ -449,6 +454,7 @@ class WillmoreFlow:
             raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
+        self._willmore_before = geometry.willmore_energy(self.mesh, self.energy_nodes)  # of the state (relax test)
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.
@@ -619,8 +625,9 @@ class WillmoreFlow:
                 result.stats.update(mstats)
                 result.remeshed = action
                 if self.relax and attempt == 0 and tau >= self.tau and not action:
-                    e0 = f0 / (2 * tau)  # W(X^k) = 2 tau e(X^k)
-                    result.relaxed = self.relaxed = abs(result.energy - e0) <= self.relax_tol * abs(result.energy)
+                    w0 = self._willmore_before
+                    result.relaxed = self.relaxed = abs(result.willmore - w0) <= self.relax_tol * abs(result.willmore)
+                self._willmore_before = result.willmore
                 return result
             if self.stop_requested():  # the solve was cut short (or failed): do not retry
                 raise StepInterrupted(self.k + 1)
@@ -756,6 +763,7 @@ class WillmoreFlow:
         self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
+        self._willmore_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
         self._tau_adapt = (float("inf") if last_tau is None
                            else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
 
