@@ -19,6 +19,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from willmore_nlp.mesh.core import Mesh
 
 EVOLVER_TO_W = 2.0
@@ -95,3 +97,60 @@ def evolver_reference(mesh: Mesh, iterations: int = 200, timeout: float = 600.0)
         raise RuntimeError(f"Surface Evolver failed (exit {r.returncode}): {(r.stdout + r.stderr)[-400:]}")
     return {"initial": EVOLVER_TO_W * float(vals["W0"]), "final": EVOLVER_TO_W * float(vals["W1"]),
             "iterations": int(iterations), "program": prog}
+
+
+def evolver_trajectory(mesh: Mesh, stages: list[str], timeout: float = 600.0) -> list[dict[str, Any]]:
+    """Run Evolver commands one stage at a time, recording the surface after each.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Closed triangulated surface in R^3 (written with :func:`write_datafile`; zero tension, the
+        Willmore quantity as the only energy).
+    stages : list of str
+        Evolver commands, e.g. ``["g 10", "hessian_seek"]``; none may refine or otherwise change
+        the connectivity (the vertices are read back in the input order).
+    timeout : float
+        Seconds for the whole Evolver run.
+
+    Returns
+    -------
+    list of dict, one for the initial surface and one per stage: ``command`` ("" for the initial),
+    ``energy`` (Evolver's Willmore energy in this library's convention, see :data:`EVOLVER_TO_W`),
+    ``cpu`` (Evolver's ``clock``, CPU seconds since it started, datafile reading included) and
+    ``vertices`` ((N, 3) positions).
+
+    Raises
+    ------
+    FileNotFoundError, RuntimeError
+        As :func:`evolver_reference`.
+    """
+    prog = find_evolver()
+    if prog is None:
+        raise FileNotFoundError("Surface Evolver ('evolver', Debian package evolver-nox) is not installed")
+    report = ('printf "S %.17g %.17g\\n", willmore.value, clock\n'
+              'foreach vertex vv do printf "V %.17g %.17g %.17g\\n", vv.x, vv.y, vv.z\n')
+    script = report + "".join(f"{c}\n{report}" for c in stages) + "q\nq\n"
+    with tempfile.TemporaryDirectory(prefix="willmore_evolver_") as tmp:
+        fe = Path(tmp) / "surface.fe"
+        write_datafile(mesh, fe)
+        cmd = Path(tmp) / "commands.txt"
+        cmd.write_text(script, encoding="ascii")
+        r = subprocess.run([prog, "-x", "-f", str(cmd), str(fe)], capture_output=True, text=True,
+                           timeout=timeout, stdin=subprocess.DEVNULL)
+    out: list[dict[str, Any]] = []
+    verts: list[list[float]] = []
+    for line in r.stdout.splitlines():
+        if line.startswith("S "):
+            if out:
+                out[-1]["vertices"] = np.array(verts)
+            w, clock = map(float, line.split()[1:3])
+            out.append({"command": stages[len(out) - 1] if out else "", "energy": EVOLVER_TO_W * w, "cpu": clock})
+            verts = []
+        elif line.startswith("V "):
+            verts.append([float(v) for v in line.split()[1:4]])
+    if out:
+        out[-1]["vertices"] = np.array(verts)
+    if len(out) != len(stages) + 1 or any(o["vertices"].shape != mesh.vertices.shape for o in out):
+        raise RuntimeError(f"Surface Evolver failed (exit {r.returncode}): {(r.stdout + r.stderr)[-400:]}")
+    return out

@@ -104,7 +104,8 @@ class StepResult:
     wall_time : seconds for the step, retries included
     quality : mesh-quality figures (:func:`willmore_nlp.geometry.quality`)
     retries : how many times tau was halved
-    stats : solver statistics (evaluations, timings, KKT residual)
+    stats : solver statistics (evaluations, timings, KKT residual; ``rejected_iterations``: solver
+        iterations spent on the step's rejected attempts)
     rejected : reasons of rejected attempts
     simplices : (K, d + 1) connectivity of the state (changes when the mesh control remeshes)
     free : (N,) bool free-vertex mask of a clamped problem on that connectivity (None without boundary)
@@ -166,7 +167,7 @@ class StepResult:
         }
         r.update({f"q_{k}": v for k, v in self.quality.items()})
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "n_eval_hess", "energy_before_redistribution",
-                  "redistribution_shift"):
+                  "redistribution_shift", "rejected_iterations"):
             if k in self.stats:
                 r[k] = self.stats[k]
         return r
@@ -579,6 +580,7 @@ class WillmoreFlow:
         else:
             tau = min(self.tau, self._tau_adapt) if self.adaptive else self.tau
         rejected: list[str] = []
+        spent = 0  # solver iterations of this step's attempts
         floor = min(self.min_tau, self.tau)
         for attempt in range(self.max_retries + 1):
             if self.stop_requested():
@@ -598,6 +600,7 @@ class WillmoreFlow:
             except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
                 reason: str | None = f"solver error: {str(exc).strip().splitlines()[-1]}"
             else:
+                spent += res.iterations
                 X, Y = self.problem.unpack_z(res.z, self.X)
                 reason = self._reject_reason(res, f0, X)
             moved: dict[str, float] = {}
@@ -623,6 +626,7 @@ class WillmoreFlow:
                 result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
                 result.stats.update(moved)
                 result.stats.update(mstats)
+                result.stats["rejected_iterations"] = spent - res.iterations
                 result.remeshed = action
                 if self.relax and attempt == 0 and tau >= self.tau and not action:
                     w0 = self._willmore_before
