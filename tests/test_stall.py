@@ -1,0 +1,151 @@
+"""Iteration budget and stall test of IPOPT solves, flows at rest, and the relax (equilibrium) mode."""
+
+import numpy as np
+import pytest
+
+from willmore_nlp import WillmoreFlow, geometry
+from willmore_nlp.config import ConfigError, resolve
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.flow import StepInterrupted
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.solvers.ipopt import SolveMonitor
+
+
+def _ellipsoid() -> Mesh:
+    """Icosphere (162 v) stretched to 1:1:2, as the studies' ellipsoids."""
+    s = shapes.icosphere(2)
+    V = np.array(s.vertices)
+    V[:, 2] *= 2.0
+    return Mesh(V, s.simplices, "ellipsoid 1:1:2 (162 v)")
+
+
+def _projected_sphere_energy(mesh: Mesh) -> float:
+    """Willmore energy of the mesh's vertices projected radially onto a sphere about their centroid."""
+    V = mesh.vertices - mesh.vertices.mean(axis=0)
+    return geometry.willmore_energy(mesh.with_vertices(V / np.linalg.norm(V, axis=1, keepdims=True)))
+
+
+def test_monitor_budget_and_stall() -> None:
+    """The budget stops at the given iterate; the stall test only when neither f nor max|g| progressed."""
+    g = np.array([1e-3, -2e-3])
+    m = SolveMonitor(iteration_limit=3)
+    assert [m(10.0 - k, g) for k in range(4)] == [False, False, False, True] and m.cut == "Iteration_Budget"
+    m = SolveMonitor(stall_iterations=4)
+    assert [m(1.0, g) for _ in range(5)] == [False] * 4 + [True] and m.cut == "Stalled"
+    m = SolveMonitor(stall_iterations=4)  # the objective falls by 1e-6 relative per iterate: progress
+    assert not any(m(1.0 - 1e-6 * k, g) for k in range(50)) and m.cut == ""
+    m = SolveMonitor(stall_iterations=4)  # constant objective, violation falls 20x per iterate: progress
+    assert not any(m(1.0, g * 20.0**-k) for k in range(50))
+    m = SolveMonitor(stall_iterations=4)  # tiny objective decrease (1e-10 relative) and a flat violation: stall
+    assert [m(1.0 - 1e-10 * k, g) for k in range(5)][-1] and m.cut == "Stalled"
+
+
+def test_budget_cut_is_retried_with_half_step_not_a_signal() -> None:
+    """A solve cut by the budget (2 iterations, no history yet) is rejected with status Iteration_Budget
+    and retried at tau/2 (the last attempt has no budget); the accepted step equals, bit for bit, the
+    step of a flow that takes tau/2 from the start without a budget."""
+    mesh = _ellipsoid()
+    tau, tt = mesh.h, 0.01 * mesh.h**2
+    flow = WillmoreFlow(mesh, tau, tt, iteration_budget_min=2, max_retries=1)
+    r = flow.step()
+    assert r.retries == 1 and r.tau == tau / 2
+    assert "Iteration_Budget, 2 iterations" in r.rejected[0]
+    assert r.stats["rejected_iterations"] == 2 and r.row()["rejected_iterations"] == 2
+    ref = WillmoreFlow(mesh, tau / 2, tt, iteration_budget=0, stall_iterations=0).step()
+    assert ref.iterations > 2 and ref.retries == 0
+    np.testing.assert_array_equal(r.vertices, ref.vertices)
+
+
+def test_budget_follows_median_of_accepted_steps() -> None:
+    """After accepted steps the budget is max(iteration_budget_min, iteration_budget x median)."""
+    mesh = _ellipsoid()
+    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, iteration_budget=3, iteration_budget_min=5)
+    assert flow._iteration_limit() == 5
+    out = flow.run(steps=3)
+    its = [r.iterations for r in out]
+    assert flow._iteration_limit() == max(5, int(np.ceil(3 * np.median(its))))
+    assert WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, iteration_budget=0)._iteration_limit() is None
+
+
+def test_signal_is_not_retried_and_wins_over_the_budget() -> None:
+    """A stop request during the solve raises StepInterrupted (no retry, state unchanged) with the budget on;
+    when both apply, the solve's status is IPOPT's User_Requested_Stop, not Iteration_Budget."""
+    mesh = _ellipsoid()
+    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, iteration_budget_min=2)
+    calls = []
+
+    def stop() -> bool:
+        calls.append(1)
+        return len(calls) > 2  # the check before the attempt, iterate 0, then stop at iterate 1
+
+    flow.stop_requested = stop
+    X0 = flow.X.copy()
+    with pytest.raises(StepInterrupted):
+        flow.step()
+    assert flow.k == 0 and np.array_equal(flow.X, X0)
+    solver = flow.solver
+    solver.should_stop, solver.iteration_limit = (lambda: True), 0
+    res = solver.solve(flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, flow.tau))
+    assert res.status == "User_Requested_Stop" and not res.converged
+
+
+def test_sphere_at_rest_keeps_taking_steps() -> None:
+    """A round sphere (162-vertex icosphere, the Willmore minimiser) takes 10 steps at tau = h: each is
+    accepted at its first attempt in a few iterations, the discrete energy never rises (energy
+    inequality), the Willmore energy stays at the icosphere's own value (the mesh-matched reference)
+    to 2e-3 and is constant to 1e-5 over the last 5 steps. The scheme's O(tau_tilde) drift shrinks the
+    sphere as its discrete energy e = 8 pi / (1 + 2 tt / R^2)^2 asks: M dX/dt = -de/dX gives
+    dR/dt = -16 tt / R^5, R^6 = R0^6 - 96 tt t; the mean radius follows it to 10% of the shrinkage."""
+    mesh = shapes.icosphere(2)
+    w_ref = geometry.willmore_energy(mesh)
+    tt = 0.01 * mesh.h**2
+    flow = WillmoreFlow(mesh, mesh.h, tt)
+    e = [flow.discrete_energy(flow.X)]
+    out = flow.run(steps=10)
+    e += [r.energy for r in out]
+    assert all(r.retries == 0 and r.iterations <= 8 for r in out)
+    assert np.all(np.diff(e) <= 1e-12 * e[0])
+    assert all(abs(r.willmore / w_ref - 1) < 2e-3 for r in out)
+    assert abs(out[-1].willmore / out[-6].willmore - 1) < 1e-5
+    R0 = np.linalg.norm(mesh.vertices, axis=1).mean()
+    R = np.linalg.norm(out[-1].vertices, axis=1).mean()
+    predicted = (R0**6 - 96 * tt * out[-1].t) ** (1 / 6)
+    assert abs((R0 - R) / (R0 - predicted) - 1) < 0.1
+
+
+def test_relax_stops_by_its_criterion_at_the_sphere() -> None:
+    """relax=true doubles tau while steps are accepted and stops after the first step (at tau >= h) that
+    lowers the Willmore energy by less than relax_tol; the final energy agrees with the mesh-matched round
+    sphere of the final mesh and with a long ordinary flow (20 steps at tau = h) to 2e-3."""
+    mesh = _ellipsoid()
+    tau, tt = mesh.h, 0.01 * mesh.h**2
+    flow = WillmoreFlow(mesh, tau, tt, relax=True)
+    out = flow.run(steps=30)
+    assert flow.relaxed and out[-1].relaxed and not any(r.relaxed for r in out[:-1])
+    assert len(out) < 30 and out[-1].row()["relaxed"] == 1
+    W = [geometry.willmore_energy(mesh)] + [r.willmore for r in out]
+    assert W[-2] - W[-1] <= 1e-4 * W[-1]
+    assert all(W[k - 1] - W[k] > 1e-4 * W[k] for k in range(1, len(W) - 1))
+    assert [r.tau for r in out] == [tau * 2**k for k in range(len(out))]  # every step accepted: tau doubles
+    ref = _projected_sphere_energy(flow.mesh.with_vertices(flow.X))
+    assert abs(W[-1] / ref - 1) < 2e-3
+    long = WillmoreFlow(mesh, tau, tt).run(steps=20)[-1].willmore
+    assert abs(W[-1] / long - 1) < 2e-3
+    assert W[-1] < 0.85 * W[0]
+
+
+def test_options_are_validated() -> None:
+    mesh = _ellipsoid()
+    for kw, name in (({"iteration_budget": -1}, "iteration_budget"), ({"stall_iterations": 2.5}, "stall_iterations"),
+                     ({"iteration_budget_min": 0}, "iteration_budget_min"), ({"relax_tol": -1e-3}, "relax_tol"),
+                     ({"relax_max_tau": 1e-9}, "relax_max_tau")):
+        with pytest.raises(UserInputError, match=name):
+            WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, **kw)
+    for item, name in (("stall_iterations=1.5", "stall_iterations"), ("iteration_budget=-2", "iteration_budget"),
+                       ("relax=maybe", "relax"), ("relax_tol=-1", "relax_tol")):
+        k, v = item.split("=")
+        with pytest.raises(ConfigError, match=name):
+            resolve("sphere", {k: v})
+    spec = resolve("sphere", {"relax": "true", "relax_tol": "1e-5", "iteration_budget": "3"})
+    assert spec.flow_options == {"relax": True, "relax_tol": 1e-5, "iteration_budget": 3.0}
