@@ -292,11 +292,10 @@ class WillmoreFlow:
         relative, or raised it (not counting steps after which the mesh control acted). Near the
         equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
         rises by ~1e-3 on a 162-vertex sphere) and by an O(tau_tilde) drift that shrinks closed
-        surfaces (a sphere's discrete energy e = 8 pi / (1 + 2 tau_tilde / R^2)^2 falls as R falls:
-        dR/dt = -16 tau_tilde / R^5, tested),
-        which ends in a collapse after long times (t ~ 10-100 for unit surfaces with
-        tau_tilde = h^2/100; docs/guide/solver_studies.md). The discrete energy e has no resting
-        state, so it cannot serve as the stopping test.
+        surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere, docs/theory/pitfalls.md), which ends in
+        a collapse after long times (t ~ 10-100 for unit surfaces with tau_tilde = h^2/100;
+        docs/guide/solver_studies.md). The discrete energy e falls all along it, so it cannot serve
+        as the stopping test.
     relax_tol : float
         Relative decrease of the Willmore energy per step below which a relaxation ends (default 1e-4).
     relax_max_tau : float, optional

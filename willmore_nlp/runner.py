@@ -190,10 +190,12 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
         if guard.signum is None and (remaining is None or remaining > 0):
             flow.run(t_end=t_end, steps=remaining, callback=on_step)
         if guard.signum is None:
-            writer.set_status("completed")
+            relaxed = (f"relaxed: step {flow.k} lowered the Willmore energy by less than relax_tol = "
+                       f"{flow.relax_tol:g}") if flow.relaxed else ""
+            writer.set_status("completed", **({"message": relaxed} if relaxed else {}))
             if not quiet:
                 bar.close()
-                print(f"wrote {out} ({flow.k} steps, t = {flow.t:.6g})")
+                print(f"wrote {out} ({flow.k} steps, t = {flow.t:.6g}{'; ' + relaxed if relaxed else ''})")
             return 0
         raise _StopRequestedError
     except (_StopRequestedError, StepInterrupted) as exc:
