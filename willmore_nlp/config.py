@@ -50,7 +50,7 @@ FLOW_KEYS: dict[str, Any] = {
     "redistribute": False,
     "adaptive": False,
     "min_tau": None,
-    "iteration_budget": 4.0,
+    "iteration_budget": 2.0,
     "iteration_budget_min": 30,
     "stall_iterations": 15,
     "relax": False,
