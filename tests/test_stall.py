@@ -40,6 +40,12 @@ def test_monitor_budget_and_stall() -> None:
     assert not any(m(1.0, g * 20.0**-k) for k in range(50))
     m = SolveMonitor(stall_iterations=4)  # tiny objective decrease (1e-10 relative) and a flat violation: stall
     assert [m(1.0 - 1e-10 * k, g) for k in range(5)][-1] and m.cut == "Stalled"
+    x, lam = np.zeros(3), np.zeros(2)
+    du = iter(3.0**-k for k in range(100))  # flat f and g, dual residual falling 3x per iterate: progress
+    m = SolveMonitor(stall_iterations=4, dual_residual=lambda x, lam: next(du))
+    assert not any(m(1.0, g, x, lam) for _ in range(50))
+    m = SolveMonitor(stall_iterations=4, dual_residual=lambda x, lam: 1e-3)  # all flat (its first value is new): stall
+    assert [m(1.0, g, x, lam) for _ in range(6)] == [False] * 5 + [True]
 
 
 def test_budget_cut_is_retried_with_half_step_not_a_signal() -> None:

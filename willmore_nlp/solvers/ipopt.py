@@ -30,18 +30,19 @@ def _never() -> bool:
 
 
 class _StopHook(ca.Callback):
-    """IPOPT iteration callback: asks ``check(f, g)`` once per iteration; True stops the solve.
+    """IPOPT iteration callback: asks ``check(f, g, x, lam_g)`` once per iteration; True stops the solve.
 
-    ``f`` is the objective and ``g`` the (ng,) constraint values of the current iterate. IPOPT then
+    ``f`` is the objective, ``g`` the (ng,) constraint values, ``x`` the (nx,) iterate and ``lam_g``
+    the (ng,) constraint multipliers of the current iterate. IPOPT then
     returns ``User_Requested_Stop`` (not converged). An exception raised in ``check`` (a
     KeyboardInterrupt from a signal handler) is caught by CasADi and stops the solve the same way.
     """
 
-    def __init__(self, nx: int, ng: int, check: Callable[[float, np.ndarray], bool]) -> None:
+    def __init__(self, nx: int, ng: int, check: Callable[[float, np.ndarray, np.ndarray, np.ndarray], bool]) -> None:
         ca.Callback.__init__(self)
         self.nx, self.ng, self.check = nx, ng, check
         names = [str(ca.nlpsol_out(i)) for i in range(int(ca.nlpsol_n_out()))]
-        self._i_f, self._i_g = names.index("f"), names.index("g")
+        self._i = {k: names.index(k) for k in ("f", "g", "x", "lam_g")}
         self.construct("willmore_stop_hook", {})
 
     def get_n_in(self) -> int:
@@ -67,8 +68,9 @@ class _StopHook(ca.Callback):
         return ca.Sparsity(0, 0)
 
     def eval(self, arg: list[Any]) -> list[Any]:
-        g = np.asarray(arg[self._i_g]).ravel()
-        return [1 if self.check(float(arg[self._i_f]), g) else 0]
+        i = self._i
+        x, g, lam = (np.asarray(arg[i[k]]).ravel() for k in ("x", "g", "lam_g"))
+        return [1 if self.check(float(arg[i["f"]]), g, x, lam) else 0]
 
 
 class SolveMonitor:
@@ -82,10 +84,13 @@ class SolveMonitor:
     stall_iterations : int
         Stop (status ``"Stalled"``) when the last ``stall_iterations`` iterations made no progress:
         the objective did not fall below its best value so far by more than ``stall_rtol`` relative,
-        and the largest constraint violation did not fall below a tenth of its best value so far.
-        0 turns the test off.
+        the largest constraint violation did not fall below a tenth of its best value so far, and
+        the dual residual (``dual_residual``, evaluated only at iterations without the first two
+        kinds of progress) did not fall below half its best value so far. 0 turns the test off.
     stall_rtol : float
         Relative objective decrease that counts as progress.
+    dual_residual : callable (x, lam_g) -> float, optional
+        Largest entry of the gradient of the Lagrangian at the iterate; None: not used.
 
     Attributes
     ----------
@@ -94,26 +99,33 @@ class SolveMonitor:
         after the monitor stopped it.
     """
 
-    def __init__(self, iteration_limit: int | None = None, stall_iterations: int = 0,
-                 stall_rtol: float = 1e-8) -> None:
+    def __init__(self, iteration_limit: int | None = None, stall_iterations: int = 0, stall_rtol: float = 1e-8,
+                 dual_residual: Callable[[np.ndarray, np.ndarray], float] | None = None) -> None:
         self.iteration_limit = iteration_limit
         self.stall_iterations = int(stall_iterations)
         self.stall_rtol = float(stall_rtol)
+        self.dual_residual = dual_residual
         self.cut = ""
         self._n = 0
         self._best_f = float("inf")
         self._best_g = float("inf")
+        self._best_du = float("inf")
         self._last_progress = 0
 
-    def __call__(self, f: float, g: np.ndarray) -> bool:
+    def __call__(self, f: float, g: np.ndarray, x: np.ndarray | None = None, lam_g: np.ndarray | None = None) -> bool:
         """Record iterate number ``self._n`` (0 = the starting point); True: stop the solve."""
         k = self._n
         self._n += 1
         viol = float(np.max(np.abs(g))) if g.size else 0.0
-        if f < self._best_f - self.stall_rtol * abs(self._best_f) or viol < 0.1 * self._best_g or k == 0:
-            self._last_progress = k
+        progress = k == 0 or f < self._best_f - self.stall_rtol * abs(self._best_f) or viol < 0.1 * self._best_g
         self._best_f = min(self._best_f, f)
         self._best_g = min(self._best_g, viol)
+        if not progress and self.stall_iterations and self.dual_residual is not None and x is not None:
+            du = self.dual_residual(x, lam_g if lam_g is not None else np.zeros(g.size))
+            progress = du < 0.5 * self._best_du
+            self._best_du = min(self._best_du, du)
+        if progress:
+            self._last_progress = k
         if self.iteration_limit is not None and k >= self.iteration_limit:
             self.cut = "Iteration_Budget"
         elif self.stall_iterations and k - self._last_progress >= self.stall_iterations:
@@ -162,6 +174,8 @@ class IpoptSolver:
         self.iteration_limit: int | None = None
         self.stall_iterations = 0
         self._monitor = SolveMonitor()
+        self._evaluator = evaluator
+        self._p = np.zeros(0)
         self._hook = _StopHook(fn["z"].numel(), fn["g_expr"].numel(), self._poll)
         self._solver = ca.nlpsol(
             "willmore_step",
@@ -180,9 +194,14 @@ class IpoptSolver:
         )
         self.ng = evaluator.problem.ng
 
-    def _poll(self, f: float, g: np.ndarray) -> bool:
+    def _poll(self, f: float, g: np.ndarray, x: np.ndarray, lam_g: np.ndarray) -> bool:
         """The hook's test: a requested stop (signal) first, then the budget and stall test."""
-        return bool(self.should_stop()) or self._monitor(f, g)
+        return bool(self.should_stop()) or self._monitor(f, g, x, lam_g)
+
+    def _dual_residual(self, x: np.ndarray, lam_g: np.ndarray) -> float:
+        """max |grad f + J_g^T lam_g| at ``x`` with the parameters of the solve under way."""
+        ev = self._evaluator
+        return float(np.max(np.abs(ev.grad_f(x, self._p) + ev.jac_g(x, self._p).T @ lam_g)))
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """Solve from ``z0``; ``lam_g0`` is used when warm starting.
@@ -191,7 +210,8 @@ class IpoptSolver:
         :class:`SolveMonitor` cut the solve (a stop by :attr:`should_stop` keeps IPOPT's
         ``User_Requested_Stop``).
         """
-        self._monitor = SolveMonitor(self.iteration_limit, self.stall_iterations)
+        self._p = p
+        self._monitor = SolveMonitor(self.iteration_limit, self.stall_iterations, dual_residual=self._dual_residual)
         args: dict[str, Any] = {"x0": z0, "p": p, "lbg": 0.0, "ubg": 0.0}
         if self.warm_start and lam_g0 is not None:
             args["lam_g0"] = lam_g0
