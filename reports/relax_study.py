@@ -169,6 +169,11 @@ def main() -> None:
                   "|---|---|---|---|"]
         lines += [f"| {r['N']} | {r['W_evolver']:.5f} | {r['min_angle_to_band']:.3g} | {r['wall']:.3g} |"
                   for r in ev.values()]
+    lines += ["", "Reading the table: `flow_nobudget` and `flow` accept the same states (the same Willmore energies); "
+              "the budget only cuts the attempt that fails (200 IPOPT iterations before, a multiple of the median "
+              "after), so compare their iteration counts (wall times depend on the machine's load). `relax` and "
+              "`evolver` reach the equilibrium energy; the min angle column shows what the mesh went through. "
+              "Interpretation and the history of the defaults: docs/guide/solver_studies.md."]
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print("\n".join(lines))
 
