@@ -199,3 +199,19 @@ def test_relaxed_run_directory(tmp_path) -> None:
     assert status["state"] == "completed" and status["message"].startswith("relaxed: step")
     rows = list(csv.DictReader((tmp_path / "run" / "history.csv").open()))
     assert 2 < len(rows) < 21 and rows[-1]["relaxed"] == "1" and all(r["relaxed"] == "0" for r in rows[:-1])
+
+
+def test_evolver_trajectory_reads_back_the_surface() -> None:
+    """evolver_trajectory (the relax study's Evolver side): the initial record is the input mesh and
+    Evolver's energy of it agrees with evolver_reference; hessian_seek lowers the energy toward the
+    sphere's 8 pi (library convention)."""
+    from willmore_nlp.evolver import evolver_reference, evolver_trajectory, find_evolver
+
+    if find_evolver() is None:
+        pytest.skip("Surface Evolver is not installed")
+    mesh = _ellipsoid()
+    tr = evolver_trajectory(mesh, ["hessian_seek"] * 20)
+    assert len(tr) == 21 and tr[0]["command"] == "" and tr[1]["command"] == "hessian_seek"
+    np.testing.assert_allclose(tr[0]["vertices"], mesh.vertices, rtol=0, atol=1e-14)
+    assert tr[0]["energy"] == pytest.approx(evolver_reference(mesh, 1)["initial"], rel=1e-12)
+    assert tr[-1]["energy"] < tr[0]["energy"] and abs(tr[-1]["energy"] / (8 * np.pi) - 1) < 0.02
