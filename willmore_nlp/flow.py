@@ -6,6 +6,7 @@ import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -283,8 +284,9 @@ class WillmoreFlow:
         Floor of that budget (default 30).
     stall_iterations : int
         Cut a solve (status ``"Stalled"``, then retried with tau/2) when its last ``stall_iterations``
-        iterations lowered neither the objective (by 1e-8 relative) nor the largest constraint
-        violation (by 10x); default 15, 0 turns it off. IPOPT only.
+        iterations lowered neither the objective (by 1e-8 relative), nor the largest constraint
+        violation (by 10x), nor the dual residual max |grad f + J^T lam| (by 2x); default 15, 0 turns
+        it off. IPOPT only.
     relax : bool
         Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
         every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``, and
@@ -411,7 +413,7 @@ class WillmoreFlow:
             raise ValueError(f"min_tau must be a number >= 0, got {min_tau}")
         for name, val, lo in (("iteration_budget", iteration_budget, 0), ("stall_iterations", stall_iterations, 0),
                               ("iteration_budget_min", iteration_budget_min, 1), ("relax_tol", relax_tol, 0)):
-            if not (isinstance(val, (int, float)) and np.isfinite(val) and val >= lo):
+            if not (isinstance(val, Real) and not isinstance(val, bool) and np.isfinite(val) and val >= lo):
                 raise UserInputError(f"{name} must be a number >= {lo}, got {val!r}")
         for name, val in (("iteration_budget_min", iteration_budget_min), ("stall_iterations", stall_iterations)):
             if not float(val).is_integer():
@@ -423,7 +425,7 @@ class WillmoreFlow:
         self.relax = bool(relax)
         self.relax_tol = float(relax_tol)
         self.relax_max_tau = 100 * self.tau if relax_max_tau is None else relax_max_tau
-        if not (isinstance(self.relax_max_tau, (int, float)) and np.isfinite(self.relax_max_tau)
+        if not (isinstance(self.relax_max_tau, Real) and np.isfinite(self.relax_max_tau)
                 and self.relax_max_tau >= self.tau):
             raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {relax_max_tau!r}")
         self.relaxed = False
