@@ -156,7 +156,8 @@ class IpoptSolver:
         A solve cut by it ends with status ``"Iteration_Budget"`` (not converged).
     stall_iterations : int
         Stall test of every solve (:class:`SolveMonitor`); a solve cut by it ends with status
-        ``"Stalled"``. 0 (default) turns it off.
+        ``"Stalled"``. 0 (the solver's default) turns it off; the flow sets its own option
+        (default 15).
     """
 
     name = "ipopt"
