@@ -77,6 +77,10 @@ def test_budget_follows_median_of_accepted_steps() -> None:
     out = flow.run(steps=3)
     its = [r.iterations for r in out]
     assert flow._iteration_limit() == max(5, int(np.ceil(3 * np.median(its))))
+    again = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, iteration_budget=3, iteration_budget_min=5)
+    last = out[-1]
+    again.restart(last.vertices, last.Y, last.t, last.step, flow.lam_g, last.tau, last.retries, iterations=its)
+    assert again._iteration_limit() == flow._iteration_limit()  # a resumed run keeps its budget
     off = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, iteration_budget=0)
     off.run(steps=1)
     assert off._iteration_limit() is None
