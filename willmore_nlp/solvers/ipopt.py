@@ -73,6 +73,11 @@ class _StopHook(ca.Callback):
         return [1 if self.check(float(arg[i["f"]]), g, x, lam) else 0]
 
 
+def _changed(a: float, b: float, factor: float) -> bool:
+    """``a`` and ``b`` (both >= 0) differ by more than ``factor`` times, either way."""
+    return a > factor * b or b > factor * a
+
+
 class SolveMonitor:
     """Per-solve iteration budget and stall test, polled by :class:`_StopHook` once per iteration.
 
@@ -82,13 +87,14 @@ class SolveMonitor:
         Stop (status ``"Iteration_Budget"``) when this many iterations are done without
         convergence; None: no limit beyond IPOPT's ``max_iter``.
     stall_iterations : int
-        Stop (status ``"Stalled"``) when the last ``stall_iterations`` iterations made no progress:
-        the objective did not fall below its best value so far by more than ``stall_rtol`` relative,
-        the largest constraint violation did not fall below a tenth of its best value so far, and
-        the dual residual (``dual_residual``, evaluated only at iterations without the first two
-        kinds of progress) did not fall below half its best value so far. 0 turns the test off.
+        Stop (status ``"Stalled"``) when the iterates are stuck: in each of the last
+        ``stall_iterations`` iterations the objective changed by at most ``stall_rtol`` relative,
+        the largest constraint violation by at most 10x and the dual residual (``dual_residual``,
+        evaluated only at iterations where the first two did not change) by at most 2x, either
+        way. A solve that wanders (the objective going up and down) is not stalled: the iteration
+        budget is the limit for those. 0 turns the test off.
     stall_rtol : float
-        Relative objective decrease that counts as progress.
+        Relative change of the objective that counts as movement.
     dual_residual : callable (x, lam_g) -> float, optional
         Largest entry of the gradient of the Lagrangian at the iterate; None: not used.
 
@@ -107,28 +113,27 @@ class SolveMonitor:
         self.dual_residual = dual_residual
         self.cut = ""
         self._n = 0
-        self._best_f = float("inf")
-        self._best_g = float("inf")
-        self._best_du = float("inf")
-        self._last_progress = 0
+        self._f = float("nan")
+        self._viol = float("nan")
+        self._du = float("nan")
+        self._last_move = 0
 
     def __call__(self, f: float, g: np.ndarray, x: np.ndarray | None = None, lam_g: np.ndarray | None = None) -> bool:
         """Record iterate number ``self._n`` (0 = the starting point); True: stop the solve."""
         k = self._n
         self._n += 1
         viol = float(np.max(np.abs(g))) if g.size else 0.0
-        progress = k == 0 or f < self._best_f - self.stall_rtol * abs(self._best_f) or viol < 0.1 * self._best_g
-        self._best_f = min(self._best_f, f)
-        self._best_g = min(self._best_g, viol)
-        if not progress and self.stall_iterations and self.dual_residual is not None and x is not None:
+        moved = k == 0 or abs(f - self._f) > self.stall_rtol * abs(self._f) or _changed(viol, self._viol, 10.0)
+        self._f, self._viol = f, viol
+        if not moved and self.stall_iterations and self.dual_residual is not None and x is not None:
             du = self.dual_residual(x, lam_g if lam_g is not None else np.zeros(g.size))
-            progress = du < 0.5 * self._best_du
-            self._best_du = min(self._best_du, du)
-        if progress:
-            self._last_progress = k
+            moved = not np.isfinite(self._du) or _changed(du, self._du, 2.0)
+            self._du = du
+        if moved:
+            self._last_move = k
         if self.iteration_limit is not None and k >= self.iteration_limit:
             self.cut = "Iteration_Budget"
-        elif self.stall_iterations and k - self._last_progress >= self.stall_iterations:
+        elif self.stall_iterations and k - self._last_move >= self.stall_iterations:
             self.cut = "Stalled"
         return bool(self.cut)
 
