@@ -47,6 +47,9 @@ def test_monitor_budget_and_stall() -> None:
     du = iter(3.0**-k for k in range(100))  # flat f and g, dual residual falling 3x per iterate: progress
     m = SolveMonitor(stall_iterations=4, dual_residual=lambda x, lam: next(du))
     assert not any(m(1.0, g, x, lam) for _ in range(50))
+    du = iter(1.5**-k for k in range(100))  # slow linear convergence: 2x every other iterate, moving
+    m = SolveMonitor(stall_iterations=4, dual_residual=lambda x, lam: next(du))
+    assert not any(m(1.0, g, x, lam) for _ in range(50))
     m = SolveMonitor(stall_iterations=4, dual_residual=lambda x, lam: 1e-3)  # all flat (its first value is new): stall
     assert [m(1.0, g, x, lam) for _ in range(6)] == [False] * 5 + [True]
 

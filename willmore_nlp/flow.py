@@ -283,12 +283,12 @@ class WillmoreFlow:
     iteration_budget_min : int
         Floor of that budget (default 30).
     stall_iterations : int
-        Cut a solve (status ``"Stalled"``, then retried with tau/2) whose iterates are stuck: in each
-        of its last ``stall_iterations`` iterations the objective changed by at most 1e-8 relative,
-        the largest constraint violation by at most 10x and the dual residual max |grad f + J^T lam|
-        by at most 2x; default 15, 0 turns it off. A wandering solve is left to the budget (a test
-        on the best values so far cut solves of the Fig. 11 bunny that wander for 90 iterations and
-        then converge). IPOPT only.
+        Cut a solve (status ``"Stalled"``, then retried with tau/2) whose iterates are stuck: for
+        ``stall_iterations`` iterations the objective stayed within 1e-8 (relative), the largest
+        constraint violation within a factor 10 and the dual residual max |grad f + J^T lam| within
+        a factor 2 of their values at the last iterate that moved; default 15, 0 turns it off. A
+        wandering solve is left to the budget (a test on the best values so far cut solves of the
+        Fig. 11 bunny that wander for 90 iterations and then converge). IPOPT only.
     relax : bool
         Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
         every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``, and

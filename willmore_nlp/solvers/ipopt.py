@@ -87,12 +87,12 @@ class SolveMonitor:
         Stop (status ``"Iteration_Budget"``) when this many iterations are done without
         convergence; None: no limit beyond IPOPT's ``max_iter``.
     stall_iterations : int
-        Stop (status ``"Stalled"``) when the iterates are stuck: in each of the last
-        ``stall_iterations`` iterations the objective changed by at most ``stall_rtol`` relative,
-        the largest constraint violation by at most 10x and the dual residual (``dual_residual``,
-        evaluated only at iterations where the first two did not change) by at most 2x, either
-        way. A solve that wanders (the objective going up and down) is not stalled: the iteration
-        budget is the limit for those. 0 turns the test off.
+        Stop (status ``"Stalled"``) when the iterates are stuck: for ``stall_iterations``
+        iterations the objective stayed within ``stall_rtol`` (relative), the largest constraint
+        violation within a factor 10 and the dual residual (``dual_residual``, evaluated only when
+        the first two stayed) within a factor 2 of their values at the last iterate that moved. A
+        solve that wanders (the objective going up and down) is not stalled: the iteration budget
+        is the limit for those. 0 turns the test off.
     stall_rtol : float
         Relative change of the objective that counts as movement.
     dual_residual : callable (x, lam_g) -> float, optional
@@ -124,13 +124,12 @@ class SolveMonitor:
         self._n += 1
         viol = float(np.max(np.abs(g))) if g.size else 0.0
         moved = k == 0 or abs(f - self._f) > self.stall_rtol * abs(self._f) or _changed(viol, self._viol, 10.0)
-        self._f, self._viol = f, viol
         if not moved and self.stall_iterations and self.dual_residual is not None and x is not None:
             du = self.dual_residual(x, lam_g if lam_g is not None else np.zeros(g.size))
-            moved = not np.isfinite(self._du) or _changed(du, self._du, 2.0)
-            self._du = du
-        if moved:
-            self._last_move = k
+            if not np.isfinite(self._du) or _changed(du, self._du, 2.0):
+                self._du, moved = du, True
+        if moved:  # the reference values: the iterate of the last movement
+            self._last_move, self._f, self._viol = k, f, viol
         if self.iteration_limit is not None and k >= self.iteration_limit:
             self.cut = "Iteration_Budget"
         elif self.stall_iterations and k - self._last_move >= self.stall_iterations:
