@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
@@ -65,7 +67,8 @@ class StepEvaluator:
         return (U + sp.triu(U, 1).T).tocsc()
 
     def solve_y(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None,
-                tol: float = 1e-12, max_iter: int = 100) -> np.ndarray:
+                tol: float = 1e-12, max_iter: int = 100,
+                linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None) -> np.ndarray:
         """Y[X]: solve the inner equation g(X, Y) = 0 for the free Y by damped Newton.
 
         Linear (one Newton step) for the isotropic scheme. For anisotropic energies g = 1/2 dE/dY
@@ -78,6 +81,9 @@ class StepEvaluator:
         X : (N, m) full nodal positions
         p : parameter vector (its Xk block supplies the fixed nodes)
         Y0 : (N, m) initial guess, default X
+        linear_solve : callable (J_Y, r) -> J_Y^-1 r, optional
+            Solver of the Newton systems (default scipy's sparse LU); the ``newton-krylov`` step
+            solver passes its sparse Cholesky.
 
         Returns
         -------
@@ -96,7 +102,7 @@ class StepEvaluator:
             scale = max(1.0, float(np.abs(Jy).max()) * float(np.abs(Y).max()))
             if np.linalg.norm(r, np.inf) <= tol * scale:
                 return Y
-            dy = spla.spsolve(Jy.tocsc(), -r).reshape(-1, m)
+            dy = (spla.spsolve(Jy.tocsc(), -r) if linear_solve is None else linear_solve(Jy.tocsc(), -r)).reshape(-1, m)
             rn = np.linalg.norm(r)
             alpha = 1.0
             for _ in range(40):

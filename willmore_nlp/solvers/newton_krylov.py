@@ -1,0 +1,319 @@
+"""``newton-krylov``: reduced-space Newton with preconditioned CG and sparse Cholesky factorisations.
+
+The step NLP is solved, like the reduced solvers of :mod:`willmore_nlp.solvers.reduced`, as the
+minimisation of W^(X) = W(X, Y[X]) over the free X; the adjoint gradient and the exact
+second-order adjoint Hessian-vector products are the ones of that module (shared code). What
+differs is the linear algebra and the globalisation:
+
+* J_Y factorisation. Isotropic: J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one N x N
+  sparse LDL^T (:mod:`willmore_nlp.solvers.cholesky`, symbolic analysis once per topology) serves
+  the m coordinates; Y[X] is one such solve. Anisotropic: J_Y is the Hessian of a strictly convex
+  inner energy, factorised as a whole (also SPD) inside the damped inner Newton of
+  :meth:`StepEvaluator.solve_y`.
+* Newton step. The reduced Newton system (Hess W^ + delta D) d = -grad W^ is solved by conjugate
+  gradients (forcing term eta = min(0.5, sqrt(|grad|/|grad_0|))), preconditioned with the
+  Gauss-Newton matrix
+
+      B = D + 2 tau K^T Ml^-1 K,   K = (J_X + J_Y S) / tt,
+
+  D the exact Hessian of the distance part of W (2 M[Xk] (x) I for the paper's scheme; with a
+  tangential weight or control the corresponding quadratic form), Ml the lumped mass on the Y
+  nodes and S the injection of the free X dofs into the Y dofs. B is the Gauss-Newton Hessian of
+  W^ with J_Y^-T M J_Y^-1 replaced by Ml^-1; it is factorised once and rebuilt when X has moved
+  more than ``precond_move`` h since it was built.
+* Indefiniteness. When CG meets a direction of non-positive curvature the shift delta D is raised
+  (delta = 1 first, then 10 delta) and CG restarts; the next Newton iteration starts from delta / 10
+  (0 below 1e-3), so the final iterations are pure Newton.
+* Globalisation. Backtracking (halving) line search with the Armijo condition on W^: no step
+  that increases W^ beyond rounding is accepted. A step whose predicted decrease is below the
+  rounding level of W^ (100 eps |W^|) is accepted when it reduces |grad W^|_inf instead (the
+  last, quadratically convergent iterations).
+
+Stopping test: |grad W^|_inf <= tol * max(|grad W(z0)|_inf, tiny), i.e. relative to the size of the
+step problem's own objective gradient at the start (the Willmore part 2 tau/tt^2 M (Y - X) does not
+vanish when the flow is at rest), the reduced counterpart of IPOPT's dual infeasibility; the
+primal infeasibility is zero to the inner solve's accuracy at every iterate.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from itertools import combinations
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.fem.assembly import lumped_mass
+from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.solvers.base import SolveResult, register_solver
+from willmore_nlp.solvers.cholesky import FullFactor, KronFactor, SymmetricFactor
+from willmore_nlp.solvers.reduced import ReducedSolver, _Point
+
+NK_DEFAULTS: dict[str, Any] = {
+    "tol": 1e-9,
+    "max_iter": 50,
+    "cholesky": "auto",
+    "cg_max_iter": 300,
+    "precond_move": 0.05,
+    "armijo": 1e-4,
+}
+"""Options of ``newton-krylov``: ``tol`` (relative, see the module docstring), ``max_iter`` (Newton
+iterations), ``cholesky`` ("auto", "qdldl", "scipy"), ``cg_max_iter`` (per Newton system),
+``precond_move`` (rebuild B when X moved more than this times the mean edge length), ``armijo``."""
+
+_IGNORED = ("warm_start", "print_level")  # flow-level options meant for IPOPT
+
+
+class NewtonKrylovSolver(ReducedSolver):
+    """Reduced-space Newton-CG step solver (see the module docstring).
+
+    Parameters
+    ----------
+    evaluator : StepEvaluator
+    options : dict
+        Keys of :data:`NK_DEFAULTS`; ``warm_start`` and ``print_level`` are accepted and ignored.
+    """
+
+    def __init__(self, evaluator: StepEvaluator, options: dict[str, Any]) -> None:
+        unknown = set(options) - set(NK_DEFAULTS) - set(_IGNORED)
+        if unknown:
+            raise UserInputError(f"solver newton-krylov: unknown option(s) {', '.join(sorted(unknown))}; "
+                                 f"known: {', '.join(NK_DEFAULTS)}")
+        opts = {**NK_DEFAULTS, **{k: v for k, v in options.items() if k in NK_DEFAULTS}}
+        for key in ("tol", "precond_move", "armijo"):
+            if not (isinstance(opts[key], (int, float)) and np.isfinite(opts[key]) and opts[key] > 0):
+                raise UserInputError(f"solver newton-krylov: option {key} must be a positive number, got {opts[key]!r}")
+        for key in ("max_iter", "cg_max_iter"):
+            if not (isinstance(opts[key], (int, float)) and float(opts[key]).is_integer() and opts[key] >= 1):
+                raise UserInputError(f"solver newton-krylov: option {key} must be an integer >= 1, got {opts[key]!r}")
+        super().__init__(evaluator, "newton-krylov",
+                         {"tol": opts["tol"], "max_iter": opts["max_iter"], "armijo": opts["armijo"]})
+        self.cg_max_iter = int(opts["cg_max_iter"])
+        self.precond_move = float(opts["precond_move"])
+        self._jy = SymmetricFactor(str(opts["cholesky"]))
+        self._pre = SymmetricFactor(str(opts["cholesky"]))
+        self.backend = self._jy.backend
+        P = self.P
+        m = P.m
+        if not np.all(P.y_free[P.x_free]):
+            raise ValueError("newton-krylov needs every free X node to carry a free Y")
+        nodes = np.flatnonzero(P.x_free)
+        rows = (P.y_index[nodes][:, None] * m + np.arange(m)).ravel()
+        self._S = sp.csc_matrix((np.ones(rows.size), (rows, np.arange(rows.size))), shape=(P.ng, self.nxm))
+        self._times: dict[str, float] = {}
+        self.should_stop = lambda: False
+
+    # -- bookkeeping ------------------------------------------------------------------
+    @contextmanager
+    def _timed(self, key: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self._times[key] = self._times.get(key, 0.0) + time.perf_counter() - t0
+
+    # -- J_Y and the point X ----------------------------------------------------------
+    def _factor_jy(self, Jy: sp.spmatrix) -> KronFactor | FullFactor:
+        """Factorisation of J_Y: of its N x N block (isotropic) or of the whole matrix (anisotropic)."""
+        with self._timed("factor"):
+            self._count("n_factorizations")
+            if self.P.anisotropic:
+                return FullFactor(self._jy.factor(Jy))
+            m = self.P.m
+            return KronFactor(self._jy.factor(sp.csc_matrix(Jy)[0::m, 0::m]), m)
+
+    def _at(self, x: np.ndarray, p: np.ndarray, Y0: np.ndarray) -> _Point:
+        """Y[X], W^, its adjoint gradient and the factorised J_Y at the free positions ``x``."""
+        P, m, ev = self.P, self.P.m, self.ev
+        Xk = p[: P.n_vertices * m].reshape(-1, m)
+        X, _ = P.unpack_z(np.concatenate([x, np.zeros(P.ng)]), Xk)
+        Y = np.array(Y0, float, copy=True)
+        Y[~P.y_free] = Xk[~P.y_free]
+        self._count("n_inner_solve")
+        if P.anisotropic:
+            Y = ev.solve_y(X, p, Y, linear_solve=lambda Jy, r: self._factor_jy(Jy).solve(r))
+        z = P.pack_z(X, Y)
+        with self._timed("eval"):
+            g, J = ev.g_jac(z, p)
+        self._count("n_eval_jac_g")
+        fact = self._factor_jy(J[:, self.nxm :])
+        for _ in range(3):  # isotropic: g is linear in Y, one solve (+ a refinement if rounding asks)
+            scale = max(1.0, float(np.abs(J[:, self.nxm :]).max()) * float(np.abs(z[self.nxm :]).max()))
+            if np.abs(g).max() <= 1e-12 * scale:
+                break
+            if P.anisotropic:
+                raise RuntimeError(f"inner equation not solved (residual {np.abs(g).max():.3e})")
+            with self._timed("cg"):
+                z = z.copy()
+                z[self.nxm :] -= fact.solve(g)
+            with self._timed("eval"):
+                g, J = ev.g_jac(z, p)
+            self._count("n_eval_jac_g")
+        else:
+            raise RuntimeError(f"inner equation not solved (residual {np.abs(g).max():.3e})")
+        with self._timed("eval"):
+            f, gf = ev.f_grad(z, p)
+        self._count("n_eval_grad_f")
+        return self._point(x, z, f, gf, J, fact)
+
+    # -- preconditioner ---------------------------------------------------------------
+    def _distance_hessian(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
+        """D: the Hessian in X of the distance (and control) part of W, i.e. of W with tau = 0 (constant in X)."""
+        p0 = np.array(p, float, copy=True)
+        p0[self.P.n_vertices * self.P.m] = 0.0
+        with self._timed("eval"):
+            H = self.ev.hess_lag(z, p0, 1.0, np.zeros(self.P.ng))
+        self._count("n_eval_hess")
+        return sp.csc_matrix(H[: self.nxm, : self.nxm])
+
+    def _build_preconditioner(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
+        """Factorise B = D + 2 tau K^T Ml^-1 K at ``pt`` (module docstring)."""
+        P, m = self.P, self.P.m
+        N = P.n_vertices
+        tau, tt = float(p[N * m]), float(p[N * m + 1])
+        with self._timed("factor"):
+            X, _ = P.unpack_z(pt.z, p[: N * m].reshape(-1, m))
+            ml = lumped_mass(X, P.simplices, N)[P.y_free]
+            K = (pt.Jx + pt.Jy @ self._S) / tt
+            B = D + 2.0 * tau * (K.T @ sp.diags(np.repeat(1.0 / ml, m)) @ K)
+            self._pre.factor(B.tocsc())
+        self._count("n_precond_builds")
+
+    # -- Newton-CG --------------------------------------------------------------------
+    def _pcg(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, delta: float,
+             eta: float) -> tuple[np.ndarray, int, bool]:
+        """Preconditioned CG on (Hess W^ + delta D) d = -grad; stops at non-positive curvature.
+
+        Returns
+        -------
+        d : (nX m,) the last iterate
+        its : CG iterations
+        negative : True when a direction of non-positive curvature was met
+        """
+        g = pt.grad
+        x = np.zeros_like(g)
+        r = -g
+        s = self._pre.solve(r)
+        d = s.copy()
+        rs = float(r @ s)
+        gnorm = float(np.linalg.norm(g))
+        for k in range(self.cg_max_iter):
+            Ad = self._hessp(pt, p, d)
+            if delta:
+                Ad = Ad + delta * (D @ d)
+            dAd = float(d @ Ad)
+            if not dAd > 0:
+                return x, k + 1, True
+            alpha = rs / dAd
+            x += alpha * d
+            r -= alpha * Ad
+            if np.linalg.norm(r) <= eta * gnorm:
+                return x, k + 1, False
+            s = self._pre.solve(r)
+            rs_new = float(r @ s)
+            d = s + (rs_new / rs) * d
+            rs = rs_new
+        return x, self.cg_max_iter, False
+
+    def _mean_edge(self, Xk: np.ndarray) -> float:
+        S = self.P.simplices
+        E = np.vstack([S[:, [i, j]] for i, j in combinations(range(S.shape[1]), 2)])
+        return float(np.linalg.norm(Xk[E[:, 0]] - Xk[E[:, 1]], axis=1).mean())
+
+    def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
+        """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X])."""
+        t0 = time.perf_counter()
+        self._counts, self._times = {}, {}
+        P, m = self.P, self.P.m
+        Xk = p[: P.n_vertices * m].reshape(-1, m)
+        h = self._mean_edge(Xk)
+        with self._timed("eval"):
+            scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
+        self._count("n_eval_grad_f")
+        gtol = self.tol * scale
+        pt = self._at(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
+        D = self._distance_hessian(pt.z, p)
+        g0 = max(float(np.abs(pt.grad).max()), 1e-300)
+        x_pre: np.ndarray | None = None
+        delta = delta_max = 0.0
+        status = "maximum iterations"
+        it = 0
+        for it in range(self.max_iter + 1):  # noqa: B007 (it is reported)
+            gmax = float(np.abs(pt.grad).max())
+            if gmax <= gtol:
+                status = "converged"
+                break
+            if it == self.max_iter:
+                break
+            if self.should_stop():
+                status = "stopped"
+                break
+            if x_pre is None or np.abs(pt.x - x_pre).max() > self.precond_move * h:
+                self._build_preconditioner(pt, p, D)
+                x_pre = pt.x.copy()
+            with self._timed("eval"):
+                pt.H = self.ev.hess_lag(pt.z, p, 1.0, pt.lam)
+            self._count("n_eval_hess")
+            eta = min(0.5, float(np.sqrt(gmax / g0)))
+            delta = delta / 10 if delta >= 1e-3 else 0.0
+            with self._timed("cg"):
+                for _ in range(12):
+                    d, k, negative = self._pcg(pt, p, D, delta, eta)
+                    self._count("n_cg", k)
+                    if not negative:
+                        break
+                    delta = max(1.0, 10 * delta)
+            delta_max = max(delta_max, delta)
+            new = self._line_search(pt, p, d)
+            if new is None:
+                status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
+                break
+            pt = new
+        stats: dict[str, Any] = dict(self._counts)
+        stats["newton_iterations"] = it
+        stats.setdefault("n_cg", 0)
+        stats["cholesky"] = self.backend
+        stats["t_wall_total"] = time.perf_counter() - t0
+        for key in ("eval", "factor", "cg"):
+            stats[f"t_wall_{key}"] = self._times.get(key, 0.0)
+        stats["t_wall_solver"] = stats["t_wall_total"] - stats["t_wall_eval"]
+        stats["kkt_residual"] = stats["inf_du"] = float(np.abs(pt.grad).max())
+        stats["gtol"] = gtol
+        stats["delta_max"] = delta_max
+        with self._timed("eval"):
+            stats["inf_pr"] = float(np.abs(self.ev.g(pt.z, p)).max())
+        return SolveResult(z=pt.z, f=pt.f, lam_g=pt.lam, converged=status == "converged", status=status,
+                           iterations=it, stats=stats)
+
+    def _line_search(self, pt: _Point, p: np.ndarray, d: np.ndarray) -> _Point | None:
+        """Backtracking from the full step: Armijo on W^ (module docstring); None when it fails."""
+        gd = float(pt.grad @ d)
+        if not gd < 0:
+            d, gd = -pt.grad, -float(pt.grad @ pt.grad)
+        Xk = p[: self.P.n_vertices * self.P.m].reshape(-1, self.P.m)
+        Y0 = self.P.unpack_z(pt.z, Xk)[1]
+        rounding = 100 * np.finfo(float).eps * abs(pt.f)
+        gmax = float(np.abs(pt.grad).max())
+        alpha = 1.0
+        for _ in range(40):
+            try:
+                new = self._at(pt.x + alpha * d, p, Y0)
+            except RuntimeError:
+                new = None
+            if new is not None and np.isfinite(new.f):
+                if new.f <= pt.f + self.armijo * alpha * gd:
+                    return new
+                if -alpha * gd <= rounding and new.f <= pt.f + rounding and np.abs(new.grad).max() < gmax:
+                    return new
+            alpha *= 0.5
+        return None
+
+
+@register_solver("newton-krylov")
+def make_newton_krylov(evaluator: StepEvaluator, options: dict[str, Any]) -> NewtonKrylovSolver:
+    """Factory for :class:`NewtonKrylovSolver`."""
+    return NewtonKrylovSolver(evaluator, options)
