@@ -1,19 +1,19 @@
-"""Sparse symmetric factorisation with the symbolic analysis kept per sparsity pattern.
+"""Sparse Cholesky factorisation of symmetric positive definite matrices, with a scipy fallback.
 
-The step solver ``newton-krylov`` factorises two kinds of symmetric positive definite matrices
-many times on one topology: the N x N matrix M[X] + tt L[X] (the isotropic J_Y = (M + tt L) (x) I_m)
-and the 3N x 3N Gauss-Newton preconditioner. Their sparsity pattern is fixed per mesh topology,
-their values change with X.
+The step solver ``newton-krylov`` factorises two kinds of SPD matrices many times on one topology:
+the N x N matrix M[X] + tt L[X] (the isotropic J_Y = (M + tt L) (x) I_m) and the 3N x 3N
+Gauss-Newton preconditioner (two-ring coupling).
 
 Backends
 --------
-``qdldl``
-    The QDLDL LDL^T factorisation (registry wheel ``qdldl``, no system libraries). Its AMD ordering
-    and symbolic analysis are done once per pattern; a new matrix with the same pattern is
-    refactorised numerically only (``Solver.update``).
+``cholespy``
+    The supernodal sparse Cholesky of the registry wheel ``cholespy`` (no system libraries; its
+    own fill-reducing ordering). It has no numeric-only refactorisation, so each call orders and
+    factorises; measured faster all the same than QDLDL's numeric refactorisation with the
+    pattern analysed once (preconditioner at 10,242 vertices: 2.7 s vs 14 s, loaded machine).
 ``scipy``
-    SuperLU (``scipy.sparse.linalg.splu``) with COLAMD ordering, used when ``qdldl`` is not
-    installed or when asked for. SuperLU has no separate symbolic phase.
+    SuperLU (``scipy.sparse.linalg.splu``) with COLAMD ordering: used when ``cholespy`` is not
+    installed, or when asked for.
 """
 
 from __future__ import annotations
@@ -26,74 +26,65 @@ import scipy.sparse.linalg as spla
 
 from willmore_nlp.errors import UserInputError
 
-try:  # pragma: no cover - exercised by the import itself
-    import qdldl as _qdldl
-except ImportError:  # pragma: no cover - the fallback is tested by forcing backend="scipy"
-    _qdldl = None
+try:
+    import cholespy as _cholespy
+except ImportError:  # pragma: no cover - the fallback itself is tested by forcing backend="scipy"
+    _cholespy = None
 
-BACKENDS = ("auto", "qdldl", "scipy")
+BACKENDS = ("auto", "cholespy", "scipy")
 
 
 def resolve_backend(name: str) -> str:
-    """The backend used for ``name`` (``"auto"``: qdldl when installed, else scipy)."""
+    """The backend used for ``name`` (``"auto"``: cholespy when installed, else scipy)."""
     if name not in BACKENDS:
         raise UserInputError(f"option cholesky must be one of {', '.join(BACKENDS)}, got {name!r}")
     if name == "auto":
-        return "qdldl" if _qdldl is not None else "scipy"
-    if name == "qdldl" and _qdldl is None:
-        raise UserInputError("option cholesky='qdldl' needs the package qdldl (pip install qdldl)")
+        return "cholespy" if _cholespy is not None else "scipy"
+    if name == "cholespy" and _cholespy is None:
+        raise UserInputError("option cholesky='cholespy' needs the package cholespy (pip install cholespy)")
     return name
 
 
 class SymmetricFactor:
-    """Factorisations of symmetric matrices that share one sparsity pattern (re-analysed if it changes).
+    """Factorisation of a symmetric positive definite sparse matrix.
 
     Parameters
     ----------
-    backend : {"auto", "qdldl", "scipy"}
+    backend : {"auto", "cholespy", "scipy"}
 
     Attributes
     ----------
-    n_symbolic : number of symbolic analyses (orderings) done
-    n_numeric : number of numeric factorisations done
+    n_numeric : number of factorisations done
     """
 
     def __init__(self, backend: str = "auto") -> None:
         self.backend = resolve_backend(backend)
         self._solver: Any = None
-        self._pattern: tuple[np.ndarray, np.ndarray] | None = None
-        self.n_symbolic = 0
+        self._n = 0
         self.n_numeric = 0
 
     def factor(self, A: sp.spmatrix) -> SymmetricFactor:
-        """Factorise the symmetric (n, n) matrix ``A`` (both triangles given); returns self."""
+        """Factorise the SPD (n, n) matrix ``A`` (both triangles given); returns self."""
+        A = sp.csc_matrix(A)
+        self._n = A.shape[0]
         if self.backend == "scipy":
-            self._solver = spla.splu(sp.csc_matrix(A), permc_spec="COLAMD")
-            self.n_symbolic += 1
-            self.n_numeric += 1
-            return self
-        U = sp.triu(A, format="csc")
-        U.sort_indices()
-        same = (self._pattern is not None and self._pattern[0].shape == U.indptr.shape
-                and self._pattern[1].shape == U.indices.shape and np.array_equal(self._pattern[0], U.indptr)
-                and np.array_equal(self._pattern[1], U.indices))
-        if same:
-            self._solver.update(U, upper=True)
+            self._solver = spla.splu(A, permc_spec="COLAMD")
         else:
-            self._solver = _qdldl.Solver(U, upper=True)
-            self._pattern = (U.indptr.copy(), U.indices.copy())
-            self.n_symbolic += 1
+            A.sort_indices()
+            self._solver = _cholespy.CholeskySolverD(
+                self._n, A.indptr.astype(np.int32), A.indices.astype(np.int32),
+                np.ascontiguousarray(A.data, dtype=float), _cholespy.MatrixType.CSC)
         self.n_numeric += 1
         return self
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """A^-1 b for b of shape (n,) or (n, k)."""
-        b = np.asarray(b, float)
+        b = np.ascontiguousarray(b, dtype=float)
         if self.backend == "scipy":
             return self._solver.solve(b)
-        if b.ndim == 1:
-            return np.asarray(self._solver.solve(b))
-        return np.column_stack([self._solver.solve(np.ascontiguousarray(b[:, j])) for j in range(b.shape[1])])
+        x = np.empty_like(b)
+        self._solver.solve(b, x)
+        return x
 
 
 class KronFactor:

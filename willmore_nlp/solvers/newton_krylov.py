@@ -6,7 +6,7 @@ second-order adjoint Hessian-vector products are the ones of that module (shared
 differs is the linear algebra and the globalisation:
 
 * J_Y factorisation. Isotropic: J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one N x N
-  sparse LDL^T (:mod:`willmore_nlp.solvers.cholesky`, symbolic analysis once per topology) serves
+  sparse Cholesky (:mod:`willmore_nlp.solvers.cholesky`) serves
   the m coordinates; Y[X] is one such solve. Anisotropic: J_Y is the Hessian of a strictly convex
   inner energy, factorised as a whole (also SPD) inside the damped inner Newton of
   :meth:`StepEvaluator.solve_y`.
@@ -58,12 +58,15 @@ NK_DEFAULTS: dict[str, Any] = {
     "max_iter": 50,
     "cholesky": "auto",
     "cg_max_iter": 300,
-    "precond_move": 0.05,
+    "precond_move": 0.2,
     "armijo": 1e-4,
 }
 """Options of ``newton-krylov``: ``tol`` (relative, see the module docstring), ``max_iter`` (Newton
-iterations), ``cholesky`` ("auto", "qdldl", "scipy"), ``cg_max_iter`` (per Newton system),
+iterations), ``cholesky`` ("auto", "cholespy", "scipy"), ``cg_max_iter`` (per Newton system),
 ``precond_move`` (rebuild B when X moved more than this times the mean edge length), ``armijo``."""
+
+CG_REBUILD = 25
+"""B is also rebuilt after a Newton system that took more CG iterations than this."""
 
 _IGNORED = ("warm_start", "print_level")  # flow-level options meant for IPOPT
 
@@ -239,10 +242,11 @@ class NewtonKrylovSolver(ReducedSolver):
         D = self._distance_hessian(pt.z, p)
         g0 = max(float(np.abs(pt.grad).max()), 1e-300)
         x_pre: np.ndarray | None = None
+        last_cg = 0
         delta = delta_max = 0.0
         status = "maximum iterations"
         it = 0
-        for it in range(self.max_iter + 1):  # noqa: B007 (it is reported)
+        for it in range(self.max_iter + 1):
             gmax = float(np.abs(pt.grad).max())
             if gmax <= gtol:
                 status = "converged"
@@ -252,7 +256,7 @@ class NewtonKrylovSolver(ReducedSolver):
             if self.should_stop():
                 status = "stopped"
                 break
-            if x_pre is None or np.abs(pt.x - x_pre).max() > self.precond_move * h:
+            if x_pre is None or last_cg > CG_REBUILD or np.abs(pt.x - x_pre).max() > self.precond_move * h:
                 self._build_preconditioner(pt, p, D)
                 x_pre = pt.x.copy()
             with self._timed("eval"):
@@ -261,9 +265,11 @@ class NewtonKrylovSolver(ReducedSolver):
             eta = min(0.5, float(np.sqrt(gmax / g0)))
             delta = delta / 10 if delta >= 1e-3 else 0.0
             with self._timed("cg"):
+                last_cg = 0
                 for _ in range(12):
                     d, k, negative = self._pcg(pt, p, D, delta, eta)
                     self._count("n_cg", k)
+                    last_cg += k
                     if not negative:
                         break
                     delta = max(1.0, 10 * delta)
