@@ -108,6 +108,8 @@ class NewtonKrylovSolver(ReducedSolver):
         rows = (P.y_index[nodes][:, None] * m + np.arange(m)).ravel()
         self._S = sp.csc_matrix((np.ones(rows.size), (rows, np.arange(rows.size))), shape=(P.ng, self.nxm))
         self._times: dict[str, float] = {}
+        self._pre_x: np.ndarray | None = None  # free X where B was built, and for which tau
+        self._pre_tau = float("nan")
         self.should_stop = lambda: False
 
     # -- bookkeeping ------------------------------------------------------------------
@@ -241,7 +243,10 @@ class NewtonKrylovSolver(ReducedSolver):
         pt = self._at(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
         D = self._distance_hessian(pt.z, p)
         g0 = max(float(np.abs(pt.grad).max()), 1e-300)
-        x_pre: np.ndarray | None = None
+        tau = float(p[P.n_vertices * m])
+        # B of the previous solve, if it was built for this tau: a stale B only costs CG iterations,
+        # and the rebuild rules below replace it when X is too far from where it was built
+        x_pre = self._pre_x if self._pre_tau == tau else None
         last_cg = 0
         delta = delta_max = 0.0
         status = "maximum iterations"
@@ -258,7 +263,8 @@ class NewtonKrylovSolver(ReducedSolver):
                 break
             if x_pre is None or last_cg > CG_REBUILD or np.abs(pt.x - x_pre).max() > self.precond_move * h:
                 self._build_preconditioner(pt, p, D)
-                x_pre = pt.x.copy()
+                x_pre = self._pre_x = pt.x.copy()
+                self._pre_tau = tau
             with self._timed("eval"):
                 pt.H = self.ev.hess_lag(pt.z, p, 1.0, pt.lam)
             self._count("n_eval_hess")
