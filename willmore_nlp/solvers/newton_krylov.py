@@ -19,11 +19,11 @@ differs is the linear algebra and the globalisation:
   D the exact Hessian of the distance part of W (2 M[Xk] (x) I for the paper's scheme; with a
   tangential weight or control the corresponding quadratic form), Ml the lumped mass on the Y
   nodes and S the injection of the free X dofs into the Y dofs. B is the Gauss-Newton Hessian of
-  W^ with J_Y^-T M J_Y^-1 replaced by Ml^-1. Its factorisation costs tens to hundreds of CG
-  iterations, so it is kept (also for the next solve with the same tau) and rebuilt only when the
-  CG time spent with it exceeds the time its factorisation took (a ski-rental rule: at most twice
-  the cost of the best schedule in hindsight), or when X has moved more than ``precond_move`` h
-  (h the mean edge length of Xk) since it was built.
+  W^ with J_Y^-T M J_Y^-1 replaced by Ml^-1. Its factorisation costs as much as some 50 (2,562
+  vertices) to 150 (10,242) CG iterations, so it is kept (also for the next solve with the same tau)
+  and rebuilt only after ``cg_rebuild`` CG iterations with it, or when X has moved more than
+  ``precond_move`` h (h the mean edge length of Xk) since it was built. (A rule on measured times
+  would make the iterates depend on the machine's load.)
 * Indefiniteness. When CG meets a direction of non-positive curvature the shift delta D is raised
   (delta = 1 first, then 10 delta) and CG restarts; the next Newton iteration starts from delta / 10
   (0 below 1e-3), so the final iterations are pure Newton.
@@ -62,11 +62,13 @@ NK_DEFAULTS: dict[str, Any] = {
     "cholesky": "auto",
     "cg_max_iter": 300,
     "precond_move": 0.5,
+    "cg_rebuild": 60,
     "armijo": 1e-4,
 }
 """Options of ``newton-krylov``: ``tol`` (relative, see the module docstring), ``max_iter`` (Newton
 iterations), ``cholesky`` ("auto", "cholespy", "scipy"), ``cg_max_iter`` (per Newton system),
-``precond_move`` (rebuild B when X moved more than this times the mean edge length), ``armijo``."""
+``precond_move`` (rebuild B when X moved more than this times the mean edge length), ``cg_rebuild`` (rebuild
+B after this many CG iterations with it), ``armijo``."""
 
 _IGNORED = ("warm_start", "print_level")  # flow-level options meant for IPOPT
 
@@ -90,13 +92,14 @@ class NewtonKrylovSolver(ReducedSolver):
         for key in ("tol", "precond_move", "armijo"):
             if not (isinstance(opts[key], (int, float)) and np.isfinite(opts[key]) and opts[key] > 0):
                 raise UserInputError(f"solver newton-krylov: option {key} must be a positive number, got {opts[key]!r}")
-        for key in ("max_iter", "cg_max_iter"):
+        for key in ("max_iter", "cg_max_iter", "cg_rebuild"):
             if not (isinstance(opts[key], (int, float)) and float(opts[key]).is_integer() and opts[key] >= 1):
                 raise UserInputError(f"solver newton-krylov: option {key} must be an integer >= 1, got {opts[key]!r}")
         super().__init__(evaluator, "newton-krylov",
                          {"tol": opts["tol"], "max_iter": opts["max_iter"], "armijo": opts["armijo"]})
         self.cg_max_iter = int(opts["cg_max_iter"])
         self.precond_move = float(opts["precond_move"])
+        self.cg_rebuild = int(opts["cg_rebuild"])
         self._jy = SymmetricFactor(str(opts["cholesky"]))
         self._pre = SymmetricFactor(str(opts["cholesky"]))
         self.backend = self._jy.backend
@@ -110,8 +113,9 @@ class NewtonKrylovSolver(ReducedSolver):
         self._times: dict[str, float] = {}
         self._pre_x: np.ndarray | None = None  # free X where B was built, and for which tau
         self._pre_tau = float("nan")
-        self._build_time = 0.0  # seconds of the last factorisation of B
-        self._cg_since_build = 0.0  # CG seconds spent with it
+        self._cg_since_build = 0  # CG iterations with the current B
+        self._g0 = 1.0  # size of the first (reduced) gradient of a solve: CG forcing term
+        self._delta = self._delta_max = 0.0  # shift of the Newton systems
         self.should_stop = lambda: False
 
     # -- bookkeeping ------------------------------------------------------------------
@@ -182,14 +186,12 @@ class NewtonKrylovSolver(ReducedSolver):
         P, m = self.P, self.P.m
         N = P.n_vertices
         tau, tt = float(p[N * m]), float(p[N * m + 1])
-        t0 = time.perf_counter()
         with self._timed("factor"):
             X, _ = P.unpack_z(pt.z, p[: N * m].reshape(-1, m))
             ml = lumped_mass(X, P.simplices, N)[P.y_free]
             K = (pt.Jx + pt.Jy @ self._S) / tt
             B = D + 2.0 * tau * (K.T @ sp.diags(np.repeat(1.0 / ml, m)) @ K)
             self._pre.factor(B.tocsc())
-        self._build_time = time.perf_counter() - t0
         self._count("n_precond_builds")
 
     # -- Newton-CG --------------------------------------------------------------------
@@ -233,8 +235,34 @@ class NewtonKrylovSolver(ReducedSolver):
         E = np.vstack([S[:, [i, j]] for i, j in combinations(range(S.shape[1]), 2)])
         return float(np.linalg.norm(Xk[E[:, 0]] - Xk[E[:, 1]], axis=1).mean())
 
+    def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray:
+        """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed.
+
+        ``pt.H`` (the Lagrangian Hessian at ``pt.z`` with multipliers ``pt.lam``) must be set. Solver state
+        across iterations: ``_pre_x`` (where B was built), ``_delta``, ``_g0`` (first gradient size).
+        """
+        tau = float(p[self.P.n_vertices * self.P.m])
+        if (self._pre_x is None or self._pre_tau != tau or self._cg_since_build >= self.cg_rebuild
+                or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
+            self._build_preconditioner(pt, p, D)
+            self._pre_x, self._pre_tau, self._cg_since_build = pt.x.copy(), tau, 0
+        gmax = float(np.abs(pt.grad).max())
+        eta = min(0.5, float(np.sqrt(gmax / self._g0)))
+        delta = self._delta / 10 if self._delta >= 1e-3 else 0.0
+        with self._timed("cg"):
+            for _ in range(12):
+                d, k, negative = self._pcg(pt, p, D, delta, eta)
+                self._count("n_cg", k)
+                self._cg_since_build += k
+                if not negative:
+                    break
+                delta = max(1.0, 10 * delta)
+        self._delta = delta
+        self._delta_max = max(self._delta_max, delta)
+        return d
+
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
-        """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X])."""
+        """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used)."""
         t0 = time.perf_counter()
         self._counts, self._times = {}, {}
         P, m = self.P, self.P.m
@@ -246,12 +274,27 @@ class NewtonKrylovSolver(ReducedSolver):
         gtol = self.tol * scale
         pt = self._at(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
         D = self._distance_hessian(pt.z, p)
-        g0 = max(float(np.abs(pt.grad).max()), 1e-300)
-        tau = float(p[P.n_vertices * m])
-        # B of the previous solve, if it was built for this tau: a stale B only costs CG iterations,
-        # and the rebuild rules below replace it when X is too far from where it was built
-        x_pre = self._pre_x if self._pre_tau == tau else None
-        delta = delta_max = 0.0
+        self._g0 = max(float(np.abs(pt.grad).max()), 1e-300)
+        self._delta = self._delta_max = 0.0
+        z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
+        stats: dict[str, Any] = dict(self._counts)
+        stats["newton_iterations"] = it
+        stats.setdefault("n_cg", 0)
+        stats["cholesky"] = self.backend
+        stats["t_wall_total"] = time.perf_counter() - t0
+        for key in ("eval", "factor", "cg"):
+            stats[f"t_wall_{key}"] = self._times.get(key, 0.0)
+        stats["t_wall_solver"] = stats["t_wall_total"] - stats["t_wall_eval"]
+        stats.update(res)
+        stats["kkt_residual"] = stats["inf_du"]
+        stats["gtol"] = gtol
+        stats["delta_max"] = self._delta_max
+        return SolveResult(z=z, f=f, lam_g=lam, converged=status == "converged", status=status,
+                           iterations=it, stats=stats)
+
+    def _iterate(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float,
+                         gtol: float) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
+        """Newton on W^ with Y = Y[X] at every iterate, Armijo line search on W^."""
         status = "maximum iterations"
         it = 0
         for it in range(self.max_iter + 1):
@@ -264,47 +307,18 @@ class NewtonKrylovSolver(ReducedSolver):
             if self.should_stop():
                 status = "stopped"
                 break
-            if (x_pre is None or self._cg_since_build > self._build_time
-                    or np.abs(pt.x - x_pre).max() > self.precond_move * h):
-                self._build_preconditioner(pt, p, D)
-                x_pre = self._pre_x = pt.x.copy()
-                self._pre_tau = tau
-                self._cg_since_build = 0.0
             with self._timed("eval"):
                 pt.H = self.ev.hess_lag(pt.z, p, 1.0, pt.lam)
             self._count("n_eval_hess")
-            eta = min(0.5, float(np.sqrt(gmax / g0)))
-            delta = delta / 10 if delta >= 1e-3 else 0.0
-            t_cg = time.perf_counter()
-            with self._timed("cg"):
-                for _ in range(12):
-                    d, k, negative = self._pcg(pt, p, D, delta, eta)
-                    self._count("n_cg", k)
-                    if not negative:
-                        break
-                    delta = max(1.0, 10 * delta)
-            self._cg_since_build += time.perf_counter() - t_cg
-            delta_max = max(delta_max, delta)
+            d = self._direction(pt, p, D, h)
             new = self._line_search(pt, p, d)
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
                 break
             pt = new
-        stats: dict[str, Any] = dict(self._counts)
-        stats["newton_iterations"] = it
-        stats.setdefault("n_cg", 0)
-        stats["cholesky"] = self.backend
-        stats["t_wall_total"] = time.perf_counter() - t0
-        for key in ("eval", "factor", "cg"):
-            stats[f"t_wall_{key}"] = self._times.get(key, 0.0)
-        stats["t_wall_solver"] = stats["t_wall_total"] - stats["t_wall_eval"]
-        stats["kkt_residual"] = stats["inf_du"] = float(np.abs(pt.grad).max())
-        stats["gtol"] = gtol
-        stats["delta_max"] = delta_max
         with self._timed("eval"):
-            stats["inf_pr"] = float(np.abs(self.ev.g(pt.z, p)).max())
-        return SolveResult(z=pt.z, f=pt.f, lam_g=pt.lam, converged=status == "converged", status=status,
-                           iterations=it, stats=stats)
+            inf_pr = float(np.abs(self.ev.g(pt.z, p)).max())
+        return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.grad).max()), "inf_pr": inf_pr}
 
     def _line_search(self, pt: _Point, p: np.ndarray, d: np.ndarray) -> _Point | None:
         """Backtracking from the full step: Armijo on W^ (module docstring); None when it fails."""
