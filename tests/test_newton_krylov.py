@@ -162,3 +162,17 @@ def test_factorisation_solves_spd_systems(backend: str) -> None:
     b = rng.normal(size=(n, 3))
     assert np.abs(A @ F.solve(b) - b).max() <= 1e-12 * np.abs(b).max()
     assert np.abs(A @ F.solve(b[:, 0]) - b[:, 0]).max() <= 1e-12 * np.abs(b).max()
+
+
+def test_missing_cholespy_falls_back_to_scipy(monkeypatch) -> None:
+    """Without the cholespy package "auto" resolves to SuperLU and asking for cholespy is a one-line error."""
+    from willmore_nlp.solvers import cholesky
+
+    monkeypatch.setattr(cholesky, "_cholespy", None)
+    assert cholesky.resolve_backend("auto") == "scipy"
+    with pytest.raises(UserInputError, match="needs the package cholespy"):
+        cholesky.resolve_backend("cholespy")
+    mesh = shapes.regular_polygon(8)
+    setup = build_step(mesh)
+    solver = make_solver("newton-krylov", StepEvaluator(setup.problem, setup.problem.functions()), {})
+    assert solver.backend == "scipy"
