@@ -39,19 +39,23 @@ def _case(name: str):
     if name == "tangential-weight":
         mesh = _ellipsoid(1)
         return mesh, 0.5 * mesh.h, 0.1 * mesh.h**2, 0.0, {"tangential_weight": 4.0}
+    if name == "tangential-control":
+        mesh = _ellipsoid()
+        return mesh, 0.2 * mesh.h, mesh.h**2 / 100, 0.0, {"tangential_control": "meanratio"}
     raise ValueError(name)
 
 
-CASES = ["ellipsoid", "curve", "cap-ring", "cap-conormal", "anisotropic-curve", "tangential-weight"]
+CASES = ["ellipsoid", "curve", "cap-ring", "cap-conormal", "anisotropic-curve", "tangential-weight",
+         "tangential-control"]
 
 
 @pytest.mark.parametrize("name", CASES)
 def test_one_step_matches_ipopt(name: str) -> None:
     """X^{k+1} of newton-krylov (tol 1e-10) equals IPOPT's at tol 1e-12 to 1e-8 of the step's displacement
-    (measured 5e-14 to 3.4e-9), with the cholespy factorisation and with the SuperLU fallback
-    (``cholesky="scipy"``); the reduced gradient meets the stopping test and Y = Y[X] holds to rounding.
-    At the default tol 1e-9 the difference was up to 5e-8 of the step (the flattened caps, whose gradient
-    scale is large)."""
+    (measured 5e-14 to 3.4e-9; tangential control "meanratio" 2.3e-10), with the cholespy factorisation and
+    with the SuperLU fallback (``cholesky="scipy"``); the reduced gradient meets the stopping test and
+    Y = Y[X] holds to rounding. At the default tol 1e-9 the difference was up to 5e-8 of the step (the
+    flattened caps, whose gradient scale is large)."""
     mesh, tau, tt, lam, opts = _case(name)
     off = {"mesh_control": "off", "max_retries": 0, **opts}
     ref = WillmoreFlow(mesh, tau, tt, lam=lam, tol=1e-12, max_iter=1000, **off).step()
