@@ -39,7 +39,7 @@ REDUCED_DEFAULTS: dict[str, Any] = {"tol": 1e-6, "max_iter": 1000}
 
 @dataclass
 class _Point:
-    """Everything evaluated at one X: Y[X], W^, its gradient, the factorised J_Y and the adjoint."""
+    """Everything evaluated at one X: Y[X], W^, its gradient, J_X, J_Y, the factorised J_Y and the adjoint."""
 
     x: np.ndarray
     z: np.ndarray
@@ -49,6 +49,7 @@ class _Point:
     Jx: Any
     lu: Any
     H: Any = None
+    Jy: Any = None
 
 
 class ReducedSolver:
@@ -94,13 +95,20 @@ class ReducedSolver:
         J = self.ev.jac_g(z, p)
         self._count("n_eval_grad_f")
         self._count("n_eval_jac_g")
-        Jx, Jy = J[:, : self.nxm], J[:, self.nxm :]
-        lu = spla.splu(Jy.tocsc())
+        lu = spla.splu(J[:, self.nxm :].tocsc())
         self._count("n_factorizations")
+        return self._point(x, z, f, gf, J, lu)
+
+    def _point(self, x: np.ndarray, z: np.ndarray, f: float, gf: np.ndarray, J: Any, lu: Any) -> _Point:
+        """The reduced gradient at a feasible z from the adjoint ``J_Y^T lam = -f_Y`` (module docstring).
+
+        ``lu`` is any factorisation of J_Y with ``solve(b, trans="T")``.
+        """
         lam = lu.solve(-gf[self.nxm :], trans="T")
         self._count("n_linear_solves")
+        Jx = J[:, : self.nxm]
         grad = gf[: self.nxm] + Jx.T @ lam
-        return _Point(x.copy(), z, f, grad, lam, Jx, lu)
+        return _Point(x.copy(), z, f, grad, lam, Jx, lu, Jy=J[:, self.nxm :])
 
     def _hessp(self, pt: _Point, p: np.ndarray, v: np.ndarray) -> np.ndarray:
         vy = -pt.lu.solve(pt.Jx @ v)

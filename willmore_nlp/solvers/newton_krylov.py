@@ -1,0 +1,350 @@
+"""``newton-krylov``: reduced-space Newton with preconditioned CG and sparse Cholesky factorisations.
+
+The step NLP is solved, like the reduced solvers of :mod:`willmore_nlp.solvers.reduced`, as the
+minimisation of W^(X) = W(X, Y[X]) over the free X; the adjoint gradient and the exact
+second-order adjoint Hessian-vector products are the ones of that module (shared code). What
+differs is the linear algebra and the globalisation:
+
+* J_Y factorisation. Isotropic: J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one N x N
+  sparse Cholesky (:mod:`willmore_nlp.solvers.cholesky`) serves
+  the m coordinates; Y[X] is one such solve. Anisotropic: J_Y is the Hessian of a strictly convex
+  inner energy, factorised as a whole (also SPD) inside the damped inner Newton of
+  :meth:`StepEvaluator.solve_y`.
+* Newton step. The reduced Newton system (Hess W^ + delta D) d = -grad W^ is solved by conjugate
+  gradients (forcing term eta = min(0.5, sqrt(|grad|/|grad_0|))), preconditioned with the
+  Gauss-Newton matrix
+
+      B = D + 2 tau K^T Ml^-1 K,   K = (J_X + J_Y S) / tt,
+
+  D the exact Hessian of the distance part of W (2 M[Xk] (x) I for the paper's scheme; with a
+  tangential weight or control the corresponding quadratic form), Ml the lumped mass on the Y
+  nodes and S the injection of the free X dofs into the Y dofs. B is the Gauss-Newton Hessian of
+  W^ with J_Y^-T M J_Y^-1 replaced by Ml^-1. Its factorisation costs as much as some 50 (2,562
+  vertices) to 150 (10,242) CG iterations, so it is kept (also for the next solve with the same tau)
+  and rebuilt only after ``cg_rebuild`` CG iterations with it, or when X has moved more than
+  ``precond_move`` h (h the mean edge length of Xk) since it was built. (A rule on measured times
+  would make the iterates depend on the machine's load.)
+* Indefiniteness. When CG meets a direction of non-positive curvature the shift delta D is raised
+  (delta = 1 first, then 10 delta) and CG restarts; the next Newton iteration starts from delta / 10
+  (0 below 1e-3), so the final iterations are pure Newton.
+* Globalisation. Backtracking (halving) line search with the Armijo condition on W^: no step
+  that increases W^ beyond rounding is accepted. A step whose predicted decrease is below the
+  rounding level of W^ (100 eps |W^|) is accepted when it reduces |grad W^|_inf instead (the
+  last, quadratically convergent iterations).
+
+Stopping test: |grad W^|_inf <= tol * max(|grad W(z0)|_inf, tiny), i.e. relative to the size of the
+step problem's own objective gradient at the start (the Willmore part 2 tau/tt^2 M (Y - X) does not
+vanish when the flow is at rest), the reduced counterpart of IPOPT's dual infeasibility; the
+primal infeasibility is zero to the inner solve's accuracy at every iterate.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from itertools import combinations
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.fem.assembly import lumped_mass
+from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.solvers.base import SolveResult, register_solver
+from willmore_nlp.solvers.cholesky import FullFactor, KronFactor, SymmetricFactor
+from willmore_nlp.solvers.reduced import ReducedSolver, _Point
+
+NK_DEFAULTS: dict[str, Any] = {
+    "tol": 1e-9,
+    "max_iter": 50,
+    "cholesky": "auto",
+    "cg_max_iter": 300,
+    "precond_move": 0.5,
+    "cg_rebuild": 60,
+    "armijo": 1e-4,
+}
+"""Options of ``newton-krylov``: ``tol`` (relative, see the module docstring), ``max_iter`` (Newton
+iterations), ``cholesky`` ("auto", "cholespy", "scipy"), ``cg_max_iter`` (per Newton system),
+``precond_move`` (rebuild B when X moved more than this times the mean edge length), ``cg_rebuild`` (rebuild
+B after this many CG iterations with it), ``armijo``."""
+
+_IGNORED = ("warm_start", "print_level")  # flow-level options meant for IPOPT
+
+
+class NewtonKrylovSolver(ReducedSolver):
+    """Reduced-space Newton-CG step solver (see the module docstring).
+
+    Parameters
+    ----------
+    evaluator : StepEvaluator
+    options : dict
+        Keys of :data:`NK_DEFAULTS`; ``warm_start`` and ``print_level`` are accepted and ignored.
+    """
+
+    def __init__(self, evaluator: StepEvaluator, options: dict[str, Any]) -> None:
+        unknown = set(options) - set(NK_DEFAULTS) - set(_IGNORED)
+        if unknown:
+            raise UserInputError(f"solver newton-krylov: unknown option(s) {', '.join(sorted(unknown))}; "
+                                 f"known: {', '.join(NK_DEFAULTS)}")
+        opts = {**NK_DEFAULTS, **{k: v for k, v in options.items() if k in NK_DEFAULTS}}
+        for key in ("tol", "precond_move", "armijo"):
+            if not (isinstance(opts[key], (int, float)) and np.isfinite(opts[key]) and opts[key] > 0):
+                raise UserInputError(f"solver newton-krylov: option {key} must be a positive number, got {opts[key]!r}")
+        for key in ("max_iter", "cg_max_iter", "cg_rebuild"):
+            if not (isinstance(opts[key], (int, float)) and float(opts[key]).is_integer() and opts[key] >= 1):
+                raise UserInputError(f"solver newton-krylov: option {key} must be an integer >= 1, got {opts[key]!r}")
+        super().__init__(evaluator, "newton-krylov",
+                         {"tol": opts["tol"], "max_iter": opts["max_iter"], "armijo": opts["armijo"]})
+        self.cg_max_iter = int(opts["cg_max_iter"])
+        self.precond_move = float(opts["precond_move"])
+        self.cg_rebuild = int(opts["cg_rebuild"])
+        self._jy = SymmetricFactor(str(opts["cholesky"]))
+        self._pre = SymmetricFactor(str(opts["cholesky"]))
+        self.backend = self._jy.backend
+        P = self.P
+        m = P.m
+        if not np.all(P.y_free[P.x_free]):
+            raise ValueError("newton-krylov needs every free X node to carry a free Y")
+        nodes = np.flatnonzero(P.x_free)
+        rows = (P.y_index[nodes][:, None] * m + np.arange(m)).ravel()
+        self._S = sp.csc_matrix((np.ones(rows.size), (rows, np.arange(rows.size))), shape=(P.ng, self.nxm))
+        self._times: dict[str, float] = {}
+        self._pre_x: np.ndarray | None = None  # free X where B was built, and for which tau
+        self._pre_tau = float("nan")
+        self._cg_since_build = 0  # CG iterations with the current B
+        self._g0 = 1.0  # size of the first (reduced) gradient of a solve: CG forcing term
+        self._delta = self._delta_max = 0.0  # shift of the Newton systems
+        self.should_stop = lambda: False
+
+    # -- bookkeeping ------------------------------------------------------------------
+    @contextmanager
+    def _timed(self, key: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self._times[key] = self._times.get(key, 0.0) + time.perf_counter() - t0
+
+    # -- J_Y and the point X ----------------------------------------------------------
+    def _factor_jy(self, Jy: sp.spmatrix) -> KronFactor | FullFactor:
+        """Factorisation of J_Y: of its N x N block (isotropic) or of the whole matrix (anisotropic)."""
+        with self._timed("factor"):
+            self._count("n_factorizations")
+            if self.P.anisotropic:
+                return FullFactor(self._jy.factor(Jy))
+            m = self.P.m
+            return KronFactor(self._jy.factor(sp.csc_matrix(Jy)[0::m, 0::m]), m)
+
+    def _at(self, x: np.ndarray, p: np.ndarray, Y0: np.ndarray) -> _Point:
+        """Y[X], W^, its adjoint gradient and the factorised J_Y at the free positions ``x``."""
+        P, m, ev = self.P, self.P.m, self.ev
+        Xk = p[: P.n_vertices * m].reshape(-1, m)
+        X, _ = P.unpack_z(np.concatenate([x, np.zeros(P.ng)]), Xk)
+        Y = np.array(Y0, float, copy=True)
+        Y[~P.y_free] = Xk[~P.y_free]
+        self._count("n_inner_solve")
+        if P.anisotropic:
+            Y = ev.solve_y(X, p, Y, linear_solve=lambda Jy, r: self._factor_jy(Jy).solve(r))
+        z = P.pack_z(X, Y)
+        with self._timed("eval"):
+            g, J = ev.g_jac(z, p)
+        self._count("n_eval_jac_g")
+        fact = self._factor_jy(J[:, self.nxm :])
+        for _ in range(3):  # isotropic: g is linear in Y, one solve (+ a refinement if rounding asks)
+            scale = max(1.0, float(np.abs(J[:, self.nxm :]).max()) * float(np.abs(z[self.nxm :]).max()))
+            if np.abs(g).max() <= 1e-12 * scale:
+                break
+            if P.anisotropic:
+                raise RuntimeError(f"inner equation not solved (residual {np.abs(g).max():.3e})")
+            with self._timed("cg"):
+                z = z.copy()
+                z[self.nxm :] -= fact.solve(g)
+            with self._timed("eval"):
+                g, J = ev.g_jac(z, p)
+            self._count("n_eval_jac_g")
+        else:
+            raise RuntimeError(f"inner equation not solved (residual {np.abs(g).max():.3e})")
+        with self._timed("eval"):
+            f, gf = ev.f_grad(z, p)
+        self._count("n_eval_grad_f")
+        return self._point(x, z, f, gf, J, fact)
+
+    # -- preconditioner ---------------------------------------------------------------
+    def _distance_hessian(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
+        """D: the Hessian in X of the distance (and control) part of W, i.e. of W with tau = 0 (constant in X)."""
+        p0 = np.array(p, float, copy=True)
+        p0[self.P.n_vertices * self.P.m] = 0.0
+        with self._timed("eval"):
+            H = self.ev.hess_lag(z, p0, 1.0, np.zeros(self.P.ng))
+        self._count("n_eval_hess")
+        return sp.csc_matrix(H[: self.nxm, : self.nxm])
+
+    def _build_preconditioner(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
+        """Factorise B = D + 2 tau K^T Ml^-1 K at ``pt`` (module docstring)."""
+        P, m = self.P, self.P.m
+        N = P.n_vertices
+        tau, tt = float(p[N * m]), float(p[N * m + 1])
+        with self._timed("factor"):
+            X, _ = P.unpack_z(pt.z, p[: N * m].reshape(-1, m))
+            ml = lumped_mass(X, P.simplices, N)[P.y_free]
+            K = (pt.Jx + pt.Jy @ self._S) / tt
+            B = D + 2.0 * tau * (K.T @ sp.diags(np.repeat(1.0 / ml, m)) @ K)
+            self._pre.factor(B.tocsc())
+        self._count("n_precond_builds")
+
+    # -- Newton-CG --------------------------------------------------------------------
+    def _pcg(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, delta: float,
+             eta: float) -> tuple[np.ndarray, int, bool]:
+        """Preconditioned CG on (Hess W^ + delta D) d = -grad; stops at non-positive curvature.
+
+        Returns
+        -------
+        d : (nX m,) the last iterate
+        its : CG iterations
+        negative : True when a direction of non-positive curvature was met
+        """
+        g = pt.grad
+        x = np.zeros_like(g)
+        r = -g
+        s = self._pre.solve(r)
+        d = s.copy()
+        rs = float(r @ s)
+        gnorm = float(np.linalg.norm(g))
+        for k in range(self.cg_max_iter):
+            Ad = self._hessp(pt, p, d)
+            if delta:
+                Ad = Ad + delta * (D @ d)
+            dAd = float(d @ Ad)
+            if not dAd > 0:
+                return x, k + 1, True
+            alpha = rs / dAd
+            x += alpha * d
+            r -= alpha * Ad
+            if np.linalg.norm(r) <= eta * gnorm:
+                return x, k + 1, False
+            s = self._pre.solve(r)
+            rs_new = float(r @ s)
+            d = s + (rs_new / rs) * d
+            rs = rs_new
+        return x, self.cg_max_iter, False
+
+    def _mean_edge(self, Xk: np.ndarray) -> float:
+        S = self.P.simplices
+        E = np.vstack([S[:, [i, j]] for i, j in combinations(range(S.shape[1]), 2)])
+        return float(np.linalg.norm(Xk[E[:, 0]] - Xk[E[:, 1]], axis=1).mean())
+
+    def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray:
+        """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed.
+
+        ``pt.H`` (the Lagrangian Hessian at ``pt.z`` with multipliers ``pt.lam``) must be set. Solver state
+        across iterations: ``_pre_x`` (where B was built), ``_delta``, ``_g0`` (first gradient size).
+        """
+        tau = float(p[self.P.n_vertices * self.P.m])
+        if (self._pre_x is None or self._pre_tau != tau or self._cg_since_build >= self.cg_rebuild
+                or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
+            self._build_preconditioner(pt, p, D)
+            self._pre_x, self._pre_tau, self._cg_since_build = pt.x.copy(), tau, 0
+        gmax = float(np.abs(pt.grad).max())
+        eta = min(0.5, float(np.sqrt(gmax / self._g0)))
+        delta = self._delta / 10 if self._delta >= 1e-3 else 0.0
+        with self._timed("cg"):
+            for _ in range(12):
+                d, k, negative = self._pcg(pt, p, D, delta, eta)
+                self._count("n_cg", k)
+                self._cg_since_build += k
+                if not negative:
+                    break
+                delta = max(1.0, 10 * delta)
+        self._delta = delta
+        self._delta_max = max(self._delta_max, delta)
+        return d
+
+    def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
+        """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used)."""
+        t0 = time.perf_counter()
+        self._counts, self._times = {}, {}
+        P, m = self.P, self.P.m
+        Xk = p[: P.n_vertices * m].reshape(-1, m)
+        h = self._mean_edge(Xk)
+        with self._timed("eval"):
+            scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
+        self._count("n_eval_grad_f")
+        gtol = self.tol * scale
+        pt = self._at(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
+        D = self._distance_hessian(pt.z, p)
+        self._g0 = max(float(np.abs(pt.grad).max()), 1e-300)
+        self._delta = self._delta_max = 0.0
+        z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
+        stats: dict[str, Any] = dict(self._counts)
+        stats["newton_iterations"] = it
+        stats.setdefault("n_cg", 0)
+        stats["cholesky"] = self.backend
+        stats["t_wall_total"] = time.perf_counter() - t0
+        for key in ("eval", "factor", "cg"):
+            stats[f"t_wall_{key}"] = self._times.get(key, 0.0)
+        stats["t_wall_solver"] = stats["t_wall_total"] - stats["t_wall_eval"]
+        stats.update(res)
+        stats["kkt_residual"] = stats["inf_du"]
+        stats["gtol"] = gtol
+        stats["delta_max"] = self._delta_max
+        return SolveResult(z=z, f=f, lam_g=lam, converged=status == "converged", status=status,
+                           iterations=it, stats=stats)
+
+    def _iterate(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float,
+                         gtol: float) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
+        """Newton on W^ with Y = Y[X] at every iterate, Armijo line search on W^."""
+        status = "maximum iterations"
+        it = 0
+        for it in range(self.max_iter + 1):
+            gmax = float(np.abs(pt.grad).max())
+            if gmax <= gtol:
+                status = "converged"
+                break
+            if it == self.max_iter:
+                break
+            if self.should_stop():
+                status = "stopped"
+                break
+            with self._timed("eval"):
+                pt.H = self.ev.hess_lag(pt.z, p, 1.0, pt.lam)
+            self._count("n_eval_hess")
+            d = self._direction(pt, p, D, h)
+            new = self._line_search(pt, p, d)
+            if new is None:
+                status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
+                break
+            pt = new
+        with self._timed("eval"):
+            inf_pr = float(np.abs(self.ev.g(pt.z, p)).max())
+        return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.grad).max()), "inf_pr": inf_pr}
+
+    def _line_search(self, pt: _Point, p: np.ndarray, d: np.ndarray) -> _Point | None:
+        """Backtracking from the full step: Armijo on W^ (module docstring); None when it fails."""
+        gd = float(pt.grad @ d)
+        if not gd < 0:
+            d, gd = -pt.grad, -float(pt.grad @ pt.grad)
+        Xk = p[: self.P.n_vertices * self.P.m].reshape(-1, self.P.m)
+        Y0 = self.P.unpack_z(pt.z, Xk)[1]
+        rounding = 100 * np.finfo(float).eps * abs(pt.f)
+        gmax = float(np.abs(pt.grad).max())
+        alpha = 1.0
+        for _ in range(40):
+            try:
+                new = self._at(pt.x + alpha * d, p, Y0)
+            except RuntimeError:
+                new = None
+            if new is not None and np.isfinite(new.f):
+                if new.f <= pt.f + self.armijo * alpha * gd:
+                    return new
+                if -alpha * gd <= rounding and new.f <= pt.f + rounding and np.abs(new.grad).max() < gmax:
+                    return new
+            alpha *= 0.5
+        return None
+
+
+@register_solver("newton-krylov")
+def make_newton_krylov(evaluator: StepEvaluator, options: dict[str, Any]) -> NewtonKrylovSolver:
+    """Factory for :class:`NewtonKrylovSolver`."""
+    return NewtonKrylovSolver(evaluator, options)
