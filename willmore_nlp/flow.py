@@ -281,6 +281,13 @@ class WillmoreFlow:
         Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
     remesh_target : float, optional
         Target edge length of the isotropic remeshing (default: the initial mean edge h).
+    remesh_relax : int
+        Light repair after *every* accepted step of a surface flow while ``remesh`` is on (default 2;
+        0: only the threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
+        mesh-improving tangential moves placed on a local quadric fit of the surface
+        (:func:`willmore_nlp.remesh.tangential_relax`), flips again. The vertex count never changes;
+        the shape changes by O(h^3) per move. Keeps the mesh from degrading between the repairs
+        (docs/guide/mesh_quality.md).
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
 
@@ -322,6 +329,7 @@ class WillmoreFlow:
         remesh_min_angle: float = 20.0,
         remesh_max_edge_ratio: float = 10.0,
         remesh_target: float | None = None,
+        remesh_relax: int = 2,
         **options: Any,
     ) -> None:
         for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
@@ -370,6 +378,9 @@ class WillmoreFlow:
         self.remesh_target = h if remesh_target is None else float(remesh_target)
         if not (np.isfinite(self.remesh_target) and self.remesh_target > 0):
             raise ValueError(f"remesh_target must be a positive number, got {remesh_target}")
+        if isinstance(remesh_relax, bool) or not float(remesh_relax).is_integer() or remesh_relax < 0:
+            raise UserInputError(f"remesh_relax must be an integer >= 0, got {remesh_relax!r}")
+        self.remesh_relax = int(remesh_relax)
         self._anisotropy = anisotropy
         self._tangential_weight = tangential_weight
         self._control = TangentialControl(tangential_control, tangential_control_weight, tangential_control_time)
@@ -588,7 +599,8 @@ class WillmoreFlow:
         from willmore_nlp import remesh as rm
 
         X, F = self.X, self.mesh.simplices
-        if not self._needs_repair(X, F):
+        light = self.remesh_relax > 0
+        if not light and not self._needs_repair(X, F):
             return "", {}
         free = self.free
         actions: list[str] = []
@@ -597,8 +609,12 @@ class WillmoreFlow:
         if n:
             actions.append("flips")
         X1 = X
+        if light:
+            X1 = rm.tangential_relax(X, F1, free, iterations=self.remesh_relax)
+            F1, _ = rm.delaunay_flips(X1, F1, free)
+            actions.append("relax")
         if self._needs_repair(X1, F1):
-            X1 = rm.tangential_smooth(X, F1, free)
+            X1 = rm.tangential_smooth(X1, F1, free)
             F1, _ = rm.delaunay_flips(X1, F1, free)
             actions.append("smooth")
         explicit = boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
@@ -617,7 +633,7 @@ class WillmoreFlow:
             return "", {}
         q0 = self._patch_quality(X, F, free)
         q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
-        if q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]:
+        if not light and q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]:
             return "", {}  # no improvement: keep the flow's own mesh rather than churn
         e_before = self.discrete_energy(X, self.Y)
         angle_before = geometry.triangle_quality(X, F)["min_angle"]
