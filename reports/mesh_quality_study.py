@@ -93,9 +93,18 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     failed = ""
     t0 = time.perf_counter()
 
+    series: list[list[float]] = []
+    marks = [0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0]
+
     def cb(r: Any) -> None:
         rows.append(r.row())
         last[:] = [r]
+        if name.startswith("torus 48") and marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
+            while marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
+                marks.pop(0)
+            R, rr = torus_fit(r.vertices)
+            before = [x["min_angle_before_remesh"] if x["remeshed"] else x["q_min_angle"] for x in rows[1:]]
+            series.append([r.t, R / rr, r.willmore, float(min(before)), float(min(x["q_min_angle"] for x in rows))])
         if len(rows) % 50 == 0:
             print(f"  {name}: step {r.step} t = {r.t:.4g} W = {r.willmore:.5g} min angle "
                   f"{r.quality['min_angle']:.3g} N = {r.vertices.shape[0]}", flush=True)
@@ -123,7 +132,9 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     if name.startswith("torus 48"):
         R, r = torus_fit(flow.X)
         out.update({"R_over_r": R / r, "clifford_grid": geometry.willmore_energy(shapes.torus(np.sqrt(2), 1.0, 48, 24)),
-                    "W_min": float(W.min())})
+                    "W_min": float(W.min()), "series": series})
+    np.savez_compressed(CACHE / f"{name.replace(' ', '_').replace('(', '').replace(')', '')}_final.npz",
+                        vertices=flow.X, simplices=flow.mesh.simplices)
     return out
 
 
@@ -142,7 +153,8 @@ def cases(scale: float) -> dict[str, Any]:
 
     def torus(**kw: Any) -> Any:
         mesh = shapes.torus(1.0, 0.5, 48, 24)
-        return lambda: run_case("torus 48x24" + (" (mesh control off)" if kw else ""), mesh, 1e-3,
+        label = {(): "", ("mesh_control",): " (mesh control off)", ("remesh_relax",): " (threshold repair only)"}
+        return lambda: run_case("torus 48x24" + label[tuple(kw)], mesh, 1e-3,
                                 0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford, **kw)
 
     def boundary(name: str, steps: int, reference: Any = None, flow: dict[str, Any] | None = None,
@@ -169,6 +181,7 @@ def cases(scale: float) -> dict[str, Any]:
                                        0.01 * g2.h**2, steps=n(200), adaptive=True, max_retries=12,
                                        mesh_control="off"),
         "torus": torus(),
+        "torus_threshold": torus(remesh_relax=0),
         "torus_off": torus(mesh_control="off"),
         "blend_conormal": boundary("surface_blending", 200, variant="conormal"),
         "blend_ring": boundary("surface_blending", 200, variant="ring"),

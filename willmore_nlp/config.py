@@ -52,7 +52,7 @@ FLOW_KEYS: dict[str, Any] = {
     "min_tau": None,
     "mesh_control": "auto",
     "remesh": "auto",
-    "remesh_min_angle": 20.0,
+    "remesh_min_angle": 15.0,
     "remesh_max_edge_ratio": 10.0,
     "remesh_target": None,
     "remesh_relax": 2,

@@ -73,6 +73,10 @@ SMALL_MESH_SIZE = 0.1
 met by iterates that barely move (measured: the unit-size steps are reproduced to 2e-7 (ellipse) and
 2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4)."""
 
+RELAX_ROUNDS = 5
+"""The light repair (``remesh_relax``) repeats its passes up to this many times while the mesh is below the
+repair thresholds, before the stronger repairs (projected smoothing, isotropic remeshing) are tried."""
+
 TAU_TILDE_WARN_FACTOR = 2.0
 """WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde > this factor times h^2 (h = mean edge)."""
 
@@ -276,11 +280,14 @@ class WillmoreFlow:
         Changes the state by O(h^2) (recorded: ``StepResult.remeshed``, ``stats`` energies before
         and after), so e(X^k) is not guaranteed to decrease across a remeshing.
     remesh_min_angle : float
-        Smallest triangle angle (degrees) that triggers the mesh control (default 20).
+        Smallest patch angle (degrees) that triggers the stronger repairs (default 15; the light repair
+        ``remesh_relax`` runs after every step regardless).
     remesh_max_edge_ratio : float
         Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
     remesh_target : float, optional
-        Target edge length of the isotropic remeshing (default: the initial mean edge h).
+        Target edge length of the isotropic remeshing (default: the edge of equilateral triangles with the
+        patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
+        remeshing keeps the resolution, e.g. the vertex count of a closed surface).
     remesh_relax : int
         Light repair after *every* accepted step of a surface flow while ``remesh`` is on (default 2;
         0: only the threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
@@ -326,7 +333,7 @@ class WillmoreFlow:
         min_tau: float | None = None,
         mesh_control: str = "auto",
         remesh: str = "auto",
-        remesh_min_angle: float = 20.0,
+        remesh_min_angle: float = 15.0,
         remesh_max_edge_ratio: float = 10.0,
         remesh_target: float | None = None,
         remesh_relax: int = 2,
@@ -375,8 +382,8 @@ class WillmoreFlow:
         self.remesh = (remesh == "auto" and mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
         self.remesh_min_angle = float(remesh_min_angle)
         self.remesh_max_edge_ratio = float(remesh_max_edge_ratio)
-        self.remesh_target = h if remesh_target is None else float(remesh_target)
-        if not (np.isfinite(self.remesh_target) and self.remesh_target > 0):
+        self.remesh_target = None if remesh_target is None else float(remesh_target)
+        if self.remesh_target is not None and not (np.isfinite(self.remesh_target) and self.remesh_target > 0):
             raise ValueError(f"remesh_target must be a positive number, got {remesh_target}")
         if isinstance(remesh_relax, bool) or not float(remesh_relax).is_integer() or remesh_relax < 0:
             raise UserInputError(f"remesh_relax must be an integer >= 0, got {remesh_relax!r}")
@@ -610,17 +617,23 @@ class WillmoreFlow:
             actions.append("flips")
         X1 = X
         if light:
-            X1 = rm.tangential_relax(X, F1, free, iterations=self.remesh_relax)
-            F1, _ = rm.delaunay_flips(X1, F1, free)
+            # remesh_relax passes after every step; up to RELAX_ROUNDS times as many while the mesh is
+            # below the thresholds, before the stronger repairs (which move the shape by O(h^2))
+            for _ in range(RELAX_ROUNDS):
+                X1 = rm.tangential_relax(X1, F1, free, iterations=self.remesh_relax)
+                F1, _ = rm.delaunay_flips(X1, F1, free)
+                if not self._needs_repair(X1, F1):
+                    break
             actions.append("relax")
-        if self._needs_repair(X1, F1):
+        if not light and self._needs_repair(X1, F1):  # the relax passes replace the polyhedral smoothing
             X1 = rm.tangential_smooth(X1, F1, free)
             F1, _ = rm.delaunay_flips(X1, F1, free)
             actions.append("smooth")
         explicit = boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
         if self._needs_repair(X1, F1) and not explicit:
             try:
-                r = rm.isotropic_remesh(X1, F1, self.remesh_target, free)
+                target = self.remesh_target or rm.equilateral_edge(X1, F1, free)
+                r = rm.isotropic_remesh(X1, F1, target, free)
             except rm.RemeshError as exc:
                 warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=3)
             else:

@@ -196,6 +196,20 @@ def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = No
     return X
 
 
+def equilateral_edge(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None) -> float:
+    """Edge length of equilateral triangles with the area and count of the patch triangles (a free vertex).
+
+    The default target of :func:`isotropic_remesh` in the flow: remeshing toward it keeps the number of
+    triangles, hence the resolution, where the mean edge of an anisotropic grid (a torus of revolution)
+    would coarsen the mesh.
+    """
+    F = np.asarray(F)
+    if free is not None:
+        F = F[np.asarray(free, bool)[F].any(axis=1)]
+    area = 0.5 * np.linalg.norm(_normals(np.asarray(V, float), F), axis=1).sum()
+    return float(np.sqrt(4.0 * area / (np.sqrt(3.0) * F.shape[0])))
+
+
 @dataclass
 class Remeshed:
     """Result of :func:`isotropic_remesh`.
