@@ -73,6 +73,9 @@ SMALL_MESH_SIZE = 0.1
 met by iterates that barely move (measured: the unit-size steps are reproduced to 2e-7 (ellipse) and
 2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4)."""
 
+RELAX_TOLERANCE = 1e-6
+"""Degrees: the light repair follows a step that lowered the smallest patch angle by more than this."""
+
 RELAX_ROUNDS = 5
 """The light repair (``remesh_relax``) repeats its passes up to this many times while the mesh is below the
 repair thresholds, before the stronger repairs (projected smoothing, isotropic remeshing) are tried."""
@@ -413,6 +416,7 @@ class WillmoreFlow:
             raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
+        self._angle_prev = self._patch_min_angle()
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.
@@ -590,6 +594,12 @@ class WillmoreFlow:
         """:func:`geometry.triangle_quality` of the triangles with a free vertex (all without boundary)."""
         return geometry.triangle_quality(X, F if free is None else F[free[F].any(axis=1)])
 
+    def _patch_min_angle(self) -> float:
+        """Smallest patch angle of the current state (surfaces in R^3; NaN otherwise)."""
+        if self.mesh.d != 2 or self.mesh.m != 3:
+            return float("nan")
+        return self._patch_quality(self.X, self.mesh.simplices, self.free)["min_angle"]
+
     def _needs_repair(self, X: np.ndarray, F: np.ndarray) -> bool:
         """Patch triangles below ``remesh_min_angle`` or patch edges above ``remesh_max_edge_ratio``."""
         q = self._patch_quality(X, F, self.free)
@@ -606,8 +616,14 @@ class WillmoreFlow:
         from willmore_nlp import remesh as rm
 
         X, F = self.X, self.mesh.simplices
-        light = self.remesh_relax > 0
-        if not light and not self._needs_repair(X, F):
+        angle, previous = self._patch_min_angle(), self._angle_prev
+        self._angle_prev = angle
+        relax = self.remesh_relax > 0
+        needs = self._needs_repair(X, F)
+        # the light repair acts when the step lowered the smallest patch angle: a mesh that the flow
+        # does not degrade (an equilibrium) is left alone, so stationary states stay stationary
+        light = relax and (needs or angle < previous - RELAX_TOLERANCE)
+        if not light and not needs:
             return "", {}
         free = self.free
         actions: list[str] = []
@@ -625,7 +641,7 @@ class WillmoreFlow:
                 if not self._needs_repair(X1, F1):
                     break
             actions.append("relax")
-        if not light and self._needs_repair(X1, F1):  # the relax passes replace the polyhedral smoothing
+        if not relax and self._needs_repair(X1, F1):  # the relax passes replace the polyhedral smoothing
             X1 = rm.tangential_smooth(X1, F1, free)
             F1, _ = rm.delaunay_flips(X1, F1, free)
             actions.append("smooth")
@@ -663,6 +679,7 @@ class WillmoreFlow:
                 self._build(*old)
             return "", {}
         self.X, self.Y, self.lam_g = X1, Y1, None
+        self._angle_prev = q1["min_angle"]
         return "+".join(actions), {"energy_before_remesh": e_before,
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before}
@@ -705,6 +722,7 @@ class WillmoreFlow:
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
             raise ValueError("restart: the state has non-finite values")
         self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
+        self._angle_prev = self._patch_min_angle()
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._tau_adapt = (float("inf") if last_tau is None
                            else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
