@@ -274,17 +274,17 @@ class WillmoreFlow:
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme, no
         mesh control whatever the other options say).
     remesh : {"auto", "off"}
-        Surfaces in R^3 only (curves ignore it): after an accepted step whose patch triangles have
-        a smallest angle below ``remesh_min_angle`` or an edge ratio above ``remesh_max_edge_ratio``,
-        repair the mesh (:mod:`willmore_nlp.remesh`): Delaunay edge flips, then tangential smoothing
-        projected onto the surface, then isotropic remeshing toward ``remesh_target``, stopping at
-        the first that meets the thresholds; then rebuild the step NLP for the new connectivity
-        and solve Y[X] again. Boundary vertices and the fixed part of a clamped problem never move.
-        Changes the state by O(h^2) (recorded: ``StepResult.remeshed``, ``stats`` energies before
-        and after), so e(X^k) is not guaranteed to decrease across a remeshing.
+        Surfaces in R^3 only (curves ignore it): mesh repair between steps (:mod:`willmore_nlp.remesh`,
+        docs/guide/mesh_quality.md). After a step that lowered the smallest patch angle, the light
+        repair (``remesh_relax``); when the patch triangles are then still below ``remesh_min_angle``
+        or above ``remesh_max_edge_ratio``, Delaunay flips, (with ``remesh_relax = 0``) tangential
+        smoothing projected onto the surface, and isotropic remeshing toward ``remesh_target``,
+        stopping at the first that meets the thresholds; then the step NLP is rebuilt for a new
+        connectivity and Y[X] solved again. Boundary vertices and the fixed part of a clamped problem
+        never move. Changes the state (recorded: ``StepResult.remeshed``, ``stats`` energies before
+        and after), so e(X^k) is not guaranteed to decrease across a repair.
     remesh_min_angle : float
-        Smallest patch angle (degrees) that triggers the stronger repairs (default 15; the light repair
-        ``remesh_relax`` runs after every step regardless).
+        Smallest patch angle (degrees) that triggers the stronger repairs (default 15).
     remesh_max_edge_ratio : float
         Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
     remesh_target : float, optional
@@ -292,11 +292,11 @@ class WillmoreFlow:
         patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
         remeshing keeps the resolution, e.g. the vertex count of a closed surface).
     remesh_relax : int
-        Light repair after *every* accepted step of a surface flow while ``remesh`` is on (default 2;
-        0: only the threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
+        Light repair after every accepted step that lowered the smallest patch angle, while ``remesh``
+        is on (default 2; 0: only the threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
         mesh-improving tangential moves placed on a local quadric fit of the surface
         (:func:`willmore_nlp.remesh.tangential_relax`), flips again. The vertex count never changes;
-        the shape changes by O(h^3) per move. Keeps the mesh from degrading between the repairs
+        the shape changes by O(h^3) per move (the cubic terms). Keeps the mesh from degrading between the repairs
         (docs/guide/mesh_quality.md).
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
