@@ -86,8 +86,11 @@ def torus_projection(V: np.ndarray, R: float, r: float) -> np.ndarray:
 
 
 def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None = None, t_end: float | None = None,
-             reference: Any = None, **options: Any) -> dict[str, Any]:
-    """Run one flow, collecting the table's figures (see the module docstring)."""
+             reference: Any = None, switch: tuple[float, float] | None = None, **options: Any) -> dict[str, Any]:
+    """Run one flow, collecting the table's figures (see the module docstring).
+
+    ``switch = (t_s, tau_2)``: step with tau up to t_s, then with tau_2 up to t_end.
+    """
     flow = WillmoreFlow(mesh, tau, tt, **options)
     rows: list[dict[str, Any]] = [flow.state().row()]
     last: list[Any] = []
@@ -111,6 +114,9 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
                   f"{r.quality['min_angle']:.3g} N = {r.vertices.shape[0]}", flush=True)
 
     try:
+        if switch is not None:
+            flow.run(t_end=switch[0], callback=cb)
+            flow.tau = switch[1]
         flow.run(steps=steps, t_end=t_end, callback=cb)
     except FlowError as exc:
         failed = f"step {exc.step} at t = {exc.t:.4g}: {exc.rejected[-1] if exc.rejected else exc}"
@@ -158,7 +164,8 @@ def cases(scale: float) -> dict[str, Any]:
         mesh = shapes.torus(1.0, 0.5, n, n // 2)
         label = {(): "", ("mesh_control",): " (mesh control off)", ("remesh_relax",): " (threshold repair only)"}
         return lambda: run_case(f"torus {n}x{n // 2}" + label[tuple(kw)], mesh, 1e-3,
-                                0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford, **kw)
+                                0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford,
+                                switch=(0.1, 1e-2) if scale == 1.0 else None, **kw)
 
     def boundary(name: str, steps: int, reference: Any = None, flow: dict[str, Any] | None = None,
                  **params: Any) -> Any:

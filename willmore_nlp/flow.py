@@ -73,8 +73,9 @@ SMALL_MESH_SIZE = 0.1
 met by iterates that barely move (measured: the unit-size steps are reproduced to 2e-7 (ellipse) and
 2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4)."""
 
-RELAX_TOLERANCE = 1e-6
-"""Degrees: the light repair follows a step that lowered the smallest patch angle by more than this."""
+RELAX_TOLERANCE = 0.1
+"""Degrees: the light repair follows the steps that lowered the smallest patch angle by more than this below
+its best value since the last repair."""
 
 RELAX_ROUNDS = 5
 """The light repair (``remesh_relax``) repeats its passes up to this many times while the mesh is below the
@@ -292,7 +293,8 @@ class WillmoreFlow:
         patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
         remeshing keeps the resolution, e.g. the vertex count of a closed surface).
     remesh_relax : int
-        Light repair after every accepted step that lowered the smallest patch angle, while ``remesh``
+        Light repair after every accepted step that left the smallest patch angle more than 0.1 degree
+        below its best value since the last repair, while ``remesh``
         is on (default 2; 0: only the threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
         mesh-improving tangential moves placed on a local quadric fit of the surface
         (:func:`willmore_nlp.remesh.tangential_relax`), flips again. The vertex count never changes;
@@ -616,13 +618,14 @@ class WillmoreFlow:
         from willmore_nlp import remesh as rm
 
         X, F = self.X, self.mesh.simplices
-        angle, previous = self._patch_min_angle(), self._angle_prev
-        self._angle_prev = angle
+        angle, best = self._patch_min_angle(), self._angle_prev
+        self._angle_prev = max(angle, best)
         relax = self.remesh_relax > 0
         needs = self._needs_repair(X, F)
-        # the light repair acts when the step lowered the smallest patch angle: a mesh that the flow
-        # does not degrade (an equilibrium) is left alone, so stationary states stay stationary
-        light = relax and (needs or angle < previous - RELAX_TOLERANCE)
+        # the light repair acts when the steps since the last repair lowered the smallest patch angle by
+        # more than RELAX_TOLERANCE: a mesh that the flow does not degrade (an equilibrium, a round sphere)
+        # is left alone, so stationary states stay stationary
+        light = relax and (needs or angle < best - RELAX_TOLERANCE)
         if not light and not needs:
             return "", {}
         free = self.free
