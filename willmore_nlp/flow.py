@@ -73,9 +73,8 @@ SMALL_MESH_SIZE = 0.1
 met by iterates that barely move (measured: the unit-size steps are reproduced to 2e-7 (ellipse) and
 2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4)."""
 
-RELAX_TOLERANCE = 0.1
-"""Degrees: the light repair follows the steps that lowered the smallest patch angle by more than this below
-its best value since the last repair."""
+RELAX_SPEED = 1.0
+"""Each pass of the light repair moves a vertex by at most this factor times the distance the step moved it."""
 
 RELAX_ROUNDS = 5
 """The light repair (``remesh_relax``) repeats its passes up to this many times while the mesh is below the
@@ -276,11 +275,11 @@ class WillmoreFlow:
         mesh control whatever the other options say).
     remesh : {"auto", "off"}
         Surfaces in R^3 only (curves ignore it): mesh repair between steps (:mod:`willmore_nlp.remesh`,
-        docs/guide/mesh_quality.md). After a step that lowered the smallest patch angle, the light
-        repair (``remesh_relax``); when the patch triangles are then still below ``remesh_min_angle``
-        or above ``remesh_max_edge_ratio``, Delaunay flips, (with ``remesh_relax = 0``) tangential
-        smoothing projected onto the surface, and isotropic remeshing toward ``remesh_target``,
-        stopping at the first that meets the thresholds; then the step NLP is rebuilt for a new
+        docs/guide/mesh_quality.md). After every step the light repair (``remesh_relax``); when the
+        patch triangles are then still below ``remesh_min_angle`` or above ``remesh_max_edge_ratio``,
+        Delaunay flips, (with ``remesh_relax = 0``) tangential smoothing projected onto the surface,
+        and isotropic remeshing toward ``remesh_target``, stopping at the first that meets the
+        thresholds; then the step NLP is rebuilt for a new
         connectivity and Y[X] solved again. Boundary vertices and the fixed part of a clamped problem
         never move. Changes the state (recorded: ``StepResult.remeshed``, ``stats`` energies before
         and after), so e(X^k) is not guaranteed to decrease across a repair.
@@ -293,11 +292,12 @@ class WillmoreFlow:
         patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
         remeshing keeps the resolution, e.g. the vertex count of a closed surface).
     remesh_relax : int
-        Light repair after every accepted step that left the smallest patch angle more than 0.1 degree
-        below its best value since the last repair, while ``remesh``
-        is on (default 2; 0: only the threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
+        Light repair after every accepted step, while ``remesh`` is on (default 2; 0: only the
+        threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
         mesh-improving tangential moves placed on a local quadric fit of the surface
-        (:func:`willmore_nlp.remesh.tangential_relax`), flips again. The vertex count never changes;
+        (:func:`willmore_nlp.remesh.tangential_relax`), each move at most as long as the step's move of
+        that vertex (``RELAX_SPEED``: a state the flow does not move is not touched), flips again. The
+        vertex count never changes;
         the shape changes by O(h^3) per move (the cubic terms). Keeps the mesh from degrading between the repairs
         (docs/guide/mesh_quality.md).
     **options
@@ -418,7 +418,7 @@ class WillmoreFlow:
             raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
-        self._angle_prev = self._patch_min_angle()
+        self._X_prev = self.X
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.
@@ -596,12 +596,6 @@ class WillmoreFlow:
         """:func:`geometry.triangle_quality` of the triangles with a free vertex (all without boundary)."""
         return geometry.triangle_quality(X, F if free is None else F[free[F].any(axis=1)])
 
-    def _patch_min_angle(self) -> float:
-        """Smallest patch angle of the current state (surfaces in R^3; NaN otherwise)."""
-        if self.mesh.d != 2 or self.mesh.m != 3:
-            return float("nan")
-        return self._patch_quality(self.X, self.mesh.simplices, self.free)["min_angle"]
-
     def _needs_repair(self, X: np.ndarray, F: np.ndarray) -> bool:
         """Patch triangles below ``remesh_min_angle`` or patch edges above ``remesh_max_edge_ratio``."""
         q = self._patch_quality(X, F, self.free)
@@ -618,14 +612,14 @@ class WillmoreFlow:
         from willmore_nlp import remesh as rm
 
         X, F = self.X, self.mesh.simplices
-        angle, best = self._patch_min_angle(), self._angle_prev
-        self._angle_prev = max(angle, best)
+        moved = np.linalg.norm(X - self._X_prev, axis=1) if self._X_prev.shape == X.shape else None
+        self._X_prev = X
         relax = self.remesh_relax > 0
         needs = self._needs_repair(X, F)
-        # the light repair acts when the steps since the last repair lowered the smallest patch angle by
-        # more than RELAX_TOLERANCE: a mesh that the flow does not degrade (an equilibrium, a round sphere)
-        # is left alone, so stationary states stay stationary
-        light = relax and (needs or angle < best - RELAX_TOLERANCE)
+        # the light repair moves each vertex by at most RELAX_SPEED times what the step moved it: the mesh
+        # follows the surface at its own speed, and a state that the flow does not move (an equilibrium)
+        # is left alone, so the fixed points are those of the paper's scheme
+        light = relax and moved is not None and bool(moved.max() > 0)
         if not light and not needs:
             return "", {}
         free = self.free
@@ -639,7 +633,7 @@ class WillmoreFlow:
             # remesh_relax passes after every step; up to RELAX_ROUNDS times as many while the mesh is
             # below the thresholds, before the stronger repairs (which move the shape by O(h^2))
             for _ in range(RELAX_ROUNDS):
-                X1 = rm.tangential_relax(X1, F1, free, iterations=self.remesh_relax)
+                X1 = rm.tangential_relax(X1, F1, free, iterations=self.remesh_relax, cap=RELAX_SPEED * moved)
                 F1, _ = rm.delaunay_flips(X1, F1, free)
                 if not self._needs_repair(X1, F1):
                     break
@@ -682,7 +676,7 @@ class WillmoreFlow:
                 self._build(*old)
             return "", {}
         self.X, self.Y, self.lam_g = X1, Y1, None
-        self._angle_prev = q1["min_angle"]
+        self._X_prev = X1
         return "+".join(actions), {"energy_before_remesh": e_before,
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before}
@@ -725,7 +719,7 @@ class WillmoreFlow:
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
             raise ValueError("restart: the state has non-finite values")
         self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
-        self._angle_prev = self._patch_min_angle()
+        self._X_prev = self.X
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._tau_adapt = (float("inf") if last_tau is None
                            else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))

@@ -364,7 +364,7 @@ def quadric_offsets(V: np.ndarray, F: np.ndarray, D: np.ndarray, idx: np.ndarray
 
 
 def tangential_relax(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None, *,
-                     iterations: int = 2) -> np.ndarray:
+                     iterations: int = 2, cap: np.ndarray | None = None) -> np.ndarray:
     """Mesh-improving tangential moves placed on the smooth surface (the light repair after every step).
 
     Each iteration moves every free interior vertex by the tangential part of a mean-ratio descent
@@ -372,7 +372,7 @@ def tangential_relax(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = Non
     toward equilateral, capped at a fifth of the shortest edge at the vertex) and places it on the
     local quadric fit of its 1-ring (:func:`quadric_offsets`), so that the shape is kept to O(h^3)
     per move and the surface neither shrinks nor grows systematically. Fixed vertices and the mesh
-    boundary keep their rows bit for bit.
+    boundary keep their rows bit for bit. ``cap`` (N,), optional: the largest move of each vertex per pass.
 
     Returns
     -------
@@ -388,5 +388,8 @@ def tangential_relax(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = Non
     idx = np.flatnonzero(move)
     for _ in range(iterations):
         S = nodal_parameters(X, F)[:, 9:]
+        if cap is not None:
+            ln = np.linalg.norm(S, axis=1)
+            S *= (np.minimum(ln, cap) / np.maximum(ln, 1e-300))[:, None]
         X[idx] = X[idx] + quadric_offsets(X, F, S, idx)
     return X
