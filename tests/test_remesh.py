@@ -233,6 +233,11 @@ def test_relax_improves_angles_on_the_surface_and_keeps_fixed_vertices() -> None
     assert np.abs(np.linalg.norm(Xs, axis=1) - 1).max() > 20 * np.abs(np.linalg.norm(X, axis=1) - 1).max()
     assert np.abs(X[free] - V[free]).max() > 0.05 * h
     assert geometry.triangle_quality(X, F)["min_angle"] > geometry.triangle_quality(V, F)["min_angle"] + 5
+    # the cap bounds the tangential move of each pass (the flow passes the step's own motion; the
+    # quadric adds its small normal offset): 0 keeps every vertex
+    assert np.array_equal(rm.tangential_relax(V, F, free, iterations=3, cap=np.zeros(len(V))), V)
+    cap = np.full(len(V), 1e-3 * h)
+    assert np.linalg.norm(rm.tangential_relax(V, F, free, iterations=3, cap=cap) - V, axis=1).max() < 3.1e-3 * h
 
 
 def test_light_repair_keeps_the_torus_healthy() -> None:

@@ -10,6 +10,9 @@ Three operations, from the gentlest to the strongest:
   :func:`gpytoolbox.squared_distance`), so the geometry is kept up to the projection tolerance.
 * :func:`isotropic_remesh` — split, collapse, flip and smooth toward a target edge length
   (Botsch & Kobbelt, through :func:`gpytoolbox.remesh_botsch`, with projection onto the input).
+* :func:`tangential_relax` — the light repair after every step: mean-ratio tangential moves placed
+  on a local quadric fit of each 1-ring (:func:`quadric_offsets`), so that the shape is kept to
+  third order and repeated use does not shrink the surface (a polyhedral projection would).
 
 Fixed vertices (the mesh boundary and the fixed part of a clamped problem,
 :class:`~willmore_nlp.boundary.Boundary`) are never moved, and their positions are carried over
