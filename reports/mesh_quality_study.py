@@ -9,7 +9,8 @@ tau_tilde = h^2/100) and, where the issue asks for it, the same case with ``mesh
 
 * steps, t: accepted steps and final time; "failed" gives the one-line reason when a step failed;
 * min angle: the smallest triangle angle over the whole run, *before* any repair (so the
-  worst mesh the solver ever produced), and the smallest after repairs;
+  worst mesh the solver ever produced, the initial mesh included), and the smallest after repairs;
+  "steps" columns: the same over the states produced by steps (the initial mesh excluded);
 * remeshes: states after which the mesh control acted;
 * W final vs ref: the final Willmore energy and its relative difference to the mesh-matched
   reference: the final mesh's vertices projected onto the limit surface (the round sphere for
@@ -131,7 +132,9 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     stat = abs(W[k] - W[k - 1]) / abs(W[k]) if k >= 1 else float("nan")
     out = {"name": name, "N0": mesh.n_vertices, "N": final.n_vertices, "h": mesh.h, "tau": tau, "tau_tilde": tt,
            "options": {k: v for k, v in options.items() if k != "boundary"}, "steps": len(rows) - 1,
-           "t": flow.t, "min_angle_before": float(before.min()), "min_angle_after": float(after.min()),
+           "t": flow.t, "min_angle_before": float(before.min()),
+           "min_angle_steps": float(before[1:].min()) if len(before) > 1 else float("nan"),
+           "min_angle_after": float(after.min()),
            "min_angle_final": float(after[-1]), "remeshes": int(sum(r["remeshed"] for r in rows)),
            "retries": int(sum(r["retries"] for r in rows[1:])), "failed": failed, "W0": float(W[0]),
            "W": float(W[-1]), "W_ref": ref, "stationarity": float(stat), "wall": wall,
