@@ -228,14 +228,17 @@ def diagnose(steps: int = 10) -> None:
 
 
 def table(results: list[dict[str, Any]]) -> list[str]:
-    lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | failed | "
+    lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | "
+             "min angle of the stepped states | failed | "
              "remeshes | retries | "
              "W0 -> W | W_ref (mesh-matched) | W/W_ref - 1 | stationarity | wall [s] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         rel = r["W"] / r["W_ref"] - 1 if np.isfinite(r["W_ref"]) else float("nan")
         lines.append(f"| {r['name']} | {r.get('scale', 1.0):g} | {r['N0']} -> {r['N']} | {r['steps']} | {r['t']:.4g} | "
-                     f"{r['min_angle_before']:.3g} / {r['min_angle_after']:.3g} | {r['failed'] or 'no'} | "
+                     f"{r['min_angle_before']:.3g} / {r['min_angle_after']:.3g} | "
+                     f"{r.get('min_angle_steps', float('nan')):.3g} | "
+                     f"{r['failed'] or 'no'} | "
                      f"{r['remeshes']} | {r['retries']} | {r['W0']:.5g} -> {r['W']:.5g} | {r['W_ref']:.5g} | "
                      f"{rel:.2e} | {r['stationarity']:.1e} | {r['wall']:.0f} |")
     return lines
