@@ -200,6 +200,8 @@ def cases(scale: float) -> dict[str, Any]:
         "torus_off": torus(mesh_control="off"),
         "blend_conormal": boundary("surface_blending", 200, variant="conormal"),
         "blend_ring": boundary("surface_blending", 200, variant="ring"),
+        "blend_conormal_400": boundary("surface_blending", 400, variant="conormal"),
+        "blend_ring_400": boundary("surface_blending", 400, variant="ring"),
         "torus_hole": boundary("torus_hole", 100, torus_exact, fill="noisy"),
         "torus_hole_off": boundary("torus_hole", 100, torus_exact, {"mesh_control": "off"}, fill="noisy"),
     }
