@@ -168,7 +168,7 @@ def cases(scale: float) -> dict[str, Any]:
         label = {(): "", ("mesh_control",): " (mesh control off)", ("remesh_relax",): " (threshold repair only)"}
         return lambda: run_case(f"torus {n}x{n // 2}" + label[tuple(kw)], mesh, 1e-3,
                                 0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford,
-                                switch=(0.1, 1e-2) if scale == 1.0 else None, **kw)
+                                switch=(0.1, 4e-3) if scale == 1.0 else None, **kw)
 
     def boundary(name: str, steps: int, reference: Any = None, flow: dict[str, Any] | None = None,
                  **params: Any) -> Any:
