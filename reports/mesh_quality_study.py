@@ -99,7 +99,7 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     t0 = time.perf_counter()
 
     series: list[list[float]] = []
-    marks = [0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0]
+    marks = [0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0]
 
     def cb(r: Any) -> None:
         rows.append(r.row())
@@ -110,6 +110,7 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
             R, rr = torus_fit(r.vertices)
             before = [x["min_angle_before_remesh"] if x["remeshed"] else x["q_min_angle"] for x in rows[1:]]
             series.append([r.t, R / rr, r.willmore, float(min(before)), float(min(x["q_min_angle"] for x in rows))])
+            print(f"  {name}: series {series[-1]} N = {r.vertices.shape[0]}", flush=True)
         if len(rows) % 50 == 0:
             print(f"  {name}: step {r.step} t = {r.t:.4g} W = {r.willmore:.5g} min angle "
                   f"{r.quality['min_angle']:.3g} N = {r.vertices.shape[0]}", flush=True)
