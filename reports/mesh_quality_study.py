@@ -146,8 +146,6 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
         out.update({"R_over_r": R / r,
                     "clifford_grid": geometry.willmore_energy(shapes.torus(np.sqrt(2), 1.0, n, n // 2)),
                     "W_min": float(W.min()), "series": series})
-    np.savez_compressed(CACHE / f"{name.replace(' ', '_').replace('(', '').replace(')', '')}_final.npz",
-                        vertices=flow.X, simplices=flow.mesh.simplices)
     return out
 
 
