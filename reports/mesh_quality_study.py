@@ -297,8 +297,8 @@ def main() -> None:
               "before "
               "the light repair (`remesh_relax = 0`, trigger 20 deg, target = initial mean edge; "
               "`reports/studies/mesh_quality/threshold_only/` keeps the other cases of that default). The torus 48x24 "
-              "with the defaults did not finish to t = 1 (IPOPT at tau >= 4e-3 after t = 0.1); the series it printed "
-              "to t = 0.1 is in docs/guide/mesh_quality.md."]
+              "with the defaults was stopped at t = 0.2 (IPOPT at tau >= 4e-3 after t = 0.1); the series it printed "
+              "to t = 0.2 is in docs/guide/mesh_quality.md."]
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print("\n".join(lines))
 
