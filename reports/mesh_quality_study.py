@@ -1,6 +1,7 @@
 """Mesh-quality control of surfaces with the defaults on: long flows on general meshes (issue 14).
 
     nice python reports/mesh_quality_study.py [--cases NAME ...] [--scale 1.0] [--table-only]
+    nice python reports/mesh_quality_study.py --diagnose     # why single steps degrade the mesh
 
 Every case runs with the library defaults (mesh control "auto", tau = h unless stated,
 tau_tilde = h^2/100) and, where the issue asks for it, the same case with ``mesh_control=off``
@@ -8,7 +9,8 @@ tau_tilde = h^2/100) and, where the issue asks for it, the same case with ``mesh
 
 * steps, t: accepted steps and final time; "failed" gives the one-line reason when a step failed;
 * min angle: the smallest triangle angle over the whole run, *before* any repair (so the
-  worst mesh the solver ever produced), and the smallest after repairs;
+  worst mesh the solver ever produced, the initial mesh included), and the smallest after repairs;
+  "steps" columns: the same over the states produced by steps (the initial mesh excluded);
 * remeshes: states after which the mesh control acted;
 * W final vs ref: the final Willmore energy and its relative difference to the mesh-matched
   reference: the final mesh's vertices projected onto the limit surface (the round sphere for
@@ -85,22 +87,38 @@ def torus_projection(V: np.ndarray, R: float, r: float) -> np.ndarray:
 
 
 def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None = None, t_end: float | None = None,
-             reference: Any = None, **options: Any) -> dict[str, Any]:
-    """Run one flow, collecting the table's figures (see the module docstring)."""
+             reference: Any = None, switch: tuple[float, float] | None = None, **options: Any) -> dict[str, Any]:
+    """Run one flow, collecting the table's figures (see the module docstring).
+
+    ``switch = (t_s, tau_2)``: step with tau up to t_s, then with tau_2 up to t_end.
+    """
     flow = WillmoreFlow(mesh, tau, tt, **options)
     rows: list[dict[str, Any]] = [flow.state().row()]
     last: list[Any] = []
     failed = ""
     t0 = time.perf_counter()
 
+    series: list[list[float]] = []
+    marks = [0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0]
+
     def cb(r: Any) -> None:
         rows.append(r.row())
         last[:] = [r]
+        if name.startswith(("torus 24", "torus 36", "torus 48")) and marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
+            while marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
+                marks.pop(0)
+            R, rr = torus_fit(r.vertices)
+            before = [x["min_angle_before_remesh"] if x["remeshed"] else x["q_min_angle"] for x in rows[1:]]
+            series.append([r.t, R / rr, r.willmore, float(min(before)), float(min(x["q_min_angle"] for x in rows))])
+            print(f"  {name}: series {series[-1]} N = {r.vertices.shape[0]}", flush=True)
         if len(rows) % 50 == 0:
             print(f"  {name}: step {r.step} t = {r.t:.4g} W = {r.willmore:.5g} min angle "
                   f"{r.quality['min_angle']:.3g} N = {r.vertices.shape[0]}", flush=True)
 
     try:
+        if switch is not None:
+            flow.run(t_end=switch[0], callback=cb)
+            flow.tau = switch[1]
         flow.run(steps=steps, t_end=t_end, callback=cb)
     except FlowError as exc:
         failed = f"step {exc.step} at t = {exc.t:.4g}: {exc.rejected[-1] if exc.rejected else exc}"
@@ -115,15 +133,19 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     stat = abs(W[k] - W[k - 1]) / abs(W[k]) if k >= 1 else float("nan")
     out = {"name": name, "N0": mesh.n_vertices, "N": final.n_vertices, "h": mesh.h, "tau": tau, "tau_tilde": tt,
            "options": {k: v for k, v in options.items() if k != "boundary"}, "steps": len(rows) - 1,
-           "t": flow.t, "min_angle_before": float(before.min()), "min_angle_after": float(after.min()),
+           "t": flow.t, "min_angle_before": float(before.min()),
+           "min_angle_steps": float(before[1:].min()) if len(before) > 1 else float("nan"),
+           "min_angle_after": float(after.min()),
            "min_angle_final": float(after[-1]), "remeshes": int(sum(r["remeshed"] for r in rows)),
            "retries": int(sum(r["retries"] for r in rows[1:])), "failed": failed, "W0": float(W[0]),
            "W": float(W[-1]), "W_ref": ref, "stationarity": float(stat), "wall": wall,
            "min_tau_seen": float(min((r["tau"] for r in rows[1:]), default=float("nan")))}
-    if name.startswith("torus 48"):
+    if name.startswith(("torus 24", "torus 36", "torus 48")):
         R, r = torus_fit(flow.X)
-        out.update({"R_over_r": R / r, "clifford_grid": geometry.willmore_energy(shapes.torus(np.sqrt(2), 1.0, 48, 24)),
-                    "W_min": float(W.min())})
+        n = int(np.rint(np.sqrt(2 * mesh.n_vertices)))
+        out.update({"R_over_r": R / r,
+                    "clifford_grid": geometry.willmore_energy(shapes.torus(np.sqrt(2), 1.0, n, n // 2)),
+                    "W_min": float(W.min()), "series": series})
     return out
 
 
@@ -140,10 +162,12 @@ def cases(scale: float) -> dict[str, Any]:
         _, r = torus_fit(m.vertices)
         return geometry.willmore_energy(m.with_vertices(torus_projection(m.vertices, np.sqrt(2) * r, r)))
 
-    def torus(**kw: Any) -> Any:
-        mesh = shapes.torus(1.0, 0.5, 48, 24)
-        return lambda: run_case("torus 48x24" + (" (mesh control off)" if kw else ""), mesh, 1e-3,
-                                0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford, **kw)
+    def torus(n: int = 48, **kw: Any) -> Any:
+        mesh = shapes.torus(1.0, 0.5, n, n // 2)
+        label = {(): "", ("mesh_control",): " (mesh control off)", ("remesh_relax",): " (threshold repair only)"}
+        return lambda: run_case(f"torus {n}x{n // 2}" + label[tuple(kw)], mesh, 1e-3,
+                                0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford,
+                                switch=(0.1, 4e-3) if scale == 1.0 else None, **kw)
 
     def boundary(name: str, steps: int, reference: Any = None, flow: dict[str, Any] | None = None,
                  **params: Any) -> Any:
@@ -169,23 +193,53 @@ def cases(scale: float) -> dict[str, Any]:
                                        0.01 * g2.h**2, steps=n(200), adaptive=True, max_retries=12,
                                        mesh_control="off"),
         "torus": torus(),
+        "torus_threshold": torus(remesh_relax=0),
+        "torus24": torus(24),
+        "torus36": torus(36),
         "torus_off": torus(mesh_control="off"),
         "blend_conormal": boundary("surface_blending", 200, variant="conormal"),
         "blend_ring": boundary("surface_blending", 200, variant="ring"),
+        "blend_conormal_400": boundary("surface_blending", 400, variant="conormal"),
+        "blend_ring_400": boundary("surface_blending", 400, variant="ring"),
         "torus_hole": boundary("torus_hole", 100, torus_exact, fill="noisy"),
         "torus_hole_off": boundary("torus_hole", 100, torus_exact, {"mesh_control": "off"}, fill="noisy"),
     }
 
 
+def diagnose(steps: int = 10) -> None:
+    """Print the min angle after 1 and ``steps`` steps of the paper's scheme on the torus 24x12 for several
+    tau, tau_tilde and in-step tangential terms (the diagnosis table of docs/guide/mesh_quality.md)."""
+    mesh = shapes.torus(1.0, 0.5, 24, 12)
+    h = mesh.h
+    runs = [(1e-4, 0.01, {}), (1e-3, 0.25, {}), (1e-3, 0.01, {}), (1e-3, 0.001, {}), (1e-2, 0.01, {}),
+            (1e-3, 0.01, {"tangential_weight": 10.0}), (1e-3, 0.01, {"tangential_weight": 1000.0}),
+            (1e-3, 0.01, {"tangential_control": "meanratio"}),
+            (1e-3, 0.01, {"tangential_control": "meanratio", "tangential_control_weight": 3.0})]
+    print(f"torus 24x12, h = {h:.4g}, min angle {geometry.quality(mesh)['min_angle']:.2f} deg; mesh_control=off")
+    for tau, ttf, kw in runs:
+        flow = WillmoreFlow(mesh, tau, ttf * h * h, mesh_control="off", **kw)
+        out = flow.run(steps=steps)
+        a = [r.quality["min_angle"] for r in out]
+        print(f"tau = {tau:g}, tau_tilde = {ttf:g} h^2, {kw}: min angle {a[0]:.2f} / {a[-1]:.2f}, "
+              f"loss per unit time {(geometry.quality(mesh)['min_angle'] - a[-1]) / flow.t:.0f} deg, "
+              f"W {out[-1].willmore:.3f}", flush=True)
+    for q in (2.0, 1.757, 1.571, np.sqrt(2)):
+        g = shapes.torus(1.0, 1.0 / q, 24, 12)
+        print(f"grid 24x12 on the exact torus R/r = {q:.4g}: min angle {geometry.quality(g)['min_angle']:.2f}")
+
+
 def table(results: list[dict[str, Any]]) -> list[str]:
-    lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | failed | "
+    lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | "
+             "min angle of the stepped states | failed | "
              "remeshes | retries | "
              "W0 -> W | W_ref (mesh-matched) | W/W_ref - 1 | stationarity | wall [s] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         rel = r["W"] / r["W_ref"] - 1 if np.isfinite(r["W_ref"]) else float("nan")
         lines.append(f"| {r['name']} | {r.get('scale', 1.0):g} | {r['N0']} -> {r['N']} | {r['steps']} | {r['t']:.4g} | "
-                     f"{r['min_angle_before']:.3g} / {r['min_angle_after']:.3g} | {r['failed'] or 'no'} | "
+                     f"{r['min_angle_before']:.3g} / {r['min_angle_after']:.3g} | "
+                     f"{r.get('min_angle_steps', float('nan')):.3g} | "
+                     f"{r['failed'] or 'no'} | "
                      f"{r['remeshes']} | {r['retries']} | {r['W0']:.5g} -> {r['W']:.5g} | {r['W_ref']:.5g} | "
                      f"{rel:.2e} | {r['stationarity']:.1e} | {r['wall']:.0f} |")
     return lines
@@ -197,7 +251,11 @@ def main() -> None:
     ap.add_argument("--scale", type=float, default=1.0, help="multiply run lengths")
     ap.add_argument("--out", default="reports/mesh_quality_study.md")
     ap.add_argument("--table-only", action="store_true", help="only write the table of the cached cases")
+    ap.add_argument("--diagnose", action="store_true", help="only print the single-step diagnosis (torus 24x12)")
     args = ap.parse_args()
+    if args.diagnose:
+        diagnose()
+        return
     CACHE.mkdir(parents=True, exist_ok=True)
     todo = cases(args.scale)
     names = [] if args.table_only else (args.cases or list(todo))
@@ -217,12 +275,30 @@ def main() -> None:
     lines += table(results)
     tor = [r for r in results if "R_over_r" in r]
     if tor:
-        lines += ["", "Torus 48x24 toward the Clifford torus (R/r -> sqrt 2 = 1.41421; the Clifford torus meshed on "
-                  "the same 48x24 grid has W = " f"{tor[0]['clifford_grid']:.4f}):", "",
-                  "| case | t | R/r (circle fit) | W final | W min over the run | min angle before repair |",
-                  "|---|---|---|---|---|---|"]
-        lines += [f"| {r['name']} | {r['t']:.4g} | {r['R_over_r']:.4f} | {r['W']:.4f} | {r['W_min']:.4f} | "
-                  f"{r['min_angle_before']:.3g} |" for r in tor]
+        lines += ["", "Tori toward the Clifford torus (R/r -> sqrt 2 = 1.41421). W_grid: the Clifford torus meshed "
+                  "on the same n x n/2 grid; W_ref: the final mesh projected onto the Clifford torus of the fitted "
+                  "size "
+                  "(mesh-matched, same vertices and connectivity):", "",
+                  "| case | t | R/r (circle fit) | W final | W_grid | W/W_grid - 1 | min W over the run / W_grid - 1 | "
+                  "W_ref | W/W_ref - 1 | min angle before / after repair |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['name']} | {r['t']:.4g} | {r['R_over_r']:.4f} | {r['W']:.4f} | {r['clifford_grid']:.4f} | "
+                  f"{r['W'] / r['clifford_grid'] - 1:+.2%} | {r['W_min'] / r['clifford_grid'] - 1:+.2%} | "
+                  f"{r['W_ref']:.4f} | {r['W'] / r['W_ref'] - 1:+.2%} | "
+                  f"{r['min_angle_before']:.3g} / {r['min_angle_after']:.3g} |" for r in tor]
+        for r in tor:
+            if r.get("series"):
+                lines += ["", f"{r['name']} over time:", "",
+                          "| t | R/r | W | W/W_grid - 1 | min angle so far, before / after repair |",
+                          "|---|---|---|---|---|"]
+                lines += [f"| {t:.4g} | {q:.4f} | {w:.4f} | {w / r['clifford_grid'] - 1:+.2%} | {a:.3g} / {b:.3g} |"
+                          for t, q, w, a, b in r["series"]]
+    lines += ["", "Notes: rows named \"threshold repair only\" and \"mesh control off\" are cached from the runs "
+              "before "
+              "the light repair (`remesh_relax = 0`, trigger 20 deg, target = initial mean edge; "
+              "`reports/studies/mesh_quality/threshold_only/` keeps the other cases of that default). The torus 48x24 "
+              "with the defaults was stopped at t = 0.2 (IPOPT at tau >= 4e-3 after t = 0.1); the series it printed "
+              "to t = 0.2 is in docs/guide/mesh_quality.md."]
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print("\n".join(lines))
 

@@ -58,9 +58,10 @@ FLOW_KEYS: dict[str, Any] = {
     "relax_max_tau": None,
     "mesh_control": "auto",
     "remesh": "auto",
-    "remesh_min_angle": 20.0,
+    "remesh_min_angle": 15.0,
     "remesh_max_edge_ratio": 10.0,
     "remesh_target": None,
+    "remesh_relax": 2,
 }
 """Flow and solver options accepted in configs, with their defaults."""
 
@@ -279,6 +280,7 @@ RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "remesh_max_edge_ratio": ("a number >= 1", lambda v: _is_number(v) and v >= 1),
     "remesh_target": ("a number > 0 or unset (the initial mean edge)",
                       lambda v: v is None or (_is_number(v) and math.isfinite(v) and v > 0)),
+    "remesh_relax": ("an integer >= 0", lambda v: _is_number(v) and float(v).is_integer() and v >= 0),
     "tangential_control": (" or ".join(map(repr, CONTROL_METHODS)), lambda v: v in CONTROL_METHODS),
     "tangential_control_weight": ("a number > 0", lambda v: _is_number(v) and math.isfinite(v) and v > 0),
     "tangential_control_time": ("a number >= 0", lambda v: _is_number(v) and math.isfinite(v) and v >= 0),

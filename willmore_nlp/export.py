@@ -8,7 +8,8 @@ grid of lines (curves) or triangles (surfaces), 3-D points (curves in R^2 get z 
 * ``normal``: unit vertex normal (surfaces: area-weighted face normals; planar curves: the tangent
   turned by -90 degrees, outward for counter-clockwise curves; zero for curves in R^3),
 * ``velocity``: (X^k - X^{k-1}) / (t^k - t^{k-1}) (zero for the initial state and for a state whose
-  vertices differ from the previous one's because the mesh control remeshed it),
+  vertices differ from the previous one's because the mesh control remeshed it; the flips and the
+  light repair keep the vertices, and the velocity then includes the repair's tangential moves),
 * ``normal_speed``: velocity . normal.
 
 The .pvd index (a small VTK XML file listing the .vtu files with their times) is written with the
@@ -63,8 +64,9 @@ def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> 
     coll = ET.SubElement(root, "Collection")
     prev, t_prev = None, 0.0
     for row, mesh, Y, t in zip(run.history, run.states, run.Y, run.times, strict=True):
-        if int(row.get("remeshed") or 0):
-            prev = None  # the vertices are not those of the previous state
+        action = str(row.get("remesh_action") or "")
+        if int(row.get("remeshed") or 0) and (not action or "remesh" in action.split("+")):
+            prev = None  # remeshed: the vertices are not those of the previous state (flips, relax keep them)
         name = f"state_{int(row['step']):06d}.vtu"
         m = state_mesh(mesh, Y, prev, float(t) - t_prev)
         atomic_write(d / name, lambda p, m=m: meshio.write(p, m, file_format="vtu"))

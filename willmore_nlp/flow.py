@@ -77,6 +77,13 @@ met by iterates that barely move (measured: the unit-size steps are reproduced t
 BUDGET_WINDOW = 20
 """The iteration budget is a multiple of the median iteration count of this many last accepted steps."""
 
+RELAX_SPEED = 1.0
+"""Each pass of the light repair moves a vertex by at most this factor times the distance the step moved it."""
+
+RELAX_ROUNDS = 5
+"""The light repair (``remesh_relax``) repeats its passes up to this many times while the mesh is below the
+repair thresholds, before the stronger repairs (projected smoothing, isotropic remeshing) are tried."""
+
 TAU_TILDE_WARN_FACTOR = 2.0
 """WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde > this factor times h^2 (h = mean edge)."""
 
@@ -295,7 +302,8 @@ class WillmoreFlow:
         :meth:`run` stops early, with ``relaxed`` set, after a step taken at its first attempt with
         tau >= the nominal tau that lowered the Willmore energy
         (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than ``relax_tol``
-        relative, or raised it (not counting steps after which the mesh control acted). Near the
+        relative, or raised it (not counting steps after which the mesh was smoothed or remeshed;
+        the light repair, ``remesh_relax``, follows every step and counts). Near the
         equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
         rises by ~1e-3 on a 162-vertex sphere) and by an O(tau_tilde) drift that shrinks closed
         surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere, docs/theory/pitfalls.md), which ends in
@@ -310,20 +318,32 @@ class WillmoreFlow:
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme, no
         mesh control whatever the other options say).
     remesh : {"auto", "off"}
-        Surfaces in R^3 only (curves ignore it): after an accepted step whose patch triangles have
-        a smallest angle below ``remesh_min_angle`` or an edge ratio above ``remesh_max_edge_ratio``,
-        repair the mesh (:mod:`willmore_nlp.remesh`): Delaunay edge flips, then tangential smoothing
-        projected onto the surface, then isotropic remeshing toward ``remesh_target``, stopping at
-        the first that meets the thresholds; then rebuild the step NLP for the new connectivity
-        and solve Y[X] again. Boundary vertices and the fixed part of a clamped problem never move.
-        Changes the state by O(h^2) (recorded: ``StepResult.remeshed``, ``stats`` energies before
-        and after), so e(X^k) is not guaranteed to decrease across a remeshing.
+        Surfaces in R^3 only (curves ignore it): mesh repair between steps (:mod:`willmore_nlp.remesh`,
+        docs/guide/mesh_quality.md). After every step the light repair (``remesh_relax``); when the
+        patch triangles are then still below ``remesh_min_angle`` or above ``remesh_max_edge_ratio``,
+        Delaunay flips, (with ``remesh_relax = 0``) tangential smoothing projected onto the surface,
+        and isotropic remeshing toward ``remesh_target``, stopping at the first that meets the
+        thresholds; then the step NLP is rebuilt for a new
+        connectivity and Y[X] solved again. Boundary vertices and the fixed part of a clamped problem
+        never move. Changes the state (recorded: ``StepResult.remeshed``, ``stats`` energies before
+        and after), so e(X^k) is not guaranteed to decrease across a repair.
     remesh_min_angle : float
-        Smallest triangle angle (degrees) that triggers the mesh control (default 20).
+        Smallest patch angle (degrees) that triggers the stronger repairs (default 15).
     remesh_max_edge_ratio : float
         Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
     remesh_target : float, optional
-        Target edge length of the isotropic remeshing (default: the initial mean edge h).
+        Target edge length of the isotropic remeshing (default: the edge of equilateral triangles with the
+        patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
+        remeshing keeps the resolution, e.g. the vertex count of a closed surface).
+    remesh_relax : int
+        Light repair after every accepted step, while ``remesh`` is on (default 2; 0: only the
+        threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
+        mesh-improving tangential moves placed on a local quadric fit of the surface
+        (:func:`willmore_nlp.remesh.tangential_relax`), each move at most as long as the step's move of
+        that vertex (``RELAX_SPEED``: a state the flow does not move is not touched), flips again. The
+        vertex count never changes;
+        the shape changes by O(h^3) per move (the cubic terms). Keeps the mesh from degrading between the repairs
+        (docs/guide/mesh_quality.md).
     **options
         Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
 
@@ -368,9 +388,10 @@ class WillmoreFlow:
         relax_max_tau: float | None = None,
         mesh_control: str = "auto",
         remesh: str = "auto",
-        remesh_min_angle: float = 20.0,
+        remesh_min_angle: float = 15.0,
         remesh_max_edge_ratio: float = 10.0,
         remesh_target: float | None = None,
+        remesh_relax: int = 2,
         **options: Any,
     ) -> None:
         for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
@@ -435,9 +456,12 @@ class WillmoreFlow:
         self.remesh = (remesh == "auto" and mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
         self.remesh_min_angle = float(remesh_min_angle)
         self.remesh_max_edge_ratio = float(remesh_max_edge_ratio)
-        self.remesh_target = h if remesh_target is None else float(remesh_target)
-        if not (np.isfinite(self.remesh_target) and self.remesh_target > 0):
+        self.remesh_target = None if remesh_target is None else float(remesh_target)
+        if self.remesh_target is not None and not (np.isfinite(self.remesh_target) and self.remesh_target > 0):
             raise ValueError(f"remesh_target must be a positive number, got {remesh_target}")
+        if isinstance(remesh_relax, bool) or not float(remesh_relax).is_integer() or remesh_relax < 0:
+            raise UserInputError(f"remesh_relax must be an integer >= 0, got {remesh_relax!r}")
+        self.remesh_relax = int(remesh_relax)
         self._anisotropy = anisotropy
         self._tangential_weight = tangential_weight
         self._control = TangentialControl(tangential_control, tangential_control_weight, tangential_control_time)
@@ -464,6 +488,7 @@ class WillmoreFlow:
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
         self._willmore_before = geometry.willmore_energy(self.mesh, self.energy_nodes)  # of the state (relax test)
+        self._X_prev = self.X
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.
@@ -636,7 +661,8 @@ class WillmoreFlow:
                 result.stats.update(mstats)
                 result.stats["rejected_iterations"] = spent - res.iterations
                 result.remeshed = action
-                if self.relax and attempt == 0 and tau >= self.tau and not action:
+                heavy = bool({"smooth", "remesh"} & set(action.split("+")))  # the light repair follows every step
+                if self.relax and attempt == 0 and tau >= self.tau and not heavy:
                     w0 = self._willmore_before
                     result.relaxed = self.relaxed = w0 - result.willmore <= self.relax_tol * abs(result.willmore)
                 self._willmore_before = result.willmore
@@ -684,7 +710,15 @@ class WillmoreFlow:
         from willmore_nlp import remesh as rm
 
         X, F = self.X, self.mesh.simplices
-        if not self._needs_repair(X, F):
+        moved = np.linalg.norm(X - self._X_prev, axis=1) if self._X_prev.shape == X.shape else None
+        self._X_prev = X
+        relax = self.remesh_relax > 0
+        needs = self._needs_repair(X, F)
+        # the light repair moves each vertex by at most RELAX_SPEED times what the step moved it: the mesh
+        # follows the surface at its own speed, and a state that the flow does not move (an equilibrium)
+        # is left alone, so the fixed points are those of the paper's scheme
+        light = relax and moved is not None and bool(moved.max() > 0)
+        if not light and not needs:
             return "", {}
         free = self.free
         actions: list[str] = []
@@ -693,14 +727,24 @@ class WillmoreFlow:
         if n:
             actions.append("flips")
         X1 = X
-        if self._needs_repair(X1, F1):
-            X1 = rm.tangential_smooth(X, F1, free)
+        if light:
+            # remesh_relax passes after every step; up to RELAX_ROUNDS times as many while the mesh is
+            # below the thresholds, before the stronger repairs (which move the shape by O(h^2))
+            for _ in range(RELAX_ROUNDS):
+                X1 = rm.tangential_relax(X1, F1, free, iterations=self.remesh_relax, cap=RELAX_SPEED * moved)
+                F1, _ = rm.delaunay_flips(X1, F1, free)
+                if not self._needs_repair(X1, F1):
+                    break
+            actions.append("relax")
+        if not relax and self._needs_repair(X1, F1):  # the relax passes replace the polyhedral smoothing
+            X1 = rm.tangential_smooth(X1, F1, free)
             F1, _ = rm.delaunay_flips(X1, F1, free)
             actions.append("smooth")
         explicit = boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
         if self._needs_repair(X1, F1) and not explicit:
             try:
-                r = rm.isotropic_remesh(X1, F1, self.remesh_target, free)
+                target = self.remesh_target or rm.equilateral_edge(X1, F1, free)
+                r = rm.isotropic_remesh(X1, F1, target, free)
             except rm.RemeshError as exc:
                 warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=3)
             else:
@@ -713,7 +757,7 @@ class WillmoreFlow:
             return "", {}
         q0 = self._patch_quality(X, F, free)
         q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
-        if q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]:
+        if not light and q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]:
             return "", {}  # no improvement: keep the flow's own mesh rather than churn
         e_before = self.discrete_energy(X, self.Y)
         angle_before = geometry.triangle_quality(X, F)["min_angle"]
@@ -730,6 +774,7 @@ class WillmoreFlow:
                 self._build(*old)
             return "", {}
         self.X, self.Y, self.lam_g = X1, Y1, None
+        self._X_prev = X1
         return "+".join(actions), {"energy_before_remesh": e_before,
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before}
@@ -775,6 +820,7 @@ class WillmoreFlow:
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
             raise ValueError("restart: the state has non-finite values")
         self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
+        self._X_prev = self.X
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         self._willmore_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)

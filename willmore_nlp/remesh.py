@@ -10,6 +10,9 @@ Three operations, from the gentlest to the strongest:
   :func:`gpytoolbox.squared_distance`), so the geometry is kept up to the projection tolerance.
 * :func:`isotropic_remesh` — split, collapse, flip and smooth toward a target edge length
   (Botsch & Kobbelt, through :func:`gpytoolbox.remesh_botsch`, with projection onto the input).
+* :func:`tangential_relax` — the light repair after every step: mean-ratio tangential moves placed
+  on a local quadric fit of each 1-ring (:func:`quadric_offsets`), so that the shape is kept to
+  third order and repeated use does not shrink the surface (a polyhedral projection would).
 
 Fixed vertices (the mesh boundary and the fixed part of a clamped problem,
 :class:`~willmore_nlp.boundary.Boundary`) are never moved, and their positions are carried over
@@ -196,6 +199,20 @@ def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = No
     return X
 
 
+def equilateral_edge(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None) -> float:
+    """Edge length of equilateral triangles with the area and count of the patch triangles (a free vertex).
+
+    The default target of :func:`isotropic_remesh` in the flow: remeshing toward it keeps the number of
+    triangles, hence the resolution, where the mean edge of an anisotropic grid (a torus of revolution)
+    would coarsen the mesh.
+    """
+    F = np.asarray(F)
+    if free is not None:
+        F = F[np.asarray(free, bool)[F].any(axis=1)]
+    area = 0.5 * np.linalg.norm(_normals(np.asarray(V, float), F), axis=1).sum()
+    return float(np.sqrt(4.0 * area / (np.sqrt(3.0) * F.shape[0])))
+
+
 @dataclass
 class Remeshed:
     """Result of :func:`isotropic_remesh`.
@@ -283,3 +300,99 @@ def carry_boundary(boundary: object, r: Remeshed) -> object:
             conormal = arr
     ring = None if boundary.ring is None else r.face_map[np.asarray(boundary.ring, dtype=np.int64)]
     return Boundary(r.free.copy(), boundary.variant, conormal, ring)
+
+
+def one_rings(F: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """Padded vertex neighbourhoods of a triangle mesh.
+
+    Returns
+    -------
+    nbr : (N, kmax) int, the neighbours of each vertex, padded with the vertex itself
+    mask : (N, kmax) bool, True for real neighbours
+    """
+    F = np.asarray(F, dtype=np.int64)
+    e = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+    e = np.vstack([e, e[:, ::-1]])
+    e = e[np.lexsort((e[:, 1], e[:, 0]))]
+    deg = np.bincount(e[:, 0], minlength=N)
+    kmax = int(deg.max()) if N else 0
+    start = np.concatenate([[0], np.cumsum(deg)[:-1]])
+    slot = np.arange(e.shape[0]) - start[e[:, 0]]
+    nbr = np.repeat(np.arange(N)[:, None], kmax, axis=1)
+    nbr[e[:, 0], slot] = e[:, 1]
+    mask = np.zeros((N, kmax), bool)
+    mask[e[:, 0], slot] = True
+    return nbr, mask
+
+
+def quadric_offsets(V: np.ndarray, F: np.ndarray, D: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Normal offsets that put tangential moves of vertices onto a local quadric fit of their 1-ring.
+
+    For each vertex i in ``idx`` the surface near i is the graph ``z = c1 x + c2 y + c3 x^2 + c4 x y
+    + c5 y^2`` over its tangent plane (area-weighted vertex normal n_i, through V_i), fitted by least
+    squares to the 1-ring; the move D_i (tangent) then gets the offset ``z(D_i) n_i``. The new point
+    lies on the fitted smooth surface, which deviates from the true one by O(h^3) on a smooth surface,
+    whereas a projection onto the polyhedron would lie O(|D| h kappa) inside it (a systematic
+    shrinkage when repeated after every step).
+
+    Parameters
+    ----------
+    V : (N, 3) positions; F : (K, 3) triangles; D : (N, 3) tangential moves; idx : (n,) vertices to place
+
+    Returns
+    -------
+    (n, 3) the moves D[idx] plus their normal offsets
+    """
+    N = V.shape[0]
+    n = vertex_normals(Mesh(V, F))
+    nbr, mask = one_rings(F, N)
+    nbr, mask = nbr[idx], mask[idx]
+    ni = n[idx]
+    a = np.where(np.abs(ni[:, 0:1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    t1 = np.cross(ni, a)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(ni, t1)
+    R = V[nbr] - V[idx][:, None, :]  # n, k, 3
+    x, y, z = (np.einsum("nkc,nc->nk", R, t) for t in (t1, t2, ni))
+    A = np.stack([x, y, x * x, x * y, y * y], axis=2) * mask[..., None]  # n, k, 5
+    s2 = np.einsum("nk,nk->n", x * x + y * y, mask) / np.maximum(mask.sum(axis=1), 1)  # mean squared radius
+    scale = np.stack([np.sqrt(s2), np.sqrt(s2), s2, s2, s2], axis=1)  # column scaling of A
+    As = A / scale[:, None, :]
+    G = np.einsum("nki,nkj->nij", As, As) + 1e-8 * np.eye(5)[None]
+    c = np.linalg.solve(G, np.einsum("nki,nk->ni", As, z * mask)[..., None])[..., 0] / scale
+    d = D[idx]
+    dx, dy = np.einsum("nc,nc->n", d, t1), np.einsum("nc,nc->n", d, t2)
+    off = c[:, 0] * dx + c[:, 1] * dy + c[:, 2] * dx * dx + c[:, 3] * dx * dy + c[:, 4] * dy * dy
+    return dx[:, None] * t1 + dy[:, None] * t2 + off[:, None] * ni
+
+
+def tangential_relax(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None, *,
+                     iterations: int = 2, cap: np.ndarray | None = None) -> np.ndarray:
+    """Mesh-improving tangential moves placed on the smooth surface (the light repair after every step).
+
+    Each iteration moves every free interior vertex by the tangential part of a mean-ratio descent
+    step (:func:`willmore_nlp.tangential.nodal_parameters`: scale invariant, it drives each triangle
+    toward equilateral, capped at a fifth of the shortest edge at the vertex) and places it on the
+    local quadric fit of its 1-ring (:func:`quadric_offsets`), so that the shape is kept to O(h^3)
+    per move and the surface neither shrinks nor grows systematically. Fixed vertices and the mesh
+    boundary keep their rows bit for bit. ``cap`` (N,), optional: the largest move of each vertex per pass.
+
+    Returns
+    -------
+    (N, 3) float, new positions
+    """
+    from willmore_nlp.tangential import nodal_parameters
+
+    X = np.array(V, float)
+    F = np.asarray(F, dtype=np.int64)
+    N = X.shape[0]
+    move = np.ones(N, bool) if free is None else np.asarray(free, bool).copy()
+    move[Mesh(X, F).boundary_vertices] = False
+    idx = np.flatnonzero(move)
+    for _ in range(iterations):
+        S = nodal_parameters(X, F)[:, 9:]
+        if cap is not None:
+            ln = np.linalg.norm(S, axis=1)
+            S *= (np.minimum(ln, cap) / np.maximum(ln, 1e-300))[:, None]
+        X[idx] = X[idx] + quadric_offsets(X, F, S, idx)
+    return X
