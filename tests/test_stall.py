@@ -158,13 +158,17 @@ def test_shrinking_sphere_at_rest_keeps_stepping_with_cheap_retries() -> None:
     assert all(r.stats["rejected_iterations"] <= 30 * r.retries for r in out)
 
 
-def test_relax_stops_by_its_criterion_at_the_sphere() -> None:
+@pytest.mark.parametrize("mesh_control", ["off", "auto"])
+def test_relax_stops_by_its_criterion_at_the_sphere(mesh_control: str) -> None:
     """relax=true doubles tau while steps are accepted and stops after the first step (at tau >= h) that
-    lowers the Willmore energy by less than relax_tol; the final energy agrees with the mesh-matched round
-    sphere of the final mesh and with a long ordinary flow (20 steps at tau = h) to 2e-3."""
+    lowers the Willmore energy by less than relax_tol; the final energy agrees with a long ordinary flow
+    (20 steps at tau = h, the same mesh control) to 2e-3, and, for the paper's scheme, with the mesh-matched
+    round sphere of the final mesh to 2e-3. With the light repair between steps (the default) the relaxed
+    polyhedron lies 0.66% below its projected sphere on this 162-vertex mesh and 0.17% on the 642-vertex one
+    (reports/mesh_quality_study.md): an O(h^2) gap of the discretisation, checked here as below 1e-2."""
     mesh = _ellipsoid()
     tau, tt = mesh.h, 0.01 * mesh.h**2
-    flow = WillmoreFlow(mesh, tau, tt, relax=True)
+    flow = WillmoreFlow(mesh, tau, tt, relax=True, mesh_control=mesh_control)
     out = flow.run(steps=30)
     assert flow.relaxed and out[-1].relaxed and not any(r.relaxed for r in out[:-1])
     assert len(out) < 30 and out[-1].row()["relaxed"] == 1
@@ -173,8 +177,8 @@ def test_relax_stops_by_its_criterion_at_the_sphere() -> None:
     assert all(W[k - 1] - W[k] > 1e-4 * W[k] for k in range(1, len(W) - 1))
     assert [r.tau for r in out] == [tau * 2**k for k in range(len(out))]  # every step accepted: tau doubles
     ref = _projected_sphere_energy(flow.mesh.with_vertices(flow.X))
-    assert abs(W[-1] / ref - 1) < 2e-3
-    long = WillmoreFlow(mesh, tau, tt).run(steps=20)[-1].willmore
+    assert abs(W[-1] / ref - 1) < (2e-3 if mesh_control == "off" else 1e-2)
+    long = WillmoreFlow(mesh, tau, tt, mesh_control=mesh_control).run(steps=20)[-1].willmore
     assert abs(W[-1] / long - 1) < 2e-3
     assert W[-1] < 0.85 * W[0]
 
