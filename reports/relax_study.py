@@ -173,6 +173,9 @@ def main() -> None:
               "the budget only cuts the attempt that fails (200 IPOPT iterations before, a multiple of the median "
               "after), so compare their iteration counts (wall times depend on the machine's load). `relax` and "
               "`evolver` reach the equilibrium energy; the min angle column shows what the mesh went through. "
+              "The flows run with the default mesh control (the light repair after every step, "
+              "docs/guide/mesh_quality.md); the runs before it existed are kept in "
+              "`reports/studies/relax/superseded/before_light_repair/`. "
               "Interpretation and the history of the defaults: docs/guide/solver_studies.md."]
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print("\n".join(lines))
