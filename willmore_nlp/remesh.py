@@ -162,6 +162,13 @@ def project_to_surface(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarra
     return np.einsum("ij,ijk->ik", bary, tri)
 
 
+def _movable(V: np.ndarray, F: np.ndarray, free: np.ndarray | None) -> np.ndarray:
+    """(N,) bool: the vertices a repair may move, i.e. the free ones (all without ``free``) off the mesh boundary."""
+    move = np.ones(V.shape[0], bool) if free is None else np.asarray(free, bool).copy()
+    move[Mesh(V, F).boundary_vertices] = False
+    return move
+
+
 def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None, *, iterations: int = 3,
                       step: float = 0.5) -> np.ndarray:
     """Tangential Laplacian smoothing projected back onto the input surface.
@@ -179,9 +186,7 @@ def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = No
     V0 = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
     N = V0.shape[0]
-    move = np.ones(N, bool) if free is None else np.asarray(free, bool).copy()
-    bd = Mesh(V0, F).boundary_vertices
-    move[bd] = False
+    move = _movable(V0, F, free)
     e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     e = np.unique(np.sort(e, axis=1), axis=0)
     deg = np.bincount(e.ravel(), minlength=N).astype(float)
@@ -385,9 +390,7 @@ def tangential_relax(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = Non
 
     X = np.array(V, float)
     F = np.asarray(F, dtype=np.int64)
-    N = X.shape[0]
-    move = np.ones(N, bool) if free is None else np.asarray(free, bool).copy()
-    move[Mesh(X, F).boundary_vertices] = False
+    move = _movable(X, F, free)
     idx = np.flatnonzero(move)
     for _ in range(iterations):
         S = nodal_parameters(X, F)[:, 9:]
