@@ -43,7 +43,6 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from itertools import combinations
 from typing import Any
 
 import numpy as np
@@ -51,6 +50,7 @@ import scipy.sparse as sp
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass
+from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.solvers.base import SolveResult, register_solver
 from willmore_nlp.solvers.cholesky import FullFactor, KronFactor, SymmetricFactor
@@ -230,11 +230,6 @@ class NewtonKrylovSolver(ReducedSolver):
             rs = rs_new
         return x, self.cg_max_iter, False
 
-    def _mean_edge(self, Xk: np.ndarray) -> float:
-        S = self.P.simplices
-        E = np.vstack([S[:, [i, j]] for i, j in combinations(range(S.shape[1]), 2)])
-        return float(np.linalg.norm(Xk[E[:, 0]] - Xk[E[:, 1]], axis=1).mean())
-
     def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray:
         """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed.
 
@@ -267,7 +262,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._counts, self._times = {}, {}
         P, m = self.P, self.P.m
         Xk = p[: P.n_vertices * m].reshape(-1, m)
-        h = self._mean_edge(Xk)
+        h = Mesh(Xk, P.simplices).h  # mean edge of X^k, the scale of the preconditioner's rebuild rule
         with self._timed("eval"):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
