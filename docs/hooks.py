@@ -2,8 +2,8 @@
 
 * ``reference/cli.md``: the help of every ``willmore-nlp`` subcommand, taken from the argparse parser
   (:func:`willmore_nlp.cli.build_parser`), replacing the marker ``<!-- generated:cli -->``.
-* ``reference/options.md``: the flow options of configs and ``--set`` (:data:`willmore_nlp.config.FLOW_KEYS`)
-  with the meaning from the ``WillmoreFlow`` docstring, replacing ``<!-- generated:options -->``.
+* ``reference/options.md``: the flow options (:class:`willmore_nlp.settings.FlowSettings`) and every solver's
+  options, with default, allowed values and the meaning from their docstrings, replacing ``<!-- generated:options -->``.
 * ``reference/problems.md``: the registered problems with their parameters and defaults
   (:func:`willmore_nlp.registry.load_all`), replacing ``<!-- generated:problems -->``.
 * ``evidence/*.md``: the measured studies committed in ``reports/`` (anisotropy, boundaries, scale).
@@ -64,23 +64,52 @@ def cli_markdown() -> str:
     return "\n".join(parts)
 
 
-def flow_options_markdown() -> str:
-    """Table of the flow options (config keys, ``--set KEY=VALUE``) with defaults and the docstring's meaning."""
+def _documented(cls: type) -> dict[str, str]:
+    """Field name -> its meaning in the numpy docstring of ``cls`` (Attributes section); every field must have one."""
+    import dataclasses
     import inspect
 
     import griffe
 
-    from willmore_nlp.config import FLOW_KEYS
-    from willmore_nlp.flow import WillmoreFlow
+    sections = griffe.Docstring(inspect.getdoc(cls) or "").parse("numpy", warn_missing_types=False)
+    meaning = {p.name: " ".join(p.description.split()).replace("|", "\\|") for sec in sections
+               if sec.kind.value == "attributes" for p in sec.value}
+    missing = [f.name for f in dataclasses.fields(cls) if f.name not in meaning]
+    if missing:
+        raise ValueError(f"{cls.__name__}: options without a meaning in its docstring: {missing}")
+    return meaning
 
-    sections = griffe.Docstring(inspect.getdoc(WillmoreFlow) or "").parse("numpy", warn_missing_types=False)
-    meaning = {p.name: " ".join(p.description.split()) for sec in sections if sec.kind.value == "parameters"
-               for p in sec.value}
-    rows = ["| key | default | meaning |", "|---|---|---|"]
-    for key, default in FLOW_KEYS.items():
-        text = meaning.get(key, "solver option (see the solver's documentation)").replace("|", "\\|")
-        rows.append(f"| `{key}` | `{default!r}` | {text} |")
-    return "\n".join(rows)
+
+def _settings_rows(cls: type) -> list[str]:
+    meaning = _documented(cls)
+    rows = ["| key | default | allowed | meaning |", "|---|---|---|---|"]
+    for key, kind in cls.kinds().items():
+        rows.append(f"| `{key}` | `{cls.defaults()[key]!r}` | {kind.what} | {meaning[key]} |")
+    return rows
+
+
+def flow_options_markdown() -> str:
+    """Tables of the flow options and of every solver's options, generated from the settings classes."""
+    from willmore_nlp.settings import FlowSettings
+    from willmore_nlp.solvers import solver_names, solver_settings
+    from willmore_nlp.solvers.ipopt import IPOPT_DEFAULTS
+
+    parts = [*_settings_rows(FlowSettings), "", "## Solver options", "",
+             "Given like the flow options; each solver refuses options it does not know (`warm_start` and "
+             "`print_level` are accepted by every solver).", ""]
+    for name in solver_names():
+        cls = solver_settings(name)
+        if name == "ipopt":
+            parts += ["### `ipopt`", "", "`warm_start` (default `False`): start each step from the previous "
+                      "step's multipliers. Any IPOPT option as `ipopt.NAME` (`tol`, `max_iter`, `print_level` "
+                      "also without the prefix), checked against IPOPT's documented type and range before "
+                      "anything runs. Defaults differing from IPOPT's:", "", "| IPOPT option | default |", "|---|---|",
+                      *(f"| `{k}` | `{v!r}` |" for k, v in IPOPT_DEFAULTS.items()), ""]
+        elif cls.kinds():
+            parts += [f"### `{name}`", "", *_settings_rows(cls), ""]
+        else:
+            parts += [f"### `{name}`", "", (cls.__doc__ or "").strip().splitlines()[0], ""]
+    return "\n".join(parts)
 
 
 def problems_markdown() -> str:

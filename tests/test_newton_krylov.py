@@ -142,7 +142,7 @@ def test_bad_options_are_one_line_user_errors() -> None:
         make_solver("newton-krylov", ev, {"foo": 1})
     with pytest.raises(UserInputError, match="option cholesky must be one of"):
         make_solver("newton-krylov", ev, {"cholesky": "mumps"})
-    with pytest.raises(UserInputError, match="option tol must be a positive number"):
+    with pytest.raises(UserInputError, match="option tol must be a number > 0"):
         make_solver("newton-krylov", ev, {"tol": -1})
     with pytest.raises(UserInputError, match="option cg_max_iter must be an integer"):
         make_solver("newton-krylov", ev, {"cg_max_iter": 0.5})

@@ -220,7 +220,7 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("set-max-retries", _circle_with("max_retries=-1"), ["--set", "max_retries must be an integer >= 0, got -1"]),
     ("set-min-angle", _circle_with("min_angle=75"), ["--set", "min_angle must be a number in [0, 60)"]),
     ("set-unknown-solver", _circle_with("solver=bfgs"), ["unknown solver 'bfgs'"]),
-    ("set-bool", _circle_with("check_energy=maybe"), ["--set: parameter check_energy: cannot read 'maybe' as bool"]),
+    ("set-bool", _circle_with("check_energy=maybe"), ["--set: check_energy must be true or false, got 'maybe'"]),
     ("unknown-problem", lambda d: ["spheroid"], ["unknown problem 'spheroid'"]),
     # -- found in the second reliability pass ---------------------------------------------------
     ("obj-concave-polygon", _write("s.obj", "v 0 0 0\nv 2 1 0\nv 0 2 0\nv 0.5 1 0\nf 1 2 3 4\n"),

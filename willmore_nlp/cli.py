@@ -107,14 +107,18 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def _flow_options(items: dict[str, str]) -> dict[str, Any]:
-    from willmore_nlp.config import FLOW_KEYS, coerce_flow_option
+    """``compare --option`` values: flow options validated here, solver options by each case's solver."""
+    from willmore_nlp.config import FLOW_KEYS, parse_option, solver_keys
 
+    known = (set(FLOW_KEYS) | set(solver_keys())) - {"solver"}
     out = {}
     for k, v in items.items():
-        if k not in FLOW_KEYS or k == "solver":
-            raise ConfigError(f"--option {k}: not a flow option; known: "
-                              f"{', '.join(sorted(set(FLOW_KEYS) - {'solver'}))}")
-        out[k] = coerce_flow_option(k, v)
+        if k not in known and not k.startswith("ipopt."):
+            raise ConfigError(f"--option {k}: not a flow or solver option; known: {', '.join(sorted(known))}")
+        try:
+            out[k] = parse_option(k, v)
+        except UserInputError as exc:
+            raise ConfigError(f"--option {k}: {exc}") from exc
     return out
 
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -18,8 +18,9 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.settings import FlowSettings, check_run_value
 from willmore_nlp.solvers import make_solver
-from willmore_nlp.tangential import DEFAULT_CONTROL_WEIGHT, TangentialControl
+from willmore_nlp.tangential import TangentialControl
 
 
 class FlowError(RuntimeError):
@@ -218,134 +219,18 @@ class WillmoreFlow:
         Inner mean-curvature step; keep it <= h^2 (larger values lose tangential convexity).
     lam : float
         Length/area energy weight (paper Sec. 5.2).
-    solver : str
-        Registered solver name (``"ipopt"`` default).
-    codegen : bool or None
-        Compile the element kernels to C and cache the library (:mod:`willmore_nlp.codegen`).
-        None (default): when a C compiler is found, else CasADi's virtual machine with a warning.
-    max_retries : int
-        How many times a failed step is retried with tau halved.
-    check_energy : bool
-        Reject steps that violate the discrete energy inequality W(X^{k+1}) <= W(X^k) = 2 tau e(X^k).
-    min_angle : float
-        Reject surface steps whose smallest triangle angle (degrees) drops below this.
-    max_edge_ratio : float
-        Reject steps whose longest/shortest edge ratio exceeds this.
-    allow_components : bool
-        Accept a mesh of several separate curves or surfaces (default: one is expected,
-        :func:`willmore_nlp.mesh.topology.check_connected`).
     boundary : Boundary, optional
         Clamped (C^1) boundary: which vertices move and which variant ("conormal" or "ring")
         imposes position and co-normal on the patch boundary (:mod:`willmore_nlp.boundary`).
         The fixed vertices never move; ``willmore`` in the results sums over the patch nodes.
-    anisotropy : str, callable or Anisotropy, optional
-        Anisotropy gamma for the fully nonlinear anisotropic scheme (paper Secs. 2.3, 3.3): a
-        preset name ("gamma0", "gamma1", "gamma2"), a 1-homogeneous gamma(z) written with CasADi
-        operations, or an :class:`~willmore_nlp.anisotropy.Anisotropy`. Closed curves in R^2 and
-        closed surfaces in R^3; the inner equation is then nonlinear in Y (damped Newton). Each
-        StepResult reports the anisotropic Willmore energy ``willmore_gamma``.
-    tangential_weight : float
-        beta >= 1 (default 1, the paper's scheme): the distance term of W charges the tangential
-        part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
-        motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
-        discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000).
-    tangential_control : str
-        Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "off" (default, the
-        paper's scheme) or "meanratio": W gains ``beta_c sum_i m_i |P_i (X_i - X^k_i - S_i)|^2`` with P_i
-        the vertex tangent projector of X^k and S_i the tangential part of a mean-ratio mesh-improving
-        step of X^k, so that the nodes follow a mesh-improving tangential motion while the normal
-        component of every nodal equation, hence the geometric flow as h -> 0, is unchanged. Fixed
-        (boundary) nodes never move. The discrete energy may rise by at most
-        ``beta_c sum_i m_i |S_i|^2 / (2 tau)`` in a step (the energy check uses the full W).
-    tangential_control_weight : float
-        beta_c > 0 of ``tangential_control = "meanratio"`` (default 0.3): the tangential motion is about
-        beta_c / (1 + beta_c) of S plus 1 / (1 + beta_c) of what the energy asks for.
-    tangential_control_time : float
-        T_c >= 0: a step of size tau targets the fraction min(1, tau / T_c) of the mesh-improving
-        step (a tangential velocity of at most 1/T_c steps per unit time, consistent as tau -> 0);
-        0 (default) targets the whole step every time.
-    redistribute : bool
-        Closed curves only: after every accepted step move the vertices along the curve to equal
-        arc-length spacing (:func:`willmore_nlp.geometry.redistribute_curve`) and solve Y[X] again.
-        Not part of the paper's scheme: it changes the curve by O(h^2 kappa) and the energy e(X)
-        by a little (``stats["energy_before_redistribution"]`` and ``stats["redistribution_shift"]``
-        record it), so e(X^k) is no longer guaranteed to decrease from step to step.
-    adaptive : bool
-        Step-size control for stiff starts: a step first tries twice the previous accepted step
-        (the same step if that one needed retries), never more than ``tau``; failures halve it as
-        usual (``max_retries`` per step). Off, every step first tries ``tau``.
-    min_tau : float, optional
-        Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
-        fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
-        (h = initial mean edge): below the paper's smallest step h^4 by more than the four
-        default halvings, and so small that reaching t = O(1) would take > 100 h^-4 steps.
-    iteration_budget : float
-        Iteration budget of a step's solve, as a multiple of the median iteration count of the
-        last 20 accepted steps (default 2; 0 turns the budget off): a solve still unconverged after
-        ``max(iteration_budget_min, iteration_budget * median)`` iterations is cut (status
-        ``"Iteration_Budget"``) and the step retried with tau/2 at once, instead of running to
-        ``max_iter`` (measured: a 200-iteration attempt that fails costs 4 min on the 2,562-vertex
-        ellipsoid, and the same step converges at tau/2 in 5 iterations). No budget before the
-        first accepted step, nor on the last attempt of a step (``max_retries`` used up). IPOPT only.
-    iteration_budget_min : int
-        Floor of that budget (default 30).
-    stall_iterations : int
-        Cut a solve (status ``"Stalled"``, then retried with tau/2) whose iterates are stuck: for
-        ``stall_iterations`` iterations the objective stayed within 1e-8 (relative), the largest
-        constraint violation within a factor 10 and the dual residual max |grad f + J^T lam| within
-        a factor 2 of their values at the last iterate that moved; default 15, 0 turns it off. A
-        wandering solve is left to the budget (a test on the best values so far cut solves of the
-        Fig. 11 bunny that wander for 90 iterations and then converge). IPOPT only.
-    relax : bool
-        Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
-        every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``, and
-        :meth:`run` stops early, with ``relaxed`` set, after a step taken at its first attempt with
-        tau >= the nominal tau that lowered the Willmore energy
-        (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than ``relax_tol``
-        relative, or raised it (not counting steps after which the mesh was smoothed or remeshed;
-        the light repair, ``remesh_relax``, follows every step and counts). Near the
-        equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
-        rises by ~1e-3 on a 162-vertex sphere) and by an O(tau_tilde) drift that shrinks closed
-        surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere, docs/theory/pitfalls.md), which ends in
-        a collapse after long times (t ~ 10-100 for unit surfaces with tau_tilde = h^2/100;
-        docs/guide/solver_studies.md). The discrete energy e falls all along it, so it cannot serve
-        as the stopping test.
-    relax_tol : float
-        Relative decrease of the Willmore energy per step below which a relaxation ends (default 1e-4).
-    relax_max_tau : float, optional
-        Largest step size of a relaxation (default 100 tau).
-    mesh_control : {"auto", "off"}
-        Master switch of the mesh-quality control of surfaces ("off": the paper's scheme, no
-        mesh control whatever the other options say).
-    remesh : {"auto", "off"}
-        Surfaces in R^3 only (curves ignore it): mesh repair between steps (:mod:`willmore_nlp.remesh`,
-        docs/guide/mesh_quality.md). After every step the light repair (``remesh_relax``); when the
-        patch triangles are then still below ``remesh_min_angle`` or above ``remesh_max_edge_ratio``,
-        Delaunay flips, (with ``remesh_relax = 0``) tangential smoothing projected onto the surface,
-        and isotropic remeshing toward ``remesh_target``, stopping at the first that meets the
-        thresholds; then the step NLP is rebuilt for a new
-        connectivity and Y[X] solved again. Boundary vertices and the fixed part of a clamped problem
-        never move. Changes the state (recorded: ``StepResult.remeshed``, ``stats`` energies before
-        and after), so e(X^k) is not guaranteed to decrease across a repair.
-    remesh_min_angle : float
-        Smallest patch angle (degrees) that triggers the stronger repairs (default 15).
-    remesh_max_edge_ratio : float
-        Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
-    remesh_target : float, optional
-        Target edge length of the isotropic remeshing (default: the edge of equilateral triangles with the
-        patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
-        remeshing keeps the resolution, e.g. the vertex count of a closed surface).
-    remesh_relax : int
-        Light repair after every accepted step, while ``remesh`` is on (default 2; 0: only the
-        threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
-        mesh-improving tangential moves placed on a local quadric fit of the surface
-        (:func:`willmore_nlp.remesh.tangential_relax`), each move at most as long as the step's move of
-        that vertex (``RELAX_SPEED``: a state the flow does not move is not touched), flips again. The
-        vertex count never changes;
-        the shape changes by O(h^3) per move (the cubic terms). Keeps the mesh from degrading between the repairs
-        (docs/guide/mesh_quality.md).
+    settings : FlowSettings, optional
+        The flow's options as one object (default: :class:`~willmore_nlp.settings.FlowSettings`()),
+        overridden by ``options``.
     **options
-        Solver options (e.g. ``tol``, ``max_iter``, ``warm_start``, IPOPT options).
+        Flow options, the fields of :class:`~willmore_nlp.settings.FlowSettings` (``solver``,
+        ``max_retries``, ``anisotropy``, ``tangential_weight``, ``relax``, ``remesh`` ...: see there
+        or docs/reference/options.md), and the solver's options (``tol``, ``max_iter``, ``warm_start``,
+        IPOPT options: :func:`willmore_nlp.solvers.solver_settings`). Each is validated when given.
 
     Attributes
     ----------
@@ -356,56 +241,16 @@ class WillmoreFlow:
         changes a result). The runner sets it from its signal handler.
     """
 
-    def __init__(
-        self,
-        mesh: Mesh,
-        tau: float,
-        tau_tilde: float,
-        *,
-        lam: float = 0.0,
-        solver: str = "ipopt",
-        codegen: bool | None = None,
-        max_retries: int = 4,
-        check_energy: bool = True,
-        min_angle: float = 0.5,
-        max_edge_ratio: float = 1e3,
-        energy_rtol: float = 1e-8,
-        allow_components: bool = False,
-        boundary: Any = None,
-        anisotropy: Any = None,
-        tangential_weight: float = 1.0,
-        tangential_control: str = "off",
-        tangential_control_weight: float = DEFAULT_CONTROL_WEIGHT,
-        tangential_control_time: float = 0.0,
-        redistribute: bool = False,
-        adaptive: bool = False,
-        min_tau: float | None = None,
-        iteration_budget: float = 2.0,
-        iteration_budget_min: int = 30,
-        stall_iterations: int = 15,
-        relax: bool = False,
-        relax_tol: float = 1e-4,
-        relax_max_tau: float | None = None,
-        mesh_control: str = "auto",
-        remesh: str = "auto",
-        remesh_min_angle: float = 15.0,
-        remesh_max_edge_ratio: float = 10.0,
-        remesh_target: float | None = None,
-        remesh_relax: int = 2,
-        **options: Any,
-    ) -> None:
-        for name, val in (("tau", tau), ("tau_tilde", tau_tilde)):
-            if not (np.isfinite(val) and val > 0):
-                raise UserInputError(f"{name} must be a positive number, got {val}")
-        if not (np.isfinite(lam) and lam >= 0):
-            raise UserInputError(f"lam must be >= 0, got {lam}")
-        if not allow_components:
+    def __init__(self, mesh: Mesh, tau: float, tau_tilde: float, *, lam: float = 0.0, boundary: Any = None,
+                 settings: FlowSettings | None = None, **options: Any) -> None:
+        flow_options, self._options = FlowSettings.split(options)
+        s = self.settings = dataclasses.replace(settings or FlowSettings(), **flow_options)  # validates them
+        tau, tau_tilde, lam = (check_run_value(k, v) for k, v in (("tau", tau), ("tau_tilde", tau_tilde), ("lam", lam)))
+        if not s.allow_components:
             from willmore_nlp.mesh.topology import check_connected
 
             check_connected(mesh, "set allow_components=true to flow them together")
-        self.min_angle = float(min_angle)
-        self.max_edge_ratio = float(max_edge_ratio)
-        _check_initial_mesh(mesh, self.min_angle, self.max_edge_ratio)
+        _check_initial_mesh(mesh, s.min_angle, s.max_edge_ratio)
         h = mesh.h
         if tau_tilde > TAU_TILDE_WARN_FACTOR * h * h:
             warnings.warn(StepSizeWarning(
@@ -414,58 +259,25 @@ class WillmoreFlow:
                 f"nodes (docs/theory/tau_tilde.md); use tau_tilde <= h^2 and take large steps in tau instead"),
                 stacklevel=2)
         self.mesh = mesh
-        self.tau = float(tau)
-        self.tau_tilde = float(tau_tilde)
-        self.lam = float(lam)
-        self.max_retries = int(max_retries)
-        self.check_energy = check_energy
-        self.energy_rtol = float(energy_rtol)
+        self.tau, self.tau_tilde, self.lam = tau, tau_tilde, lam
         t0 = time.perf_counter()
-        if redistribute and not (mesh.d == 1 and mesh.is_closed and boundary is None):
+        if s.redistribute and not (mesh.d == 1 and mesh.is_closed and boundary is None):
             raise UserInputError(f"{mesh.source}: redistribute=True is implemented for closed curves without boundary "
-                             "conditions")
-        self.redistribute = bool(redistribute)
-        self.adaptive = bool(adaptive)
+                                 "conditions")
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
-        for name, val in (("mesh_control", mesh_control), ("remesh", remesh)):
-            if val not in ("auto", "off"):
-                raise ValueError(f"{name} must be 'auto' or 'off', got {val!r}")
         self.initial_mesh = mesh
-        self.min_tau = 1e-2 * h**4 if min_tau is None else float(min_tau)
-        if not (np.isfinite(self.min_tau) and self.min_tau >= 0):
-            raise ValueError(f"min_tau must be a number >= 0, got {min_tau}")
-        for name, val, lo in (("iteration_budget", iteration_budget, 0), ("stall_iterations", stall_iterations, 0),
-                              ("iteration_budget_min", iteration_budget_min, 1), ("relax_tol", relax_tol, 0)):
-            if not (isinstance(val, Real) and not isinstance(val, bool) and np.isfinite(val) and val >= lo):
-                raise UserInputError(f"{name} must be a number >= {lo}, got {val!r}")
-        for name, val in (("iteration_budget_min", iteration_budget_min), ("stall_iterations", stall_iterations)):
-            if not float(val).is_integer():
-                raise UserInputError(f"{name} must be an integer, got {val!r}")
-        self.iteration_budget = float(iteration_budget)
-        self.iteration_budget_min = int(iteration_budget_min)
-        self.stall_iterations = int(stall_iterations)
+        self.min_tau = 1e-2 * h**4 if s.min_tau is None else s.min_tau
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
-        self.relax = bool(relax)
-        self.relax_tol = float(relax_tol)
-        self.relax_max_tau = 100 * self.tau if relax_max_tau is None else relax_max_tau
-        if not (isinstance(self.relax_max_tau, Real) and np.isfinite(self.relax_max_tau)
-                and self.relax_max_tau >= self.tau):
-            raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {relax_max_tau!r}")
+        self.relax_max_tau = 100 * self.tau if s.relax_max_tau is None else s.relax_max_tau
+        if self.relax_max_tau < self.tau:
+            raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {s.relax_max_tau!r}")
         self.relaxed = False
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
-        self.remesh = (remesh == "auto" and mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
-        self.remesh_min_angle = float(remesh_min_angle)
-        self.remesh_max_edge_ratio = float(remesh_max_edge_ratio)
-        self.remesh_target = None if remesh_target is None else float(remesh_target)
-        if self.remesh_target is not None and not (np.isfinite(self.remesh_target) and self.remesh_target > 0):
-            raise ValueError(f"remesh_target must be a positive number, got {remesh_target}")
-        if isinstance(remesh_relax, bool) or not float(remesh_relax).is_integer() or remesh_relax < 0:
-            raise UserInputError(f"remesh_relax must be an integer >= 0, got {remesh_relax!r}")
-        self.remesh_relax = int(remesh_relax)
-        self._anisotropy = anisotropy
-        self._tangential_weight = tangential_weight
-        self._control = TangentialControl(tangential_control, tangential_control_weight, tangential_control_time)
+        self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
+        self._control = TangentialControl(s.tangential_control, s.tangential_control_weight,
+                                          s.tangential_control_time)
         self.codegen_info: dict[str, Any] = {"enabled": False}
+        codegen = s.codegen
         if codegen is None:
             codegen = find_compiler() is not None
             if not codegen:
@@ -473,8 +285,7 @@ class WillmoreFlow:
                               "(slower; set $CC or install gcc to compile them)", stacklevel=2)
         self._codegen = bool(codegen)
         self._compiled: dict[str, Any] | None = None
-        self.solver_name = solver
-        self._options = dict(options)
+        self.solver_name = s.solver
         self.stop_requested: Callable[[], bool] = _never
         self._build(mesh, boundary)
         self.build_time = time.perf_counter() - t0
@@ -498,8 +309,8 @@ class WillmoreFlow:
         """
         self.mesh = mesh
         self.boundary = boundary
-        self.setup = build_step(mesh, boundary=boundary, anisotropy=self._anisotropy,
-                                tangential_weight=self._tangential_weight, tangential_control=self._control)
+        self.setup = build_step(mesh, boundary=boundary, anisotropy=self.settings.anisotropy,
+                                tangential_weight=self.settings.tangential_weight, tangential_control=self._control)
         self.problem = self.setup.problem
         bd = self.setup.boundary
         self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes
@@ -519,7 +330,7 @@ class WillmoreFlow:
         self.solver = make_solver(self.solver_name, self.evaluator, self._options)
         self.solver.should_stop = lambda: self.stop_requested()
         if hasattr(self.solver, "stall_iterations"):
-            self.solver.stall_iterations = self.stall_iterations
+            self.solver.stall_iterations = self.settings.stall_iterations
 
     @property
     def free(self) -> np.ndarray | None:
@@ -578,16 +389,16 @@ class WillmoreFlow:
         if not np.all(np.isfinite(X)):
             return "non-finite positions"
         variational = getattr(self.solver, "variational", True)  # the semi-implicit baseline is not
-        if self.check_energy and variational and res.f > f0 + self.energy_rtol * abs(f0) + 1e-14:
+        if self.settings.check_energy and variational and res.f > f0 + self.settings.energy_rtol * abs(f0) + 1e-14:
             return f"energy inequality violated: W = {res.f:.12g} > W(X^k) = {f0:.12g}"
         try:
             q = geometry.quality(self.mesh.with_vertices(X))
         except MeshError as exc:
             return f"mesh collapsed: {exc}"
-        if q["edge_ratio"] > self.max_edge_ratio:
-            return f"mesh quality: edge ratio {q['edge_ratio']:.3g} > {self.max_edge_ratio:g}"
-        if "min_angle" in q and q["min_angle"] < self.min_angle:
-            return f"mesh quality: min angle {q['min_angle']:.3g} deg < {self.min_angle:g}"
+        if q["edge_ratio"] > self.settings.max_edge_ratio:
+            return f"mesh quality: edge ratio {q['edge_ratio']:.3g} > {self.settings.max_edge_ratio:g}"
+        if "min_angle" in q and q["min_angle"] < self.settings.min_angle:
+            return f"mesh quality: min angle {q['min_angle']:.3g} deg < {self.settings.min_angle:g}"
         return None
 
     # -- stepping ----------------------------------------------------------------------
@@ -607,15 +418,15 @@ class WillmoreFlow:
             (no retry follows); the flow's state is unchanged.
         """
         t0 = time.perf_counter()
-        if self.relax:
+        if self.settings.relax:
             grown = self.tau if np.isinf(self._tau_adapt) else self._tau_adapt
             tau = min(self.relax_max_tau, self._time_left, grown)
         else:
-            tau = min(self.tau, self._tau_adapt) if self.adaptive else self.tau
+            tau = min(self.tau, self._tau_adapt) if self.settings.adaptive else self.tau
         rejected: list[str] = []
         spent = 0  # solver iterations of this step's attempts
         floor = min(self.min_tau, self.tau)
-        for attempt in range(self.max_retries + 1):
+        for attempt in range(self.settings.max_retries + 1):
             if self.stop_requested():
                 raise StepInterrupted(self.k + 1)
             if tau < floor:
@@ -627,7 +438,7 @@ class WillmoreFlow:
             z0 = self.problem.pack_z(self.X, self.Y)
             f0 = self.evaluator.f(z0, p)
             if hasattr(self.solver, "iteration_limit"):
-                self.solver.iteration_limit = self._iteration_limit() if attempt < self.max_retries else None
+                self.solver.iteration_limit = self._iteration_limit() if attempt < self.settings.max_retries else None
             try:
                 res = self.solver.solve(z0, p, self.lam_g)
             except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
@@ -637,7 +448,7 @@ class WillmoreFlow:
                 X, Y = self.problem.unpack_z(res.z, self.X)
                 reason = self._reject_reason(res, f0, X)
             moved: dict[str, float] = {}
-            if reason is None and self.redistribute:
+            if reason is None and self.settings.redistribute:
                 e_step = self.discrete_energy(X, Y)
                 Xr = geometry.redistribute_curve(self.mesh.with_vertices(X))
                 moved = {"redistribution_shift": float(np.abs(Xr - X).max()), "energy_before_redistribution": e_step}
@@ -662,9 +473,10 @@ class WillmoreFlow:
                 result.stats["rejected_iterations"] = spent - res.iterations
                 result.remeshed = action
                 heavy = bool({"smooth", "remesh"} & set(action.split("+")))  # the light repair follows every step
-                if self.relax and attempt == 0 and tau >= self.tau and not heavy:
+                if self.settings.relax and attempt == 0 and tau >= self.tau and not heavy:
                     w0 = self._willmore_before
-                    result.relaxed = self.relaxed = w0 - result.willmore <= self.relax_tol * abs(result.willmore)
+                    result.relaxed = self.relaxed = (w0 - result.willmore
+                                                     <= self.settings.relax_tol * abs(result.willmore))
                 self._willmore_before = result.willmore
                 return result
             if self.stop_requested():  # the solve was cut short (or failed): do not retry
@@ -672,7 +484,7 @@ class WillmoreFlow:
             rejected.append(f"tau={tau:.6g}: {reason}")
             tau /= 2
         raise FlowError(
-            f"step {self.k + 1} at t={self.t:.6g} failed after {self.max_retries} retries: "
+            f"step {self.k + 1} at t={self.t:.6g} failed after {self.settings.max_retries} retries: "
             + "; ".join(rejected),
             step=self.k + 1, t=self.t, rejected=rejected,
         )
@@ -683,10 +495,10 @@ class WillmoreFlow:
         None (no budget) before the first accepted step: there is nothing to compare with (the first
         step of the 2,562-vertex ellipsoid needs 63 iterations and converges).
         """
-        if self.iteration_budget == 0 or not self._accepted_iterations:
+        if self.settings.iteration_budget == 0 or not self._accepted_iterations:
             return None
         med = float(np.median(self._accepted_iterations))
-        return max(self.iteration_budget_min, int(np.ceil(self.iteration_budget * med)))
+        return max(self.settings.iteration_budget_min, int(np.ceil(self.settings.iteration_budget * med)))
 
     # -- mesh control ------------------------------------------------------------------
     @staticmethod
@@ -697,7 +509,7 @@ class WillmoreFlow:
     def _needs_repair(self, X: np.ndarray, F: np.ndarray) -> bool:
         """Patch triangles below ``remesh_min_angle`` or patch edges above ``remesh_max_edge_ratio``."""
         q = self._patch_quality(X, F, self.free)
-        return q["min_angle"] < self.remesh_min_angle or q["edge_ratio"] > self.remesh_max_edge_ratio
+        return q["min_angle"] < self.settings.remesh_min_angle or q["edge_ratio"] > self.settings.remesh_max_edge_ratio
 
     def _control_mesh(self, tau: float) -> tuple[str, dict[str, float]]:
         """Repair the mesh of the accepted state when its quality dropped (see ``remesh``).
@@ -712,7 +524,7 @@ class WillmoreFlow:
         X, F = self.X, self.mesh.simplices
         moved = np.linalg.norm(X - self._X_prev, axis=1) if self._X_prev.shape == X.shape else None
         self._X_prev = X
-        relax = self.remesh_relax > 0
+        relax = self.settings.remesh_relax > 0
         needs = self._needs_repair(X, F)
         # the light repair moves each vertex by at most RELAX_SPEED times what the step moved it: the mesh
         # follows the surface at its own speed, and a state that the flow does not move (an equilibrium)
@@ -731,7 +543,7 @@ class WillmoreFlow:
             # remesh_relax passes after every step; up to RELAX_ROUNDS times as many while the mesh is
             # below the thresholds, before the stronger repairs (which move the shape by O(h^2))
             for _ in range(RELAX_ROUNDS):
-                X1 = rm.tangential_relax(X1, F1, free, iterations=self.remesh_relax, cap=RELAX_SPEED * moved)
+                X1 = rm.tangential_relax(X1, F1, free, iterations=self.settings.remesh_relax, cap=RELAX_SPEED * moved)
                 F1, _ = rm.delaunay_flips(X1, F1, free)
                 if not self._needs_repair(X1, F1):
                     break
@@ -743,7 +555,7 @@ class WillmoreFlow:
         explicit = boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
         if self._needs_repair(X1, F1) and not explicit:
             try:
-                target = self.remesh_target or rm.equilateral_edge(X1, F1, free)
+                target = self.settings.remesh_target or rm.equilateral_edge(X1, F1, free)
                 r = rm.isotropic_remesh(X1, F1, target, free)
             except rm.RemeshError as exc:
                 warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=3)

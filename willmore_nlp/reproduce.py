@@ -680,8 +680,8 @@ def fig11(fig_dir: Path) -> str:
             ax.plot(*W.T, lw=0.8, label=f"t = {t:.3g}")
         ax.set_aspect("equal")
         beta = f"{flow.setup.problem.tangential_weight:g}"
-        redist = "yes" if flow.redistribute else "no"
-        scale = f"h = {flow.mesh.h:.3g}" + (", adaptive" if flow.adaptive else "")
+        redist = "yes" if flow.settings.redistribute else "no"
+        scale = f"h = {flow.mesh.h:.3g}" + (", adaptive" if flow.settings.adaptive else "")
         ax.set_title(f"bunny, {g}, beta {beta}, redistribution {redist}\n{scale}", fontsize=8)
         ax.legend(fontsize=6)
         w = axis_widths(states[-1][1])

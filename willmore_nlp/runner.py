@@ -191,7 +191,7 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
             flow.run(t_end=t_end, steps=remaining, callback=on_step)
         if guard.signum is None:
             relaxed = (f"relaxed: step {flow.k} lowered the Willmore energy by less than relax_tol = "
-                       f"{flow.relax_tol:g}") if flow.relaxed else ""
+                       f"{flow.settings.relax_tol:g}") if flow.relaxed else ""
             writer.set_status("completed", **({"message": relaxed} if relaxed else {}))
             if not quiet:
                 bar.close()

@@ -127,13 +127,19 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
               t_end: float | None = None, options: dict[str, Any] | None = None) -> list[Case]:
     """All cases of a study (solver x tau x grid values), checked before anything runs."""
     from willmore_nlp import registry
-    from willmore_nlp.solvers import solver_names
+    from willmore_nlp.settings import FlowSettings
+    from willmore_nlp.solvers import solver_names, solver_settings
 
     registry.get(problem)
     known = solver_names()
+    _, solver_options = FlowSettings.split(options or {})
     for s in solvers:
         if s not in known:
             raise StudyError(f"--solvers: unknown solver {s!r}; available: {', '.join(known)}")
+        try:
+            solver_settings(s).from_options(solver_options)
+        except UserInputError as exc:
+            raise StudyError(f"--option: {exc}") from exc
     if not solvers or not taus:
         raise StudyError("a study needs at least one solver (--solvers) and one step size (--taus)")
     for t in taus:

@@ -10,6 +10,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.settings import SolverSettings
 
 
 @dataclass
@@ -51,15 +52,18 @@ class StepSolver(Protocol):
         ...
 
 
-SolverFactory = Callable[[StepEvaluator, dict[str, Any]], StepSolver]
-_SOLVERS: dict[str, SolverFactory] = {}
+SolverFactory = Callable[[StepEvaluator, Any], StepSolver]
+_SOLVERS: dict[str, tuple[SolverFactory, type[SolverSettings]]] = {}
 
 
-def register_solver(name: str) -> Callable[[SolverFactory], SolverFactory]:
-    """Decorator: register a solver factory under ``name``."""
+def register_solver(name: str, settings: type[SolverSettings]) -> Callable[[SolverFactory], SolverFactory]:
+    """Decorator: register a solver factory under ``name``; ``settings`` declares and validates its options.
+
+    The factory is called with the evaluator and an instance of ``settings``.
+    """
 
     def deco(factory: SolverFactory) -> SolverFactory:
-        _SOLVERS[name] = factory
+        _SOLVERS[name] = (factory, settings)
         return factory
 
     return deco
@@ -70,8 +74,14 @@ def solver_names() -> list[str]:
     return sorted(_SOLVERS)
 
 
-def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | None = None) -> StepSolver:
-    """Build the solver ``name`` for a step problem; ``options`` are solver-specific."""
+def solver_settings(name: str) -> type[SolverSettings]:
+    """The options class of solver ``name`` (UserInputError naming the known solvers if there is none)."""
     if name not in _SOLVERS:
         raise UserInputError(f"unknown solver {name!r}; available: {', '.join(solver_names())}")
-    return _SOLVERS[name](evaluator, dict(options or {}))
+    return _SOLVERS[name][1]
+
+
+def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | None = None) -> StepSolver:
+    """Build the solver ``name`` for a step problem; ``options`` are validated by its settings class."""
+    settings = solver_settings(name).from_options(dict(options or {}))
+    return _SOLVERS[name][0](evaluator, settings)

@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.settings import BOOL, Kind, SolverSettings, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
 IPOPT_DEFAULTS: dict[str, Any] = {
@@ -23,6 +29,69 @@ IPOPT_DEFAULTS: dict[str, Any] = {
     "sb": "yes",
 }
 """IPOPT options used unless overridden (keys without the ``ipopt.`` prefix)."""
+
+OPTIONS_FILE = Path(__file__).with_name("ipopt_options.json")
+"""IPOPT's options with their types and ranges, as IPOPT documents them (``print_options_mode=doxygen``;
+tests/test_settings.py checks it against the installed IPOPT): ``[type, lo, lo_open, hi, hi_open]`` for
+"real" and "integer" options, ``["string", [settings] or null (free text)]`` for string options."""
+
+
+@cache
+def ipopt_kinds() -> dict[str, Kind]:
+    """Every IPOPT option's allowed values (from :data:`OPTIONS_FILE`; ``sb``, undocumented, added)."""
+    kinds = {"sb": one_of("yes", "no")}
+    for name, (typ, *rng) in json.loads(OPTIONS_FILE.read_text(encoding="utf-8")).items():
+        if typ == "string":
+            kinds[name] = Kind("text", lambda v: isinstance(v, str)) if rng[0] is None else one_of(*rng[0])
+            continue
+        lo, lo_open, hi, hi_open = rng
+        lo, hi = -np.inf if lo is None else lo, np.inf if hi is None else hi
+        kinds[name] = real(lo, hi, lo_open=lo_open, hi_open=hi_open or hi == np.inf)
+        if typ == "integer":
+            num = kinds[name]
+            kinds[name] = Kind(num.what.replace("a number", "an integer"),
+                               lambda v, ok=num.ok: ok(v) and float(v).is_integer(), int)
+    return kinds
+
+
+def check_ipopt_option(name: str, value: Any) -> Any:
+    """``value`` of the IPOPT option ``name`` typed for IPOPT, or UserInputError naming both."""
+    kind = ipopt_kinds().get(name)
+    if kind is None:
+        raise UserInputError(f"IPOPT option {name} = {value!r}: unknown option")
+    if not kind.ok(value):
+        valid = f"not a valid setting (valid: {', '.join(kind.choices)})" if kind.choices else f"must be {kind.what}"
+        raise UserInputError(f"IPOPT option {name} = {value!r}: {valid}")
+    return kind.convert(value)
+
+
+@dataclass(frozen=True)
+class IpoptSettings(SolverSettings):
+    """Options of ``ipopt``: ``warm_start`` and any IPOPT option (checked against :func:`ipopt_kinds`).
+
+    Attributes
+    ----------
+    warm_start : bool
+        Start each step from the previous step's multipliers (``warm_start_init_point``).
+    ipopt : tuple
+        ``(name, value)`` of the IPOPT options given (over :data:`IPOPT_DEFAULTS`).
+    """
+
+    solver = "ipopt"
+    warm_start: bool = option(False, BOOL)
+    ipopt: tuple[tuple[str, Any], ...] = option((), Kind("IPOPT options", lambda v: isinstance(v, tuple)))
+
+    @classmethod
+    def config_keys(cls) -> tuple[str, ...]:
+        """``warm_start`` and the IPOPT options that configs take without the ``ipopt.`` prefix."""
+        return ("warm_start", "tol", "max_iter", "print_level")
+
+    @classmethod
+    def from_options(cls, options: dict[str, Any]) -> IpoptSettings:
+        """``warm_start`` and IPOPT options (with or without the ``ipopt.`` prefix)."""
+        mine, other = cls.split(options)
+        return cls(**mine, ipopt=tuple((k.removeprefix("ipopt."), check_ipopt_option(k.removeprefix("ipopt."), v))
+                                       for k, v in other.items()))
 
 
 def _never() -> bool:
@@ -137,6 +206,7 @@ class SolveMonitor:
         return bool(self.cut)
 
 
+@register_solver("ipopt", IpoptSettings)
 class IpoptSolver:
     """One ``nlpsol('ipopt')`` object serving every step of a run.
 
@@ -145,8 +215,8 @@ class IpoptSolver:
     evaluator : StepEvaluator
         Supplies ``f``/``g`` expressions and the assembled ``grad_f``, ``jac_g`` and
         ``hess_lag`` functions, passed to IPOPT directly (no global AD).
-    options : dict
-        IPOPT options (``tol``, ``max_iter``, ``mu_strategy``, ``warm_start`` ...), merged over
+    settings : IpoptSettings
+        IPOPT options (``tol``, ``max_iter``, ``mu_strategy`` ...), merged over
         :data:`IPOPT_DEFAULTS`. ``warm_start=True`` passes the previous multipliers and sets
         ``warm_start_init_point``.
 
@@ -166,11 +236,10 @@ class IpoptSolver:
 
     name = "ipopt"
 
-    def __init__(self, evaluator: StepEvaluator, options: dict[str, Any]) -> None:
+    def __init__(self, evaluator: StepEvaluator, settings: IpoptSettings) -> None:
         fn = evaluator.fn
-        opts = dict(IPOPT_DEFAULTS)
-        self.warm_start = bool(options.pop("warm_start", False))
-        opts.update(options)
+        opts = {**IPOPT_DEFAULTS, **dict(settings.ipopt)}
+        self.warm_start = settings.warm_start
         if self.warm_start:
             opts["warm_start_init_point"] = "yes"
         nlp = {"x": fn["z"], "p": fn["p"], "f": fn["f_expr"], "g": fn["g_expr"]}
@@ -223,6 +292,9 @@ class IpoptSolver:
         r = self._solver(**args)
         st = self._solver.stats()
         status = self._monitor.cut or str(st.get("return_status", "unknown"))
+        if status == "Invalid_Option":
+            raise UserInputError(f"IPOPT refused its options when solving (linear_solver = "
+                                 f"{self.options['linear_solver']!r} not in this build?)")
         it = st.get("iterations", {})
         stats = {
             "n_eval_f": st.get("n_call_nlp_f", 0),
@@ -252,8 +324,3 @@ class IpoptSolver:
             stats=stats,
         )
 
-
-@register_solver("ipopt")
-def make_ipopt(evaluator: StepEvaluator, options: dict[str, Any]) -> IpoptSolver:
-    """Factory for :class:`IpoptSolver`."""
-    return IpoptSolver(evaluator, options)

@@ -43,65 +43,69 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
-from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.settings import integer, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
-from willmore_nlp.solvers.cholesky import FullFactor, KronFactor, SymmetricFactor
-from willmore_nlp.solvers.reduced import ReducedSolver, _Point
-
-NK_DEFAULTS: dict[str, Any] = {
-    "tol": 1e-9,
-    "max_iter": 50,
-    "cholesky": "auto",
-    "cg_max_iter": 300,
-    "precond_move": 0.5,
-    "cg_rebuild": 60,
-    "armijo": 1e-4,
-}
-"""Options of ``newton-krylov``: ``tol`` (relative, see the module docstring), ``max_iter`` (Newton
-iterations), ``cholesky`` ("auto", "cholespy", "scipy"), ``cg_max_iter`` (per Newton system),
-``precond_move`` (rebuild B when X moved more than this times the mean edge length), ``cg_rebuild`` (rebuild
-B after this many CG iterations with it), ``armijo``."""
-
-_IGNORED = ("warm_start", "print_level")  # flow-level options meant for IPOPT
+from willmore_nlp.solvers.cholesky import BACKENDS, FullFactor, KronFactor, SymmetricFactor
+from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, _Point
 
 
+@dataclass(frozen=True)
+class NewtonKrylovSettings(ReducedSettings):
+    """Options of ``newton-krylov`` (tolerance: see the module docstring).
+
+    Attributes
+    ----------
+    tol : float
+        Relative tolerance on the reduced gradient.
+    max_iter : int
+        Newton iterations.
+    armijo : float
+        Sufficient-decrease constant of the line search.
+    cholesky : str
+        Sparse Cholesky backend: "auto", "cholespy" or "scipy" (:mod:`willmore_nlp.solvers.cholesky`).
+    cg_max_iter : int
+        CG iterations per Newton system.
+    precond_move : float
+        Rebuild the preconditioner B when X moved more than this times the mean edge length.
+    cg_rebuild : int
+        Rebuild B after this many CG iterations with it.
+    """
+
+    solver = "newton-krylov"
+    tol: float = option(1e-9, real(0, lo_open=True))
+    max_iter: int = option(50, integer(1))
+    cholesky: str = option("auto", one_of(*BACKENDS))
+    cg_max_iter: int = option(300, integer(1))
+    precond_move: float = option(0.5, real(0, lo_open=True))
+    cg_rebuild: int = option(60, integer(1))
+
+
+@register_solver("newton-krylov", NewtonKrylovSettings)
 class NewtonKrylovSolver(ReducedSolver):
     """Reduced-space Newton-CG step solver (see the module docstring).
 
     Parameters
     ----------
     evaluator : StepEvaluator
-    options : dict
-        Keys of :data:`NK_DEFAULTS`; ``warm_start`` and ``print_level`` are accepted and ignored.
+    settings : NewtonKrylovSettings
     """
 
-    def __init__(self, evaluator: StepEvaluator, options: dict[str, Any]) -> None:
-        unknown = set(options) - set(NK_DEFAULTS) - set(_IGNORED)
-        if unknown:
-            raise UserInputError(f"solver newton-krylov: unknown option(s) {', '.join(sorted(unknown))}; "
-                                 f"known: {', '.join(NK_DEFAULTS)}")
-        opts = {**NK_DEFAULTS, **{k: v for k, v in options.items() if k in NK_DEFAULTS}}
-        for key in ("tol", "precond_move", "armijo"):
-            if not (isinstance(opts[key], (int, float)) and np.isfinite(opts[key]) and opts[key] > 0):
-                raise UserInputError(f"solver newton-krylov: option {key} must be a positive number, got {opts[key]!r}")
-        for key in ("max_iter", "cg_max_iter", "cg_rebuild"):
-            if not (isinstance(opts[key], (int, float)) and float(opts[key]).is_integer() and opts[key] >= 1):
-                raise UserInputError(f"solver newton-krylov: option {key} must be an integer >= 1, got {opts[key]!r}")
-        super().__init__(evaluator, "newton-krylov",
-                         {"tol": opts["tol"], "max_iter": opts["max_iter"], "armijo": opts["armijo"]})
-        self.cg_max_iter = int(opts["cg_max_iter"])
-        self.precond_move = float(opts["precond_move"])
-        self.cg_rebuild = int(opts["cg_rebuild"])
-        self._jy = SymmetricFactor(str(opts["cholesky"]))
-        self._pre = SymmetricFactor(str(opts["cholesky"]))
+    def __init__(self, evaluator: StepEvaluator, settings: NewtonKrylovSettings) -> None:
+        super().__init__(evaluator, settings, "newton-krylov")
+        self.cg_max_iter = settings.cg_max_iter
+        self.precond_move = settings.precond_move
+        self.cg_rebuild = settings.cg_rebuild
+        self._jy = SymmetricFactor(settings.cholesky)
+        self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
         P = self.P
         m = P.m
@@ -338,8 +342,3 @@ class NewtonKrylovSolver(ReducedSolver):
             alpha *= 0.5
         return None
 
-
-@register_solver("newton-krylov")
-def make_newton_krylov(evaluator: StepEvaluator, options: dict[str, Any]) -> NewtonKrylovSolver:
-    """Factory for :class:`NewtonKrylovSolver`."""
-    return NewtonKrylovSolver(evaluator, options)

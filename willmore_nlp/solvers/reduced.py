@@ -23,18 +23,35 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
 import scipy.optimize as so
 import scipy.sparse.linalg as spla
 
-from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.settings import SolverSettings, integer, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
-REDUCED_DEFAULTS: dict[str, Any] = {"tol": 1e-6, "max_iter": 1000}
-"""Options of the reduced solvers: ``tol`` on |grad W^|_inf relative to max(1, |grad W^(X0)|_inf)."""
+
+@dataclass(frozen=True)
+class ReducedSettings(SolverSettings):
+    """Options of the reduced solvers ``gd``, ``lbfgs`` and ``newton``.
+
+    Attributes
+    ----------
+    tol : float
+        Tolerance on |grad W^|_inf relative to max(1, |grad W^(X0)|_inf).
+    max_iter : int
+        Iterations.
+    armijo : float
+        Sufficient-decrease constant of the line search (``gd``, ``newton-krylov``).
+    """
+
+    tol: float = option(1e-6, real(0, lo_open=True))
+    max_iter: int = option(1000, integer(0))
+    armijo: float = option(1e-4, real(0, 1, lo_open=True))
 
 
 @dataclass
@@ -58,25 +75,17 @@ class ReducedSolver:
     Parameters
     ----------
     evaluator : StepEvaluator
+    settings : ReducedSettings
     method : {"gd", "lbfgs", "newton"}
-    options : dict
-        ``tol`` (default 1e-6), ``max_iter`` (default 1000); ``armijo`` (sufficient decrease
-        constant, default 1e-4) for ``gd``.
     """
 
-    def __init__(self, evaluator: StepEvaluator, method: str, options: dict[str, Any]) -> None:
-        opts = dict(REDUCED_DEFAULTS)
-        unknown = set(options) - {"tol", "max_iter", "armijo", "warm_start", "print_level"}
-        if unknown:
-            raise UserInputError(f"solver {method}: unknown option(s) {', '.join(sorted(unknown))}; "
-                             f"known: tol, max_iter, armijo")
-        opts.update({k: v for k, v in options.items() if k not in ("warm_start", "print_level")})
+    def __init__(self, evaluator: StepEvaluator, settings: ReducedSettings, method: str) -> None:
         self.name = method
         self.ev = evaluator
         self.P = evaluator.problem
-        self.tol = float(opts["tol"])
-        self.max_iter = int(opts["max_iter"])
-        self.armijo = float(opts.get("armijo", 1e-4))
+        self.tol = settings.tol
+        self.max_iter = settings.max_iter
+        self.armijo = settings.armijo
         self.nxm = self.P.nX * self.P.m
         self._counts: dict[str, int] = {}
 
@@ -190,13 +199,7 @@ class ReducedSolver:
                            iterations=it, stats=stats)
 
 
-def _factory(method: str) -> Any:
-    def make(evaluator: StepEvaluator, options: dict[str, Any]) -> ReducedSolver:
-        return ReducedSolver(evaluator, method, options)
-
-    make.__doc__ = f"Factory for the reduced-space ``{method}`` solver."
-    return make
-
 
 for _name in ("gd", "lbfgs", "newton"):
-    register_solver(_name)(_factory(_name))
+    register_solver(_name, type(f"{_name.title()}Settings", (ReducedSettings,), {"solver": _name}))(
+        partial(ReducedSolver, method=_name))

@@ -20,7 +20,7 @@ is lagged explicitly; it is a baseline, stable only for small tau (measured in t
 from __future__ import annotations
 
 import time
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -30,9 +30,19 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass, mass_stiffness
 from willmore_nlp.geometry import gauss_curvature
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.settings import SOLVER_IGNORED, SolverSettings
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
 
+@dataclass(frozen=True)
+class SemiImplicitSettings(SolverSettings):
+    """``semi-implicit`` has no options (it has no tolerances: ``tol`` and ``max_iter`` are ignored)."""
+
+    solver = "semi-implicit"
+    ignores = (*SOLVER_IGNORED, "tol", "max_iter")
+
+
+@register_solver("semi-implicit", SemiImplicitSettings)
 class SemiImplicitSolver:
     """One linear solve per step for closed curves and surfaces (see the module docstring).
 
@@ -41,18 +51,14 @@ class SemiImplicitSolver:
     evaluator : StepEvaluator
         Supplies the mesh connectivity and the parameter layout (Xk, tau, tt, lam); the step
         problem's W is only evaluated for reporting.
-    options : dict
-        None accepted (the scheme has no tolerances).
+    settings : SemiImplicitSettings
     """
 
     name = "semi-implicit"
     variational = False
     """Not a minimisation of W: the flow does not apply the nested scheme's energy inequality."""
 
-    def __init__(self, evaluator: StepEvaluator, options: dict[str, Any]) -> None:
-        unknown = set(options) - {"tol", "max_iter", "warm_start", "print_level"}
-        if unknown:
-            raise UserInputError(f"solver semi-implicit: unknown option(s) {', '.join(sorted(unknown))}; it has none")
+    def __init__(self, evaluator: StepEvaluator, settings: SemiImplicitSettings) -> None:
         P = evaluator.problem
         if P.nX != P.n_vertices or (P.simplices.shape[1] == 3 and P.m != 3):
             raise UserInputError("solver semi-implicit: the baseline is implemented for closed curves and closed "
@@ -93,8 +99,3 @@ class SemiImplicitSolver:
         return SolveResult(z=z, f=self.ev.f(z, p) if ok else float("nan"), lam_g=np.zeros(P.ng), converged=ok,
                            status="linear solve" if ok else "non-finite solution", iterations=1, stats=stats)
 
-
-@register_solver("semi-implicit")
-def make_semi_implicit(evaluator: StepEvaluator, options: dict[str, Any]) -> SemiImplicitSolver:
-    """Factory for :class:`SemiImplicitSolver`."""
-    return SemiImplicitSolver(evaluator, options)

@@ -19,40 +19,50 @@ CasADi 3.8.2 (measured; issue-5 note).
 from __future__ import annotations
 
 import time
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.settings import SolverSettings, integer, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
-SQP_DEFAULTS: dict[str, Any] = {"tol": 1e-9, "max_iter": 200}
-"""``tol`` on the dual and primal infeasibility, relative to max(1, |grad f(z0)|_inf)."""
+
+@dataclass(frozen=True)
+class SqpSettings(SolverSettings):
+    """Options of ``sqp``.
+
+    Attributes
+    ----------
+    tol : float
+        Tolerance on the dual and primal infeasibility, relative to max(1, |grad f(z0)|_inf).
+    max_iter : int
+        SQP iterations.
+    """
+
+    solver = "sqp"
+    tol: float = option(1e-9, real(0, lo_open=True))
+    max_iter: int = option(200, integer(0))
 
 
+@register_solver("sqp", SqpSettings)
 class SqpSolver:
     """Line-search SQP with exact Hessians (see the module docstring).
 
     Parameters
     ----------
     evaluator : StepEvaluator
-    options : dict
-        ``tol`` (1e-9), ``max_iter`` (200).
+    settings : SqpSettings
     """
 
     name = "sqp"
 
-    def __init__(self, evaluator: StepEvaluator, options: dict[str, Any]) -> None:
-        unknown = set(options) - {"tol", "max_iter", "warm_start", "print_level"}
-        if unknown:
-            raise UserInputError(f"solver sqp: unknown option(s) {', '.join(sorted(unknown))}; known: tol, max_iter")
-        opts = {**SQP_DEFAULTS, **{k: v for k, v in options.items() if k in SQP_DEFAULTS}}
+    def __init__(self, evaluator: StepEvaluator, settings: SqpSettings) -> None:
         self.ev = evaluator
-        self.tol = float(opts["tol"])
-        self.max_iter = int(opts["max_iter"])
+        self.tol = settings.tol
+        self.max_iter = settings.max_iter
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """Solve from ``z0`` (multipliers start at ``lam_g0`` or 0)."""
@@ -112,8 +122,3 @@ class SqpSolver:
         return SolveResult(z=z, f=f, lam_g=lam, converged=status == "converged", status=status,
                            iterations=it, stats=stats)
 
-
-@register_solver("sqp")
-def make_sqp(evaluator: StepEvaluator, options: dict[str, Any]) -> SqpSolver:
-    """Factory for :class:`SqpSolver`."""
-    return SqpSolver(evaluator, options)

@@ -1,0 +1,145 @@
+"""Typed settings: one rule per option, the same message from every entry point; IPOPT's options checked
+statically against IPOPT's own documentation and agreeing with IPOPT's own checks."""
+
+from __future__ import annotations
+
+import dataclasses
+import html
+import inspect
+import json
+import re
+import subprocess
+import sys
+
+import casadi as ca
+import pytest
+
+from willmore_nlp import cli
+from willmore_nlp.config import ConfigError, resolve
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.flow import WillmoreFlow
+from willmore_nlp.mesh import shapes
+from willmore_nlp.settings import FlowSettings
+from willmore_nlp.solvers import solver_names, solver_settings
+from willmore_nlp.solvers.ipopt import OPTIONS_FILE, check_ipopt_option
+
+
+def ipopt_doc_table(text: str) -> dict[str, list]:
+    """IPOPT's ``print_options_mode=doxygen`` documentation -> the entries of ``ipopt_options.json``.
+
+    Regenerate the file after an IPOPT upgrade with ``dump(ipopt_doc_table(installed_ipopt_doc()))``.
+    """
+    out: dict[str, list] = {}
+    for name, body in re.findall(r"\\anchor OPT_(\w+)\n(.*?)</blockquote>", text, re.S):
+        body = html.unescape(re.sub(r"<sup>([^<]*)</sup>", r"e\1", body))
+        typ = re.search(r"this (real|integer|string) option", body).group(1)
+        if typ == "string":
+            short = re.search(r"Possible values: (.+)$", body, re.M)
+            choices = ([c.strip() for c in short.group(1).split(",")] if short
+                       else re.findall(r"^ - ([^:]+):", body, re.M))
+            out[name] = ["string", None if "*" in choices or not choices else choices]
+            continue
+        rng = re.search(r"valid range for this \w+ option is (.*?) and its default", body, re.S).group(1)
+        lo, lo_open, hi, hi_open = None, False, None, False
+        if rng != "unrestricted":
+            parts = re.split(r"\s*(<|≤)\s*", rng.strip())
+            i = parts.index(name)
+            if i == 2:
+                lo, lo_open = float(parts[0]), parts[1] == "<"
+            if len(parts) > i + 1:
+                hi, hi_open = float(parts[i + 2]), parts[i + 1] == "<"
+        out[name] = [typ, lo, lo_open, hi, hi_open]
+    return out
+
+
+def dump(table: dict[str, list]) -> str:
+    """The file format of ``ipopt_options.json``: one option per line."""
+    return "{\n" + ",\n".join(f"  {json.dumps(k)}: {json.dumps(v)}" for k, v in sorted(table.items())) + "\n}\n"
+
+
+def installed_ipopt_doc() -> str:
+    """The option documentation printed by the IPOPT that CasADi loads (a subprocess: it writes to C stdout)."""
+    code = ("import casadi as ca; x = ca.MX.sym('x'); ca.nlpsol('d', 'ipopt', {'x': x, 'f': x**2}, {'print_time': False,"
+            " 'ipopt': {'print_options_documentation': 'yes', 'print_advanced_options': 'yes',"
+            " 'print_options_mode': 'doxygen', 'sb': 'yes'}})(x0=1)")
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+
+
+def test_ipopt_table_is_the_installed_ipopts_documentation() -> None:
+    table = ipopt_doc_table(installed_ipopt_doc())
+    assert len(table) > 250 and table["tol"] == ["real", 0.0, True, None, False]
+    assert OPTIONS_FILE.read_text(encoding="utf-8") == dump(table)
+
+
+def _ipopt_accepts(name: str, value: object) -> bool:
+    """IPOPT's own verdict: does building a solver with the option succeed?"""
+    x = ca.MX.sym("x")
+    try:
+        ca.nlpsol("probe", "ipopt", {"x": x, "f": x**2}, {"print_time": False,
+                                                          "ipopt": {name: value, "print_level": 0, "sb": "yes"}})
+    except RuntimeError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize(("name", "value"), [
+    ("tol", 1e-7), ("tol", 0.0), ("tol", -1.0), ("max_iter", 5), ("max_iter", -1), ("print_level", 12),
+    ("acceptable_tol", 0.0), ("mu_strategy", "adaptive"), ("mu_strategy", "bogus"), ("mumps_pivot_order", 7),
+    ("mumps_pivot_order", 8), ("bound_frac", 0.5), ("bound_frac", 0.6), ("hessian_constant", "yes"),
+    ("hessian_constant", "maybe"), ("no_such_option", 1), ("acceptable_iter", 0), ("alpha_red_factor", 1.0)])
+def test_static_ipopt_check_agrees_with_ipopt(name: str, value: object) -> None:
+    try:
+        check_ipopt_option(name, value)
+        ours = True
+    except UserInputError:
+        ours = False
+    assert ours == _ipopt_accepts(name, value)
+
+
+def test_every_option_is_documented() -> None:
+    """docs/reference/options.md takes each option's meaning from its class docstring: none may lack one."""
+    classes = [FlowSettings, *(solver_settings(n) for n in solver_names())]
+    for cls in classes:
+        doc = inspect.getdoc(cls) or ""
+        for f in dataclasses.fields(cls):
+            assert re.search(rf"^{f.name} : ", doc, re.M), (cls.__name__, f.name)
+
+
+def _last_line(capsys: pytest.CaptureFixture[str], argv: list[str]) -> str:
+    assert cli.main(argv) == 2
+    return capsys.readouterr().err.strip()
+
+
+@pytest.mark.parametrize(("key", "value", "text"), [
+    ("max_retries", -1, "max_retries must be an integer >= 0, got -1"),
+    ("stall_iterations", 2.5, "stall_iterations must be an integer >= 0 (0: off), got 2.5"),
+    ("remesh", "sometimes", "remesh must be 'auto' or 'off', got 'sometimes'"),
+    ("min_tau", -1, "min_tau must be a number >= 0 or unset (0.01 h^4), got -1")])
+def test_one_rule_from_every_entry_point(tmp_path, capsys, key: str, value: object, text: str) -> None:
+    """The Python API, a TOML config, ``--set`` and ``compare --option`` refuse a bad value with one message."""
+    mesh = shapes.regular_polygon(12)
+    with pytest.raises(UserInputError) as api:
+        WillmoreFlow(mesh, mesh.h, 0.1 * mesh.h**2, **{key: value})
+    assert str(api.value) == text
+    toml = tmp_path / "c.toml"
+    toml.write_text(f'problem = "circle"\n{key} = {json.dumps(value)}\n')
+    assert _last_line(capsys, ["run", str(toml), "--out", str(tmp_path / "r"), "--steps", "1"]).endswith(
+        f"c.toml: {text}")
+    assert _last_line(capsys, ["run", "circle", "--set", f"{key}={value}", "--out", str(tmp_path / "r"),
+                               "--steps", "1"]) == f"willmore-nlp: error: --set: {text}"
+    assert _last_line(capsys, ["compare", "circle", "--option", f"{key}={value}", "--out", str(tmp_path / "s"),
+                               "--quiet"]) == f"willmore-nlp: error: --option {key}: {text}"
+    assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()
+
+
+def test_solver_options_are_the_solvers_own() -> None:
+    """``armijo`` and ``cholesky`` are settable from a config, checked by the chosen solver only."""
+    spec = resolve("circle", {"solver": "newton-krylov", "cholesky": "scipy", "armijo": "1e-3"})
+    assert spec.flow_options == {"solver": "newton-krylov", "cholesky": "scipy", "armijo": 1e-3}
+    with pytest.raises(ConfigError, match="--set: solver sqp: unknown option\\(s\\) cholesky; known: tol, max_iter"):
+        resolve("circle", {"solver": "sqp", "cholesky": "scipy"})
+    with pytest.raises(ConfigError, match="solver newton-krylov: option cg_rebuild must be an integer >= 1, got 0"):
+        resolve("circle", {"solver": "newton-krylov", "cg_rebuild": "0"})
+    with pytest.raises(ConfigError, match="IPOPT option mu_strategy = 'x': not a valid setting"):
+        resolve("circle", {"ipopt.mu_strategy": "x"})
+    assert FlowSettings(relax=True).relax and FlowSettings().defaults()["remesh_relax"] == 2

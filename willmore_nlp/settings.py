@@ -1,0 +1,374 @@
+"""Typed settings: every option once, with its default, its allowed values and its meaning.
+
+An option is a field of a frozen dataclass declared with :func:`option` (default and :class:`Kind`);
+its meaning is the class docstring's entry. :class:`Settings` validates every field on construction
+(one message per option: ``NAME must be WHAT, got VALUE``), reads command-line strings
+(:meth:`Settings.parse`) and refuses unknown keys (:meth:`Settings.split`). The flow's options are
+:class:`FlowSettings`; each solver declares its own (:mod:`willmore_nlp.solvers`). The Python API
+(``WillmoreFlow`` keywords), TOML configs, ``--set`` and ``compare --option`` all go through them, and
+``docs/reference/options.md`` is generated from them. Adding an option is one field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.tangential import CONTROL_METHODS, DEFAULT_CONTROL_WEIGHT
+
+
+def is_number(v: Any) -> bool:
+    """An int or float, not a bool."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def auto(v: Any) -> Any:
+    """A command-line string read as bool, int or float when it looks like one (else kept)."""
+    if not isinstance(v, str):
+        return v
+    low = v.strip().lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for conv in (int, float):
+        try:
+            return conv(v)
+        except ValueError:
+            continue
+    return v
+
+
+def _parse_bool(v: Any) -> Any:
+    low = str(v).strip().lower() if isinstance(v, str) else v
+    return {"1": True, "true": True, "yes": True, "on": True,
+            "0": False, "false": False, "no": False, "off": False}.get(low, v) if isinstance(low, str) else v
+
+
+@dataclass(frozen=True)
+class Kind:
+    """The allowed values of an option.
+
+    Attributes
+    ----------
+    what : the allowed values in words, completing "NAME must be ..."
+    ok : test of a value
+    convert : normalises an accepted value (``2.0 -> 2`` for integers, ``3 -> 3.0`` for reals)
+    parse : reads a command-line string (values of other types are passed on unchanged)
+    choices : the allowed strings of :func:`one_of`
+    """
+
+    what: str
+    ok: Callable[[Any], bool]
+    convert: Callable[[Any], Any] = lambda v: v
+    parse: Callable[[Any], Any] = auto
+    choices: tuple[str, ...] = ()
+
+
+def real(lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False, hi_open: bool = True,
+         finite: bool = True, unset: str | None = None, note: str = "") -> Kind:
+    """A number in [lo, hi) (bounds open or closed); ``unset``: None allowed, meaning what is said."""
+    if hi < math.inf:
+        what = f"a number in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+    else:
+        what = f"a number {'>' if lo_open else '>='} {lo:g}"
+    what += f" or unset ({unset})" if unset else ""
+    what += f" ({note})" if note else ""
+
+    def ok(v: Any) -> bool:
+        if v is None:
+            return unset is not None
+        return (is_number(v) and (math.isfinite(v) or not finite) and (lo < v if lo_open else lo <= v)
+                and (v < hi if hi_open else v <= hi))
+
+    return Kind(what, ok, lambda v: None if v is None else float(v))
+
+
+def integer(lo: int, note: str = "") -> Kind:
+    """An integer >= lo (an integral float such as 2.0 is accepted)."""
+    return Kind(f"an integer >= {lo}" + (f" ({note})" if note else ""),
+                lambda v: is_number(v) and math.isfinite(v) and float(v).is_integer() and v >= lo, int)
+
+
+def one_of(*choices: str) -> Kind:
+    """One of the given strings."""
+    return Kind(" or ".join(map(repr, choices)) if len(choices) < 3 else "one of " + ", ".join(map(repr, choices)),
+                lambda v: v in choices, parse=lambda v: v, choices=choices)
+
+
+BOOL = Kind("true or false", lambda v: isinstance(v, bool), parse=_parse_bool)
+BOOL_OR_UNSET = Kind("true, false or unset", lambda v: v is None or isinstance(v, bool), parse=_parse_bool)
+ANY = Kind("any value", lambda v: True)
+
+
+def option(default: Any, kind: Kind) -> Any:
+    """A settings field: its default and allowed values (its meaning is the class docstring's entry)."""
+    return dataclasses.field(default=default, metadata={"kind": kind})
+
+
+class Settings:
+    """Base of the frozen settings dataclasses: validation on construction, string parsing, key splitting.
+
+    :meth:`prefix` starts every message (``"solver sqp: option "``; empty for the flow's options).
+    """
+
+    @classmethod
+    def prefix(cls) -> str:
+        """What a message starts with."""
+        return ""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            object.__setattr__(self, f.name, self.check(f.name, getattr(self, f.name)))
+
+    @classmethod
+    def kinds(cls) -> dict[str, Kind]:
+        """Option name -> its :class:`Kind`, in declaration order."""
+        return {f.name: f.metadata["kind"] for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        """Option name -> default."""
+        return {f.name: f.default for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+
+    @classmethod
+    def check(cls, name: str, value: Any) -> Any:
+        """``value`` of option ``name`` normalised, or UserInputError ``NAME must be WHAT, got VALUE``."""
+        kind = cls.kinds()[name]
+        if not kind.ok(value):
+            raise UserInputError(f"{cls.prefix()}{name} must be {kind.what}, got {value!r}")
+        return kind.convert(value)
+
+    @classmethod
+    def parse(cls, name: str, value: Any) -> Any:
+        """Option ``name`` from a command-line string (other values unchanged), validated."""
+        return cls.check(name, cls.kinds()[name].parse(value))
+
+    @classmethod
+    def split(cls, options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+        """``options`` split into (this class's options, the others)."""
+        kinds = cls.kinds()
+        return ({k: v for k, v in options.items() if k in kinds}, {k: v for k, v in options.items() if k not in kinds})
+
+
+SOLVER_IGNORED = ("warm_start", "print_level")
+"""Options meant for IPOPT that every other solver accepts and ignores (a config may switch solvers)."""
+
+
+class SolverSettings(Settings):
+    """Options of one solver: ``from_options`` refuses keys it neither declares nor ``ignores``."""
+
+    solver: ClassVar[str] = ""
+    ignores: ClassVar[tuple[str, ...]] = SOLVER_IGNORED
+
+    @classmethod
+    def prefix(cls) -> str:
+        """``solver NAME: option ``."""
+        return f"solver {cls.solver}: option "
+
+    @classmethod
+    def config_keys(cls) -> tuple[str, ...]:
+        """The keys a config may give for this solver (besides ``ipopt.NAME``)."""
+        return tuple(cls.kinds())
+
+    @classmethod
+    def from_options(cls, options: dict[str, Any]) -> SolverSettings:
+        """Validated settings from a dict of options.
+
+        ``ipopt.NAME`` keys count as ``NAME`` (a config may switch solvers).
+
+        Raises
+        ------
+        UserInputError
+            ``solver NAME: unknown option(s) ...; known: ...`` or ``solver NAME: option KEY must be ...``.
+        """
+        mine, other = cls.split({k.removeprefix("ipopt."): v for k, v in options.items()})
+        unknown = sorted(set(other) - set(cls.ignores))
+        if unknown:
+            known = ", ".join(cls.kinds()) or "none"
+            raise UserInputError(f"solver {cls.solver}: unknown option(s) {', '.join(unknown)}; known: {known}")
+        return cls(**mine)
+
+
+RUN_KINDS: dict[str, Kind] = {
+    "tau": real(0, lo_open=True),
+    "tau_tilde": real(0, lo_open=True),
+    "lam": real(0),
+    "steps": integer(1),
+    "t_end": real(0, lo_open=True),
+}
+"""Step sizes, length/area weight and run length (problem parameters and ``WillmoreFlow`` arguments)."""
+
+
+def check_run_value(name: str, value: Any) -> Any:
+    """A :data:`RUN_KINDS` value, normalised, or UserInputError ``NAME must be WHAT, got VALUE``."""
+    if not RUN_KINDS[name].ok(value):
+        raise UserInputError(f"{name} must be {RUN_KINDS[name].what}, got {value!r}")
+    return RUN_KINDS[name].convert(value)
+
+
+@dataclass(frozen=True)
+class FlowSettings(Settings):
+    """The options of :class:`~willmore_nlp.flow.WillmoreFlow` (keywords, config keys, ``--set KEY=VALUE``).
+
+    Solver options (``tol``, ``max_iter``, ``warm_start``, IPOPT's) are the solver's own
+    (:func:`willmore_nlp.solvers.solver_settings`).
+
+    Attributes
+    ----------
+    solver : str
+        Registered solver name (``"ipopt"`` default).
+    codegen : bool or None
+        Compile the element kernels to C and cache the library (:mod:`willmore_nlp.codegen`).
+        None (default): when a C compiler is found, else CasADi's virtual machine with a warning.
+    max_retries : int
+        How many times a failed step is retried with tau halved.
+    check_energy : bool
+        Reject steps that violate the discrete energy inequality W(X^{k+1}) <= W(X^k) = 2 tau e(X^k).
+    min_angle : float
+        Reject surface steps whose smallest triangle angle (degrees) drops below this.
+    max_edge_ratio : float
+        Reject steps whose longest/shortest edge ratio exceeds this.
+    energy_rtol : float
+        Relative slack of the energy check: a step passes when W <= W(X^k) (1 + energy_rtol) + 1e-14.
+    allow_components : bool
+        Accept a mesh of several separate curves or surfaces (default: one is expected,
+        :func:`willmore_nlp.mesh.topology.check_connected`).
+    anisotropy : str, callable or Anisotropy, optional
+        Anisotropy gamma for the fully nonlinear anisotropic scheme (paper Secs. 2.3, 3.3): a
+        preset name ("gamma0", "gamma1", "gamma2"), a 1-homogeneous gamma(z) written with CasADi
+        operations, or an :class:`~willmore_nlp.anisotropy.Anisotropy`. Closed curves in R^2 and
+        closed surfaces in R^3; the inner equation is then nonlinear in Y (damped Newton). Each
+        StepResult reports the anisotropic Willmore energy ``willmore_gamma``.
+    tangential_weight : float
+        beta >= 1 (default 1, the paper's scheme): the distance term of W charges the tangential
+        part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
+        motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
+        discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000).
+    tangential_control : str
+        Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "off" (default, the
+        paper's scheme) or "meanratio": W gains ``beta_c sum_i m_i |P_i (X_i - X^k_i - S_i)|^2`` with P_i
+        the vertex tangent projector of X^k and S_i the tangential part of a mean-ratio mesh-improving
+        step of X^k, so that the nodes follow a mesh-improving tangential motion while the normal
+        component of every nodal equation, hence the geometric flow as h -> 0, is unchanged. Fixed
+        (boundary) nodes never move. The discrete energy may rise by at most
+        ``beta_c sum_i m_i |S_i|^2 / (2 tau)`` in a step (the energy check uses the full W).
+    tangential_control_weight : float
+        beta_c > 0 of ``tangential_control = "meanratio"`` (default 0.3): the tangential motion is about
+        beta_c / (1 + beta_c) of S plus 1 / (1 + beta_c) of what the energy asks for.
+    tangential_control_time : float
+        T_c >= 0: a step of size tau targets the fraction min(1, tau / T_c) of the mesh-improving
+        step (a tangential velocity of at most 1/T_c steps per unit time, consistent as tau -> 0);
+        0 (default) targets the whole step every time.
+    redistribute : bool
+        Closed curves only: after every accepted step move the vertices along the curve to equal
+        arc-length spacing (:func:`willmore_nlp.geometry.redistribute_curve`) and solve Y[X] again.
+        Not part of the paper's scheme: it changes the curve by O(h^2 kappa) and the energy e(X)
+        by a little (``stats["energy_before_redistribution"]`` and ``stats["redistribution_shift"]``
+        record it), so e(X^k) is no longer guaranteed to decrease from step to step.
+    adaptive : bool
+        Step-size control for stiff starts: a step first tries twice the previous accepted step
+        (the same step if that one needed retries), never more than ``tau``; failures halve it as
+        usual (``max_retries`` per step). Off, every step first tries ``tau``.
+    min_tau : float, optional
+        Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
+        fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
+        (h = initial mean edge): below the paper's smallest step h^4 by more than the four
+        default halvings, and so small that reaching t = O(1) would take > 100 h^-4 steps.
+    iteration_budget : float
+        Iteration budget of a step's solve, as a multiple of the median iteration count of the
+        last 20 accepted steps (default 2; 0 turns the budget off): a solve still unconverged after
+        ``max(iteration_budget_min, iteration_budget * median)`` iterations is cut (status
+        ``"Iteration_Budget"``) and the step retried with tau/2 at once, instead of running to
+        ``max_iter`` (measured: a 200-iteration attempt that fails costs 4 min on the 2,562-vertex
+        ellipsoid, and the same step converges at tau/2 in 5 iterations). No budget before the
+        first accepted step, nor on the last attempt of a step (``max_retries`` used up). IPOPT only.
+    iteration_budget_min : int
+        Floor of that budget (default 30).
+    stall_iterations : int
+        Cut a solve (status ``"Stalled"``, then retried with tau/2) whose iterates are stuck: for
+        ``stall_iterations`` iterations the objective stayed within 1e-8 (relative), the largest
+        constraint violation within a factor 10 and the dual residual max |grad f + J^T lam| within
+        a factor 2 of their values at the last iterate that moved; default 15, 0 turns it off. A
+        wandering solve is left to the budget (a test on the best values so far cut solves of the
+        Fig. 11 bunny that wander for 90 iterations and then converge). IPOPT only.
+    relax : bool
+        Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
+        every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``, and
+        :meth:`run` stops early, with ``relaxed`` set, after a step taken at its first attempt with
+        tau >= the nominal tau that lowered the Willmore energy
+        (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than ``relax_tol``
+        relative, or raised it (not counting steps after which the mesh was smoothed or remeshed;
+        the light repair, ``remesh_relax``, follows every step and counts). Near the
+        equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
+        rises by ~1e-3 on a 162-vertex sphere) and by an O(tau_tilde) drift that shrinks closed
+        surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere, docs/theory/pitfalls.md), which ends in
+        a collapse after long times (t ~ 10-100 for unit surfaces with tau_tilde = h^2/100;
+        docs/guide/solver_studies.md). The discrete energy e falls all along it, so it cannot serve
+        as the stopping test.
+    relax_tol : float
+        Relative decrease of the Willmore energy per step below which a relaxation ends (default 1e-4).
+    relax_max_tau : float, optional
+        Largest step size of a relaxation (default 100 tau).
+    mesh_control : {"auto", "off"}
+        Master switch of the mesh-quality control of surfaces ("off": the paper's scheme, no
+        mesh control whatever the other options say).
+    remesh : {"auto", "off"}
+        Surfaces in R^3 only (curves ignore it): mesh repair between steps (:mod:`willmore_nlp.remesh`,
+        docs/guide/mesh_quality.md). After every step the light repair (``remesh_relax``); when the
+        patch triangles are then still below ``remesh_min_angle`` or above ``remesh_max_edge_ratio``,
+        Delaunay flips, (with ``remesh_relax = 0``) tangential smoothing projected onto the surface,
+        and isotropic remeshing toward ``remesh_target``, stopping at the first that meets the
+        thresholds; then the step NLP is rebuilt for a new
+        connectivity and Y[X] solved again. Boundary vertices and the fixed part of a clamped problem
+        never move. Changes the state (recorded: ``StepResult.remeshed``, ``stats`` energies before
+        and after), so e(X^k) is not guaranteed to decrease across a repair.
+    remesh_min_angle : float
+        Smallest patch angle (degrees) that triggers the stronger repairs (default 15).
+    remesh_max_edge_ratio : float
+        Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
+    remesh_target : float, optional
+        Target edge length of the isotropic remeshing (default: the edge of equilateral triangles with the
+        patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
+        remeshing keeps the resolution, e.g. the vertex count of a closed surface).
+    remesh_relax : int
+        Light repair after every accepted step, while ``remesh`` is on (default 2; 0: only the
+        threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
+        mesh-improving tangential moves placed on a local quadric fit of the surface
+        (:func:`willmore_nlp.remesh.tangential_relax`), each move at most as long as the step's move of
+        that vertex (``RELAX_SPEED``: a state the flow does not move is not touched), flips again. The
+        vertex count never changes;
+        the shape changes by O(h^3) per move (the cubic terms). Keeps the mesh from degrading between the repairs
+        (docs/guide/mesh_quality.md).
+    """
+
+    solver: str = option("ipopt", Kind("a solver name", lambda v: isinstance(v, str), parse=str))
+    codegen: bool | None = option(None, BOOL_OR_UNSET)
+    max_retries: int = option(4, integer(0))
+    check_energy: bool = option(True, BOOL)
+    min_angle: float = option(0.5, real(0, 60))
+    max_edge_ratio: float = option(1e3, real(1, finite=False))
+    energy_rtol: float = option(1e-8, real(0))
+    allow_components: bool = option(False, BOOL)
+    anisotropy: object = option(None, ANY)
+    tangential_weight: float = option(1.0, real(1, note="1 = the paper's L^2 distance"))
+    tangential_control: str = option("off", one_of(*CONTROL_METHODS))
+    tangential_control_weight: float = option(DEFAULT_CONTROL_WEIGHT, real(0, lo_open=True))
+    tangential_control_time: float = option(0.0, real(0))
+    redistribute: bool = option(False, BOOL)
+    adaptive: bool = option(False, BOOL)
+    min_tau: float | None = option(None, real(0, unset="0.01 h^4"))
+    iteration_budget: float = option(2.0, real(0, note="0: no budget"))
+    iteration_budget_min: int = option(30, integer(1))
+    stall_iterations: int = option(15, integer(0, "0: off"))
+    relax: bool = option(False, BOOL)
+    relax_tol: float = option(1e-4, real(0))
+    relax_max_tau: float | None = option(None, real(0, lo_open=True, unset="100 tau"))
+    mesh_control: str = option("auto", one_of("auto", "off"))
+    remesh: str = option("auto", one_of("auto", "off"))
+    remesh_min_angle: float = option(15.0, real(0, 60))
+    remesh_max_edge_ratio: float = option(10.0, real(1, finite=False))
+    remesh_target: float | None = option(None, real(0, lo_open=True, unset="the initial mean edge"))
+    remesh_relax: int = option(2, integer(0))
