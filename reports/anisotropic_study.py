@@ -76,7 +76,7 @@ def main() -> None:
     fig, axes = plt.subplots(1, len(cases), figsize=(20, 4.2))
     for ax, (g, extra) in zip(axes, cases, strict=True):
         pb, _ = registry.build("bunny", gamma=g, **extra)
-        f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+        f = pb.make_flow()
         r = run(f, args.steps, keep)
         for k, X in sorted(r["snaps"].items()):
             P = np.vstack([X, X[:1]])
@@ -95,18 +95,18 @@ def main() -> None:
     for eps in ("0.05", "0.03", "0.01"):
         for beta in (1.0, 1e3, 1e4):
             pb, _ = registry.build("bunny", gamma=f"gamma2:{eps}", tangential_weight=beta, redistribute=False)
-            f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+            f = pb.make_flow()
             _row(lines, f"bunny gamma2:{eps}, beta = {beta:g}, at most 100 steps", run(f, 100))
     for eps in ("1e-3", "1e-4"):
         pb, _ = registry.build("bunny", gamma=f"gamma2:{eps}")
-        f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+        f = pb.make_flow()
         _row(lines, f"bunny gamma2:{eps}, beta = 1000, redistributed, at most 100 steps", run(f, 100))
     pb, _ = registry.build("bunny", gamma="gamma1", h=0.00865, tau_tilde=7.5e-5)
-    f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+    f = pb.make_flow()
     _row(lines, "bunny gamma1, paper's scale (h = 0.00865, tt = 7.5e-5), fixed tau = h", run(f, 20))
     for g in ("gamma0", "gamma1", "gamma2:1e-2"):
         pb, _ = registry.build("bunny", gamma=g, h=0.00865, tau_tilde=7.5e-5)
-        f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options, adaptive=True, max_retries=16)
+        f = pb.make_flow(adaptive=True, max_retries=16)
         r = run(f, args.steps)
         _row(lines, f"bunny {g}, paper's scale, adaptive (first tau {r['first_tau']:.2g}, tau = h from step "
                     f"{r['full_from']})", r)
@@ -129,7 +129,7 @@ def main() -> None:
     fig.savefig(tabs, dpi=90)
     plt.close(fig)
     pb, _ = registry.build("anisotropic_sphere", steps=12)
-    f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+    f = pb.make_flow()
     r = run(f, 12)
     _row(lines, "anisotropic_sphere gamma1 (162 vertices, radius 3, tau = h, tt = h^2/100)", r)
     lines += ["", f"![bunny shapes]({png.name})", "", f"![gamma2 tabs]({tabs.name})", ""]

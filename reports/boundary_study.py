@@ -17,14 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from willmore_nlp import FlowError, WillmoreFlow, registry
+from willmore_nlp import FlowError, registry
 from willmore_nlp.analysis import fit_order
 
 
 def run(name: str, steps: int, **params: object) -> dict[str, float]:
     pb, _ = registry.build(name, **params)
     b = pb.flow_options["boundary"]
-    f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+    f = pb.make_flow()
     X0 = np.array(pb.mesh.vertices)
     res: list = []
     failed = ""

@@ -14,7 +14,7 @@ PAPER = {"gamma": "gamma0", "h": 0.00865, "tau_tilde": 7.5e-5}
 
 def _flow(**options: object) -> WillmoreFlow:
     pb, _ = registry.build("bunny", **PAPER)
-    return WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **{**pb.flow_options, **options})
+    return pb.make_flow(**options)
 
 
 def test_adaptive_steps_run_the_papers_bunny_scale() -> None:

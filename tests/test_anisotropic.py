@@ -162,7 +162,7 @@ def test_surface_stretches_along_the_wulff_axis() -> None:
     from willmore_nlp import registry
 
     pb = registry.get("anisotropic_sphere").factory(steps=10)
-    f = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+    f = pb.make_flow()
     for _ in range(pb.steps):
         r = f.step()
     w = axis_widths(r.vertices)

@@ -145,7 +145,7 @@ def _restore(name: str, t_end: float, **params):
     from willmore_nlp import registry
 
     pb, _ = registry.build(name, **params)
-    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **pb.flow_options)
+    flow = pb.make_flow()
     res = flow.run(t_end=t_end)
     return pb, flow, res[-1]
 

@@ -179,16 +179,14 @@ def test_default_floor_is_below_the_papers_smallest_step() -> None:
 def test_mesh_file_gets_the_surface_defaults(tmp_path) -> None:
     """`run MESH.obj`: a surface gets tau_tilde = h^2/100 and the mesh control; a curve h^2/4 and none."""
     from willmore_nlp.config import resolve
-    from willmore_nlp.runner import flow_kwargs
 
     m = shapes.icosphere(1)
     trimesh.Trimesh(m.vertices, m.simplices).export(tmp_path / "s.obj")
     spec = resolve(str(tmp_path / "s.obj"))
     assert spec.problem.tau_tilde == pytest.approx(0.01 * m.h**2)
-    pb = spec.problem
-    assert WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, **flow_kwargs(spec)).remesh
+    assert spec.problem.make_flow(**spec.flow_options).remesh
     spec = resolve(str(tmp_path / "s.obj"), {"remesh": "off"})
-    assert not WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, **flow_kwargs(spec)).remesh
+    assert not spec.problem.make_flow(**spec.flow_options).remesh
 
 
 def _tangent_moves(V: np.ndarray, size: float, seed: int = 2) -> np.ndarray:

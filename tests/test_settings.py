@@ -59,8 +59,8 @@ def dump(table: dict[str, list]) -> str:
 
 def installed_ipopt_doc() -> str:
     """The option documentation printed by the IPOPT that CasADi loads (a subprocess: it writes to C stdout)."""
-    code = ("import casadi as ca; x = ca.MX.sym('x'); ca.nlpsol('d', 'ipopt', {'x': x, 'f': x**2}, {'print_time': False,"
-            " 'ipopt': {'print_options_documentation': 'yes', 'print_advanced_options': 'yes',"
+    code = ("import casadi as ca; x = ca.MX.sym('x'); ca.nlpsol('d', 'ipopt', {'x': x, 'f': x**2},"
+            " {'print_time': False, 'ipopt': {'print_options_documentation': 'yes', 'print_advanced_options': 'yes',"
             " 'print_options_mode': 'doxygen', 'sb': 'yes'}})(x0=1)")
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
 

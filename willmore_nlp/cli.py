@@ -13,9 +13,8 @@ from typing import Any
 from willmore_nlp import runner
 from willmore_nlp.config import ConfigError, parse_overrides, resolve
 from willmore_nlp.errors import EXIT_IO, EXIT_USAGE, IO_ERRNOS, UserInputError
-from willmore_nlp.runner import flow_kwargs
 
-__all__ = ["build_parser", "flow_kwargs", "main"]
+__all__ = ["build_parser", "main"]
 
 
 
@@ -114,7 +113,7 @@ def _flow_options(items: dict[str, str]) -> dict[str, Any]:
     out = {}
     for k, v in items.items():
         if k not in known and not k.startswith("ipopt."):
-            raise ConfigError(f"--option {k}: not a flow or solver option; known: {', '.join(sorted(known))}")
+            raise ConfigError(f"--option {k}: not a flow option or solver option; known: {', '.join(sorted(known))}")
         try:
             out[k] = parse_option(k, v)
         except UserInputError as exc:

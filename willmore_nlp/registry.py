@@ -12,10 +12,13 @@ import inspect
 import pkgutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
+
+if TYPE_CHECKING:
+    from willmore_nlp.flow import WillmoreFlow
 
 
 class ProblemError(UserInputError):
@@ -43,6 +46,14 @@ class Problem:
     t_end: float | None = None
     flow_options: dict[str, Any] = field(default_factory=dict)
     description: str = ""
+
+    def make_flow(self, **overrides: Any) -> WillmoreFlow:
+        """The problem's :class:`~willmore_nlp.flow.WillmoreFlow`; ``overrides`` (``tau``, flow and solver
+        options) replace the problem's values."""
+        from willmore_nlp.flow import WillmoreFlow
+
+        kw = {"tau": self.tau, "tau_tilde": self.tau_tilde, "lam": self.lam, **self.flow_options, **overrides}
+        return WillmoreFlow(self.mesh, **kw)
 
 
 @dataclass(frozen=True)

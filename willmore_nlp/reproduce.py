@@ -485,8 +485,7 @@ def _problem_run(name: str, steps: int | None = None, flow_options: dict[str, ob
     """Run a registered problem (``flow_options`` override the problem's); returns the flow, the accepted
     steps and why it stopped early ('' if not)."""
     pb, _ = registry.build(name, **params)
-    options = {**PAPER_SCHEME, **pb.flow_options, **(flow_options or {})}
-    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **options)
+    flow = pb.make_flow(**PAPER_SCHEME, **(flow_options or {}))
     res: list = []
     stopped = ""
     try:

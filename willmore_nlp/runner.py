@@ -53,16 +53,6 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 
-def flow_kwargs(spec: RunSpec) -> dict[str, Any]:
-    """Keyword arguments of :class:`WillmoreFlow` from a resolved spec."""
-    kw: dict[str, Any] = dict(spec.problem.flow_options)
-    for k, v in spec.flow_options.items():
-        kw[k.removeprefix("ipopt.")] = v
-    if kw.get("codegen", "unset") is None:
-        kw.pop("codegen")
-    return kw
-
-
 def thread_environment() -> dict[str, Any]:
     """The thread settings that decide the last bits of the linear algebra."""
     env: dict[str, Any] = {v: os.environ.get(v) for v in THREAD_VARS}
@@ -253,7 +243,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     if not (overwrite and (o / "config.json").is_file()):
         check_new_run_dir(o)
     pb = spec.problem
-    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **flow_kwargs(spec))
+    flow = pb.make_flow(**spec.flow_options)
     if overwrite and (o / "config.json").is_file():
         removed = clear_run_dir(o)
         if not quiet:
@@ -340,7 +330,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
         if cfg.get(k) != getattr(pb, k):
             raise RunError(f"{where}: cannot resume: {k} = {cfg.get(k)!r} but the problem now gives "
                            f"{getattr(pb, k)!r}")
-    flow = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam, **flow_kwargs(spec))
+    flow = pb.make_flow(**spec.flow_options)
     with SignalGuard(ignore_late_signals) as guard:
         writer, _, ck, notes = RunWriter.resume(d)
         try:

@@ -88,7 +88,7 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
     ``rows`` (one dict per accepted step, step 0 first).
     """
     from willmore_nlp import registry
-    from willmore_nlp.flow import FlowError, StepResult, WillmoreFlow
+    from willmore_nlp.flow import FlowError, StepResult
     from willmore_nlp.rundir import write_text_atomic
 
     rows: list[dict[str, Any]] = []
@@ -105,8 +105,7 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
         rec["h"] = float(pb.mesh.h)
         tau = parse_tau(case.tau, pb.mesh.h)
         rec["tau"] = tau
-        opts = {**pb.flow_options, **case.options, "solver": case.solver}
-        flow = WillmoreFlow(pb.mesh, tau, pb.tau_tilde, lam=pb.lam, **opts)
+        flow = pb.make_flow(tau=tau, **case.options, solver=case.solver)
         keep(flow.state())
         steps, t_end = case.steps, case.t_end
         if steps is None and t_end is None:
