@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.special import ellipe
 
-from willmore_nlp import WillmoreFlow
+from willmore_nlp import WillmoreFlow, registry
 from willmore_nlp.analysis import axis_widths, fit_order
 from willmore_nlp.anisotropy import (
     AnisotropyError,
@@ -159,8 +159,6 @@ def test_long_runs_tend_to_the_expected_shapes() -> None:
 def test_surface_stretches_along_the_wulff_axis() -> None:
     """gamma1 in R^3 (Wulff shape x1^2 + x2^2/4 + x3^2 <= 1): a sphere stretches along x2 towards
     axis ratio 2 and stays round across x2 (measured 2.11 after 10 steps, x3/x1 1.008, min angle 37)."""
-    from willmore_nlp import registry
-
     pb = registry.get("anisotropic_sphere").factory(steps=10)
     f = pb.make_flow()
     for _ in range(pb.steps):
@@ -196,8 +194,8 @@ def test_bad_anisotropies_are_refused() -> None:
 
 
 def test_bunny_is_a_436_node_closed_curve() -> None:
-    from problems.anisotropic import BUNNY_H, bunny_curve
-
+    module = registry.problem_module("anisotropic")
+    BUNNY_H, bunny_curve = module.BUNNY_H, module.bunny_curve
     b = bunny_curve()
     assert b.n_vertices == 436 and b.is_closed and b.m == 2
     assert b.h == pytest.approx(BUNNY_H, rel=0.01)

@@ -8,7 +8,6 @@ import sys
 import numpy as np
 import pytest
 
-import problems
 import willmore_nlp
 from willmore_nlp import load_run, registry
 
@@ -22,8 +21,8 @@ def run_cli(*args: str, cwd=None) -> subprocess.CompletedProcess:
 def test_every_problem_module_registers_something() -> None:
     reg = registry.load_all()
     modules = {e.module for e in reg.values()}
-    for mod in pkgutil.iter_modules(problems.__path__):
-        assert f"problems.{mod.name}" in modules, f"problems/{mod.name}.py registers no problem"
+    for mod in pkgutil.iter_modules(registry.problems_package().__path__):
+        assert f"{registry.PACKAGE}.{mod.name}" in modules, f"problems/{mod.name}.py registers no problem"
     for name in ("circle", "sphere", "hypocycloid", "hypocycloid3d", "torus"):
         assert name in reg
         entry = reg[name]

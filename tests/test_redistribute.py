@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from willmore_nlp import WillmoreFlow
+from willmore_nlp import WillmoreFlow, registry
 from willmore_nlp.analysis import axis_widths, fit_order, polygon_distance, wulff_widths
 from willmore_nlp.geometry import redistribute_curve
 from willmore_nlp.mesh import shapes
@@ -55,7 +55,7 @@ def test_bunny_gamma2_with_redistribution_reaches_its_wulff_shape(tmp_path) -> N
     energy decreases at every step although each redistribution raises it a little (3.7% after step 1,
     at most 1.2% after step 10: the scheme's own decrease is larger); the diagonal / axial width ratio
     reaches the Wulff shape's 1.2926 (1.2940 measured; circle 1, square sqrt 2), the edges stay equal."""
-    from problems.anisotropic import bunny
+    bunny = registry.problem_module("anisotropic").bunny
 
     prob = bunny(gamma="gamma2:1e-2")
     assert prob.flow_options["redistribute"] and prob.flow_options["tangential_weight"] == 1000.0

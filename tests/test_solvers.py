@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from willmore_nlp import WillmoreFlow
+from willmore_nlp import WillmoreFlow, registry
 from willmore_nlp.analysis import fit_order
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh import shapes
@@ -113,7 +113,7 @@ def test_semi_implicit_baseline_reproduces_the_circle_ode_to_first_order() -> No
         assert R.std() < 1e-12  # stays a regular polygon
         err.append(abs(R.mean() - (1 + 2 * T) ** 0.25))
     assert fit_order([T / k for k in ks], err) == pytest.approx(1.0, abs=0.1)
-    from problems.boundary import cap_mesh
+    cap_mesh = registry.problem_module("boundary").cap_mesh
     from willmore_nlp.boundary import Boundary
 
     cap, free, _ = cap_mesh(4)

@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from willmore_nlp import WillmoreFlow
+from willmore_nlp import WillmoreFlow, registry
 from willmore_nlp.analysis import axis_widths, fit_order, polygon_distance, wulff_widths
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
@@ -109,7 +109,7 @@ def test_bunny_gamma2_runs_to_its_rounded_square_wulff_shape() -> None:
     Its diagonal / axial width ratio moves from the bunny's towards that of the Wulff shape,
     gamma(diag) / gamma(axis) = 1.135 (circle 1, square sqrt 2): 0.99 at t = 0.025, 1.135 at t = 5
     (100 steps), 1.137 at t = 30. Every step is taken at tau = h after the first few."""
-    from problems.anisotropic import bunny
+    bunny = registry.problem_module("anisotropic").bunny
 
     prob = bunny(gamma="gamma2:0.1", redistribute=False)
     assert prob.flow_options["tangential_weight"] == 1000.0

@@ -1,17 +1,23 @@
 """Registry of named problems (the paper's scenarios and more).
 
 A problem factory is a function with keyword parameters (all with defaults) returning a
-:class:`Problem`. Factories are registered with :func:`register` from modules of the
-top-level ``problems`` package; :func:`load_all` imports them.
+:class:`Problem`. Factories are registered with :func:`register` from the modules of the
+repository's top-level ``problems/`` folder, which :func:`load_all` imports under the private name
+:data:`PACKAGE` (``willmore_nlp._problems.closed`` ...), never as a top-level ``problems``: a user's
+own ``problems`` package neither shadows ours nor is shadowed by it.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import inspect
 import pkgutil
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from willmore_nlp.errors import UserInputError
@@ -90,12 +96,37 @@ def register(name: str) -> Callable[[Callable[..., Problem]], Callable[..., Prob
     return deco
 
 
-def load_all() -> dict[str, Entry]:
-    """Import every module of the ``problems`` package and return the registry."""
-    import problems
+PACKAGE = "willmore_nlp._problems"
+"""Import name of the ``problems/`` folder (an installed package maps it there: pyproject.toml)."""
 
-    for mod in pkgutil.iter_modules(problems.__path__):
-        importlib.import_module(f"problems.{mod.name}")
+
+def problems_package() -> ModuleType:
+    """The ``problems/`` folder as the package :data:`PACKAGE`: installed, or beside ``willmore_nlp/``."""
+    try:
+        return importlib.import_module(PACKAGE)
+    except ModuleNotFoundError as exc:
+        if exc.name != PACKAGE:
+            raise
+    folder = Path(__file__).resolve().parent.parent / "problems"  # a source checkout
+    spec = importlib.util.spec_from_file_location(PACKAGE, folder / "__init__.py",
+                                                  submodule_search_locations=[str(folder)])
+    if spec is None or spec.loader is None:
+        raise ImportError(f"{folder}: the problems folder is missing")
+    module = sys.modules[PACKAGE] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def problem_module(name: str) -> ModuleType:
+    """The module ``problems/NAME.py`` (for its helpers; :func:`get` for the factories)."""
+    problems_package()
+    return importlib.import_module(f"{PACKAGE}.{name}")
+
+
+def load_all() -> dict[str, Entry]:
+    """Import every module of the ``problems/`` folder and return the registry."""
+    for mod in pkgutil.iter_modules(problems_package().__path__):
+        problem_module(mod.name)
     return dict(_REGISTRY)
 
 
