@@ -147,7 +147,7 @@ def test_resume_export_and_load_across_a_remesh(tmp_path) -> None:
     files = [ds.get("file") for ds in ET.parse(pvd).getroot().iter("DataSet")]
     sizes = [meshio.read(tmp_path / "vtk" / f).points.shape[0] for f in files]
     assert sizes == [s.n_vertices for s in a.states]
-    from willmore_nlp.report import write_report
+    from willmore_nlp.apps.report import write_report
 
     text = write_report(full).read_text()
     assert "mesh repairs (steps) | 1 (1)" in text

@@ -8,7 +8,7 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from willmore_nlp.report import markdown_to_html, snapshot_indices
+from willmore_nlp.apps.report import markdown_to_html, snapshot_indices
 
 
 @pytest.mark.parametrize(("problem", "sets"), [("circle", ["n=16"]), ("sphere", ["subdivisions=1"]),
@@ -60,7 +60,7 @@ def test_failed_single_state_run_report(tmp_path) -> None:
     """A run whose first step fails: status, message and every rejected attempt at the top; no warnings."""
     import warnings
 
-    from willmore_nlp.report import write_report
+    from willmore_nlp.apps.report import write_report
 
     run = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "circle", "--out", str(run), "--steps", "3",
@@ -119,7 +119,7 @@ def test_mesh_matched_references() -> None:
 def test_report_references_and_log_tau(tmp_path) -> None:
     """A sphere run's report lists the smooth and the mesh-matched reference it computed; tau on a log axis."""
     from willmore_nlp import load_run
-    from willmore_nlp.report import _series_figure, write_report
+    from willmore_nlp.apps.report import _series_figure, write_report
 
     run = tmp_path / "run"
     subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "sphere", "--out", str(run), "--steps", "2",
@@ -133,7 +133,7 @@ def test_report_references_and_log_tau(tmp_path) -> None:
 
 
 def test_reproduce_section_writes_document(tmp_path) -> None:
-    from willmore_nlp.reproduce import reproduce
+    from willmore_nlp.apps.reproduce import reproduce
 
     doc = reproduce(tmp_path, only=["Fig. 2"])
     text = doc.read_text()
@@ -153,7 +153,7 @@ def test_verdicts_are_computed_never_literal() -> None:
     import inspect
 
     from willmore_nlp import reproduce
-    from willmore_nlp.reproduce import Check, verdict
+    from willmore_nlp.apps.reproduce import Check, verdict
 
     ok, bad = Check("a", 1.0, "<=", 2.0), Check("b", 3.0, "<=", 2.0)
     assert verdict([ok, Check("c", 5.0, ">=", 4.0)]).startswith("**Verdict: Match** (2 of 2")

@@ -8,7 +8,7 @@ import sys
 import matplotlib.image as mpimg
 import pytest
 
-from willmore_nlp.study import STUDY_FILE, Case, StudyError, make_grid, parse_tau, run_study, write_study
+from willmore_nlp.apps.study import STUDY_FILE, Case, StudyError, make_grid, parse_tau, run_study, write_study
 
 
 def test_tau_specs_and_grid_validation() -> None:
@@ -82,9 +82,9 @@ def test_surface_evolver_reference_or_clean_skip(tmp_path, monkeypatch) -> None:
     torus (4 pi^2); without it, the study records a clean skip."""
     import numpy as np
 
+    from willmore_nlp.apps.study import evolver_rows
     from willmore_nlp.evolver import evolver_reference, find_evolver, write_datafile
     from willmore_nlp.mesh import shapes
-    from willmore_nlp.study import evolver_rows
 
     cases = make_grid("torus", ["ipopt"], ["0.001"], steps=1)
     if find_evolver() is not None:

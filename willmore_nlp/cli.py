@@ -93,8 +93,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     """Write a Markdown + HTML + PNG report of a run directory or a study directory."""
     from pathlib import Path
 
-    from willmore_nlp.report import markdown_to_html, write_report
-    from willmore_nlp.study import STUDY_FILE, write_study
+    from willmore_nlp.apps.report import markdown_to_html, write_report
+    from willmore_nlp.apps.study import STUDY_FILE, write_study
 
     if (Path(args.run_dir) / STUDY_FILE).exists():
         md = write_study(args.run_dir)
@@ -123,8 +123,8 @@ def _flow_options(items: dict[str, str]) -> dict[str, Any]:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Run a solver-comparison study on Dask and write its artefacts."""
+    from willmore_nlp.apps.study import make_grid, run_study
     from willmore_nlp.registry import check_params
-    from willmore_nlp.study import make_grid, run_study
 
     params = check_params(args.problem, parse_overrides(args.set or []))
     grid_raw = parse_overrides(args.grid or [])
@@ -140,7 +140,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """Reproduce the paper's Sec. 5 into OUT/REPRODUCTION.md and OUT/figures."""
-    from willmore_nlp.reproduce import reproduce
+    from willmore_nlp.apps.reproduce import reproduce
 
     doc = reproduce(args.out, args.only)
     print(f"wrote {doc}")

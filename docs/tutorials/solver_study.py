@@ -9,7 +9,7 @@ Run with ``python docs/tutorials/solver_study.py``.
 import json
 from pathlib import Path
 
-from willmore_nlp.study import make_grid, run_study
+from willmore_nlp.apps.study import make_grid, run_study
 
 
 def main(n: int = 64, steps: int = 5, out: str = "tutorial_study", workers: int = 2) -> dict[str, dict]:

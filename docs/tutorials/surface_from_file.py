@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from willmore_nlp import load_run
+from willmore_nlp.apps.report import write_report
 from willmore_nlp.cli import main as cli
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.io import save_mesh
-from willmore_nlp.report import write_report
 
 
 def main(subdivisions: int = 3, steps: int = 20, work: str = "tutorial_surface") -> dict[str, float]:

@@ -28,11 +28,11 @@ from willmore_nlp.analysis import (
     winding_number,
     wulff_widths,
 )
+from willmore_nlp.apps.report import mean_radius
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import shapes
 from willmore_nlp.references import references
-from willmore_nlp.report import mean_radius
 
 PAPER_TABLE1 = {  # the paper's Table 1: L2 errors at t = 0.01 for 2^n edges
     4: (0.1255, 0.1632), 5: (0.0425, 0.0697), 6: (0.0098, 0.0294), 7: (0.0032, 0.0137), 8: (0.0006, 0.0057),
