@@ -164,7 +164,7 @@ def cases(scale: float) -> dict[str, Any]:
 
     def torus(n: int = 48, **kw: Any) -> Any:
         mesh = shapes.torus(1.0, 0.5, n, n // 2)
-        label = {(): "", ("mesh_control",): " (mesh control off)", ("remesh_relax",): " (threshold repair only)"}
+        label = {(): "", ("mesh_control",): " (mesh control off)", ("remesh_repair",): " (threshold repair only)"}
         return lambda: run_case(f"torus {n}x{n // 2}" + label[tuple(kw)], mesh, 1e-3,
                                 0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford,
                                 switch=(0.1, 4e-3) if scale == 1.0 else None, **kw)
@@ -193,7 +193,7 @@ def cases(scale: float) -> dict[str, Any]:
                                        0.01 * g2.h**2, steps=n(200), adaptive=True, max_retries=12,
                                        mesh_control="off"),
         "torus": torus(),
-        "torus_threshold": torus(remesh_relax=0),
+        "torus_threshold": torus(remesh_repair=0),
         "torus24": torus(24),
         "torus36": torus(36),
         "torus_off": torus(mesh_control="off"),
@@ -295,7 +295,7 @@ def main() -> None:
                           for t, q, w, a, b in r["series"]]
     lines += ["", "Notes: rows named \"threshold repair only\" and \"mesh control off\" are cached from the runs "
               "before "
-              "the light repair (`remesh_relax = 0`, trigger 20 deg, target = initial mean edge; "
+              "the light repair (`remesh_repair = 0`, trigger 20 deg, target = initial mean edge; "
               "`reports/studies/mesh_quality/threshold_only/` keeps the other cases of that default). The torus 48x24 "
               "with the defaults was stopped at t = 0.2 (IPOPT at tau >= 4e-3 after t = 0.1); the series it printed "
               "to t = 0.2 is in docs/guide/mesh_quality.md."]

@@ -107,7 +107,7 @@ def test_flow_remeshes_and_continues() -> None:
     """A remeshing triggered after step 1 (threshold above the torus' angles; no light repair) rebuilds the step NLP;
     the run continues with converged steps and the energies before/after are recorded."""
     m = shapes.torus(1.0, 0.5, 24, 12)
-    flow = WillmoreFlow(m, 1e-3, 0.01 * m.h**2, remesh_min_angle=35, remesh_relax=0)
+    flow = WillmoreFlow(m, 1e-3, 0.01 * m.h**2, remesh_min_angle=35, remesh_repair=0)
     out = flow.run(steps=4)
     assert out[0].remeshed.endswith("remesh") and out[0].vertices.shape[0] != m.n_vertices
     assert all(r.converged for r in out) and not any(r.remeshed for r in out[1:])
@@ -123,7 +123,7 @@ def test_flow_remeshes_and_continues() -> None:
 
 
 CLI = [sys.executable, "-m", "willmore_nlp.cli"]
-TORUS = ["torus", "--set", "remesh_min_angle=35", "--set", "remesh_relax=0", "--quiet"]
+TORUS = ["torus", "--set", "remesh_min_angle=35", "--set", "remesh_repair=0", "--quiet"]
 
 
 def test_resume_export_and_load_across_a_remesh(tmp_path) -> None:
@@ -249,7 +249,7 @@ def test_light_repair_keeps_the_torus_healthy() -> None:
     assert min(r.quality["min_angle"] for r in off) < 16
     produced = [r.stats.get("min_angle_before_remesh", r.quality["min_angle"]) for r in on]
     assert min(produced) > 17.5
-    assert all("relax" in r.remeshed for r in on)
+    assert all("repair" in r.remeshed for r in on)
     assert all(r.vertices.shape[0] == m.n_vertices for r in on)
 
     def ratio(X: np.ndarray) -> float:
@@ -268,8 +268,8 @@ def test_remesh_relax_must_be_a_count(bad) -> None:
     from willmore_nlp.errors import UserInputError
 
     m = shapes.torus(1.0, 0.5, 12, 6)
-    with pytest.raises(UserInputError, match="remesh_relax"):
-        WillmoreFlow(m, 1e-3, 0.01 * m.h**2, remesh_relax=bad)
+    with pytest.raises(UserInputError, match="remesh_repair"):
+        WillmoreFlow(m, 1e-3, 0.01 * m.h**2, remesh_repair=bad)
 
 
 def test_restart_is_bit_identical_with_the_light_repair() -> None:

@@ -142,4 +142,14 @@ def test_solver_options_are_the_solvers_own() -> None:
         resolve("circle", {"solver": "newton-krylov", "cg_rebuild": "0"})
     with pytest.raises(ConfigError, match="IPOPT option mu_strategy = 'x': not a valid setting"):
         resolve("circle", {"ipopt.mu_strategy": "x"})
-    assert FlowSettings(relax=True).relax and FlowSettings().defaults()["remesh_relax"] == 2
+    assert FlowSettings(relax=True).relax and FlowSettings().defaults()["remesh_repair"] == 2
+
+
+def test_the_light_repairs_old_name_is_still_read(tmp_path) -> None:
+    """``remesh_relax`` (before it became ``remesh_repair``, beside the equilibrium mode ``relax``) still works:
+    in the API, in a config and so in the config.json of an older run directory that is resumed."""
+    mesh = shapes.torus(1.0, 0.5, 12, 6)
+    assert WillmoreFlow(mesh, 1e-3, 0.01 * mesh.h**2, remesh_relax=0).settings.remesh_repair == 0
+    assert resolve("torus", {"remesh_relax": "3"}).flow_options == {"remesh_repair": 3}
+    with pytest.raises(UserInputError, match="remesh_repair must be an integer >= 0, got -1"):
+        FlowSettings(**FlowSettings.split({"remesh_relax": -1})[0])

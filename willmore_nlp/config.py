@@ -151,8 +151,9 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
         base = {"problem": target}
         where = source
     name = str(base.pop("problem"))
-    merged: dict[str, tuple[Any, str]] = {k: (v, where) for k, v in base.items()}
-    merged.update({k: (v, source) for k, v in overrides.items()})
+    old = FlowSettings.renamed
+    merged: dict[str, tuple[Any, str]] = {old.get(k, k): (v, where) for k, v in base.items()}
+    merged.update({old.get(k, k): (v, source) for k, v in overrides.items()})
     try:
         entry = registry.get(name)
     except ProblemError as exc:

@@ -66,7 +66,7 @@ def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> 
     for row, mesh, Y, t in zip(run.history, run.states, run.Y, run.times, strict=True):
         action = str(row.get("remesh_action") or "")
         if int(row.get("remeshed") or 0) and (not action or "remesh" in action.split("+")):
-            prev = None  # remeshed: the vertices are not those of the previous state (flips, relax keep them)
+            prev = None  # remeshed: the vertices are not those of the previous state (flips and repair keep them)
         name = f"state_{int(row['step']):06d}.vtu"
         m = state_mesh(mesh, Y, prev, float(t) - t_prev)
         atomic_write(d / name, lambda p, m=m: meshio.write(p, m, file_format="vtu"))

@@ -78,11 +78,11 @@ met by iterates that barely move (measured: the unit-size steps are reproduced t
 BUDGET_WINDOW = 20
 """The iteration budget is a multiple of the median iteration count of this many last accepted steps."""
 
-RELAX_SPEED = 1.0
+REPAIR_SPEED = 1.0
 """Each pass of the light repair moves a vertex by at most this factor times the distance the step moved it."""
 
-RELAX_ROUNDS = 5
-"""The light repair (``remesh_relax``) repeats its passes up to this many times while the mesh is below the
+REPAIR_ROUNDS = 5
+"""The light repair (``remesh_repair``) repeats its passes up to this many times while the mesh is below the
 repair thresholds, before the stronger repairs (projected smoothing, isotropic remeshing) are tried."""
 
 TAU_TILDE_WARN_FACTOR = 2.0
@@ -524,12 +524,12 @@ class WillmoreFlow:
         X, F = self.X, self.mesh.simplices
         moved = np.linalg.norm(X - self._X_prev, axis=1) if self._X_prev.shape == X.shape else None
         self._X_prev = X
-        relax = self.settings.remesh_relax > 0
+        repair = self.settings.remesh_repair > 0
         needs = self._needs_repair(X, F)
-        # the light repair moves each vertex by at most RELAX_SPEED times what the step moved it: the mesh
+        # the light repair moves each vertex by at most REPAIR_SPEED times what the step moved it: the mesh
         # follows the surface at its own speed, and a state that the flow does not move (an equilibrium)
         # is left alone, so the fixed points are those of the paper's scheme
-        light = relax and moved is not None and bool(moved.max() > 0)
+        light = repair and moved is not None and bool(moved.max() > 0)
         if not light and not needs:
             return "", {}
         free = self.free
@@ -540,15 +540,15 @@ class WillmoreFlow:
             actions.append("flips")
         X1 = X
         if light:
-            # remesh_relax passes after every step; up to RELAX_ROUNDS times as many while the mesh is
+            # remesh_repair passes after every step; up to REPAIR_ROUNDS times as many while the mesh is
             # below the thresholds, before the stronger repairs (which move the shape by O(h^2))
-            for _ in range(RELAX_ROUNDS):
-                X1 = rm.tangential_relax(X1, F1, free, iterations=self.settings.remesh_relax, cap=RELAX_SPEED * moved)
+            for _ in range(REPAIR_ROUNDS):
+                X1 = rm.tangential_relax(X1, F1, free, iterations=self.settings.remesh_repair, cap=REPAIR_SPEED * moved)
                 F1, _ = rm.delaunay_flips(X1, F1, free)
                 if not self._needs_repair(X1, F1):
                     break
-            actions.append("relax")
-        if not relax and self._needs_repair(X1, F1):  # the relax passes replace the polyhedral smoothing
+            actions.append("repair")
+        if not repair and self._needs_repair(X1, F1):  # the repair passes replace the polyhedral smoothing
             X1 = rm.tangential_smooth(X1, F1, free)
             F1, _ = rm.delaunay_flips(X1, F1, free)
             actions.append("smooth")

@@ -112,7 +112,10 @@ class Settings:
     """Base of the frozen settings dataclasses: validation on construction, string parsing, key splitting.
 
     :meth:`prefix` starts every message (``"solver sqp: option "``; empty for the flow's options).
+    ``renamed`` maps old option names, still accepted (scripts and run directories written before), to new ones.
     """
+
+    renamed: ClassVar[dict[str, str]] = {}
 
     @classmethod
     def prefix(cls) -> str:
@@ -148,8 +151,9 @@ class Settings:
 
     @classmethod
     def split(cls, options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-        """``options`` split into (this class's options, the others)."""
+        """``options`` (old names renamed) split into (this class's options, the others)."""
         kinds = cls.kinds()
+        options = {cls.renamed.get(k, k): v for k, v in options.items()}
         return ({k: v for k, v in options.items() if k in kinds}, {k: v for k, v in options.items() if k not in kinds})
 
 
@@ -301,7 +305,7 @@ class FlowSettings(Settings):
         tau >= the nominal tau that lowered the Willmore energy
         (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than ``relax_tol``
         relative, or raised it (not counting steps after which the mesh was smoothed or remeshed;
-        the light repair, ``remesh_relax``, follows every step and counts). Near the
+        the light repair, ``remesh_repair``, follows every step and counts). Near the
         equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
         rises by ~1e-3 on a 162-vertex sphere) and by an O(tau_tilde) drift that shrinks closed
         surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere, docs/theory/pitfalls.md), which ends in
@@ -317,9 +321,9 @@ class FlowSettings(Settings):
         mesh control whatever the other options say).
     remesh : {"auto", "off"}
         Surfaces in R^3 only (curves ignore it): mesh repair between steps (:mod:`willmore_nlp.remesh`,
-        docs/guide/mesh_quality.md). After every step the light repair (``remesh_relax``); when the
+        docs/guide/mesh_quality.md). After every step the light repair (``remesh_repair``); when the
         patch triangles are then still below ``remesh_min_angle`` or above ``remesh_max_edge_ratio``,
-        Delaunay flips, (with ``remesh_relax = 0``) tangential smoothing projected onto the surface,
+        Delaunay flips, (with ``remesh_repair = 0``) tangential smoothing projected onto the surface,
         and isotropic remeshing toward ``remesh_target``, stopping at the first that meets the
         thresholds; then the step NLP is rebuilt for a new
         connectivity and Y[X] solved again. Boundary vertices and the fixed part of a clamped problem
@@ -333,12 +337,12 @@ class FlowSettings(Settings):
         Target edge length of the isotropic remeshing (default: the edge of equilateral triangles with the
         patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
         remeshing keeps the resolution, e.g. the vertex count of a closed surface).
-    remesh_relax : int
+    remesh_repair : int
         Light repair after every accepted step, while ``remesh`` is on (default 2; 0: only the
-        threshold-triggered repair): Delaunay flips, ``remesh_relax`` passes of
+        threshold-triggered repair): Delaunay flips, ``remesh_repair`` passes of
         mesh-improving tangential moves placed on a local quadric fit of the surface
         (:func:`willmore_nlp.remesh.tangential_relax`), each move at most as long as the step's move of
-        that vertex (``RELAX_SPEED``: a state the flow does not move is not touched), flips again. The
+        that vertex (``REPAIR_SPEED``: a state the flow does not move is not touched), flips again. The
         vertex count never changes;
         the shape changes by O(h^3) per move (the cubic terms). Keeps the mesh from degrading between the repairs
         (docs/guide/mesh_quality.md).
@@ -371,4 +375,6 @@ class FlowSettings(Settings):
     remesh_min_angle: float = option(15.0, real(0, 60))
     remesh_max_edge_ratio: float = option(10.0, real(1, finite=False))
     remesh_target: float | None = option(None, real(0, lo_open=True, unset="the initial mean edge"))
-    remesh_relax: int = option(2, integer(0))
+    remesh_repair: int = option(2, integer(0))
+
+    renamed: ClassVar[dict[str, str]] = {"remesh_relax": "remesh_repair"}  # its history action: "relax" then
