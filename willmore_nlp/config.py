@@ -34,13 +34,9 @@ FLOW_KEYS: dict[str, Any] = FlowSettings.defaults()
 """Flow options accepted in configs, with their defaults (the fields of :class:`FlowSettings`)."""
 
 
-def solver_keys() -> dict[str, str]:
-    """Solver options that configs take (``ipopt.NAME`` aside) -> the solvers that declare them."""
-    out: dict[str, list[str]] = {}
-    for name in solver_names():
-        for k in solver_settings(name).config_keys():
-            out.setdefault(k, []).append(name)
-    return {k: ", ".join(v) for k, v in out.items()}
+def solver_keys() -> set[str]:
+    """The solver options that configs take (``ipopt.NAME`` aside): those of every registered solver."""
+    return {k for name in solver_names() for k in solver_settings(name).config_keys()}
 
 
 RUN_KEYS: dict[str, Any] = {"steps": None, "t_end": None}

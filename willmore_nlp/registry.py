@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.settings import auto, is_number, parse_bool
 
 if TYPE_CHECKING:
     from willmore_nlp.flow import WillmoreFlow
@@ -139,29 +140,15 @@ def get(name: str) -> Entry:
 
 
 def coerce(value: Any, default: Any, key: str) -> Any:
-    """Convert a string override (from ``--set key=value``) to the type of ``default``."""
+    """Convert a string override (from ``--set key=value``) to the type of ``default`` (any, when None)."""
     if not isinstance(value, str) or isinstance(default, str):
         return value
-    try:
-        if isinstance(default, bool):
-            low = value.strip().lower()
-            if low in ("1", "true", "yes", "on"):
-                return True
-            if low in ("0", "false", "no", "off"):
-                return False
-            raise ValueError(value)
-        if isinstance(default, int):
-            return int(value)
-        if isinstance(default, float) or default is None:
-            try:
-                return int(value) if default is None and value.strip().lstrip("-").isdigit() else float(value)
-            except ValueError:
-                if default is None:
-                    return value
-                raise
-    except ValueError as exc:
-        raise ProblemError(f"parameter {key}: cannot read {value!r} as {type(default).__name__}") from exc
-    return value
+    out = parse_bool(value) if isinstance(default, bool) else auto(value)
+    if isinstance(default, float) and is_number(out):
+        return float(out)
+    if default is None or type(out) is type(default):
+        return out
+    raise ProblemError(f"parameter {key}: cannot read {value!r} as {type(default).__name__}")
 
 
 def build(name: str, **params: Any) -> tuple[Problem, dict[str, Any]]:

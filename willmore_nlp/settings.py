@@ -41,10 +41,10 @@ def auto(v: Any) -> Any:
     return v
 
 
-def _parse_bool(v: Any) -> Any:
-    low = str(v).strip().lower() if isinstance(v, str) else v
-    return {"1": True, "true": True, "yes": True, "on": True,
-            "0": False, "false": False, "no": False, "off": False}.get(low, v) if isinstance(low, str) else v
+def parse_bool(v: Any) -> Any:
+    """A command-line string read as a bool (1/0, true/false, yes/no, on/off); anything else is kept."""
+    words = {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False, "no": False, "off": False}
+    return words.get(v.strip().lower(), v) if isinstance(v, str) else v
 
 
 @dataclass(frozen=True)
@@ -98,8 +98,8 @@ def one_of(*choices: str) -> Kind:
                 lambda v: v in choices, parse=lambda v: v, choices=choices)
 
 
-BOOL = Kind("true or false", lambda v: isinstance(v, bool), parse=_parse_bool)
-BOOL_OR_UNSET = Kind("true, false or unset", lambda v: v is None or isinstance(v, bool), parse=_parse_bool)
+BOOL = Kind("true or false", lambda v: isinstance(v, bool), parse=parse_bool)
+BOOL_OR_UNSET = Kind("true, false or unset", lambda v: v is None or isinstance(v, bool), parse=parse_bool)
 ANY = Kind("any value", lambda v: True)
 
 
