@@ -153,3 +153,16 @@ def test_the_light_repairs_old_name_is_still_read(tmp_path) -> None:
     assert resolve("torus", {"remesh_relax": "3"}).flow_options == {"remesh_repair": 3}
     with pytest.raises(UserInputError, match="remesh_repair must be an integer >= 0, got -1"):
         FlowSettings(**FlowSettings.split({"remesh_relax": -1})[0])
+
+
+def test_problem_parameters_read_like_options() -> None:
+    """A problem parameter defaulting to None is read like an option: bunny's ``redistribute=false`` is False
+    (it used to stay the string 'false', which the factory took for True)."""
+    from willmore_nlp import registry
+
+    assert registry.check_params("bunny", {"redistribute": "false", "n": "64", "h": "0.1"}) == {
+        "redistribute": False, "n": 64, "h": 0.1}
+    pb, _ = registry.build("bunny", redistribute="false", gamma="gamma2:0.1", n="64")
+    assert pb.flow_options["redistribute"] is False
+    with pytest.raises(UserInputError, match="parameter n: cannot read '6.5' as int"):
+        registry.check_params("bunny", {"n": "6.5"})
