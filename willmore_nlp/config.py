@@ -26,8 +26,8 @@ else:  # Python 3.10: the same parser as the package tomli
 from willmore_nlp import registry
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import MeshError
-from willmore_nlp.registry import Problem, ProblemError
-from willmore_nlp.settings import FlowSettings, auto, check_run_value, is_number
+from willmore_nlp.registry import Problem, ProblemError, coerce
+from willmore_nlp.settings import FlowSettings, auto, check_run_value
 from willmore_nlp.solvers import solver_names, solver_settings
 
 FLOW_KEYS: dict[str, Any] = FlowSettings.defaults()
@@ -161,7 +161,10 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
     solver_opts = solver_keys()
     for k, (v, src) in merged.items():
         if k in fparams:
-            factory_kw[k] = v
+            try:
+                factory_kw[k] = coerce(v, fparams[k], k)
+            except ProblemError as exc:
+                raise ConfigError(f"{src}: {exc}") from exc
         elif k in FLOW_KEYS:
             try:
                 flow[k] = FlowSettings.parse(k, v)
@@ -178,8 +181,7 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
             raise ConfigError(f"{src}: unknown key {k!r} for problem {name!r}; {hint}known keys: {', '.join(known)}")
     for k in ("steps", "t_end"):
         if k in fparams and k in factory_kw:
-            run.setdefault(k, auto(factory_kw[k]))
-    _check_types(merged, fparams, name)
+            run.setdefault(k, factory_kw[k])
     try:
         problem, resolved = registry.build(name, **factory_kw)
     except ProblemError as exc:
@@ -199,26 +201,6 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
     spec.steps = None if steps is None else int(steps)
     spec.t_end = None if t_end is None else float(t_end)
     return spec
-
-
-def _check_types(merged: dict[str, tuple[Any, str]], fparams: dict[str, Any], name: str) -> None:
-    """Problem parameters given as a number where the factory expects one (TOML values are not coerced)."""
-    for k, (v, src) in merged.items():
-        if k not in fparams:
-            continue
-        num = auto(v) if isinstance(v, str) else v
-        if k in ("tau", "tau_tilde", "lam", "steps", "t_end") and v is not None and not is_number(num):
-            raise ConfigError(f"{src}: {k} must be a number, got {v!r}")
-        if isinstance(v, str):
-            continue
-        d = fparams[k]
-        if isinstance(d, bool) and not isinstance(v, bool):
-            raise ConfigError(f"{src}: {k} must be true or false, got {v!r}")
-        if isinstance(d, int) and not isinstance(d, bool) and not (
-                is_number(v) and float(v).is_integer()):
-            raise ConfigError(f"{src}: {k} must be an integer, got {v!r}")
-        if isinstance(d, float) and not is_number(v):
-            raise ConfigError(f"{src}: {k} must be a number, got {v!r}")
 
 
 def check_spec(spec: RunSpec, sources: dict[str, str] | None = None) -> None:

@@ -139,16 +139,26 @@ def get(name: str) -> Entry:
     return reg[name]
 
 
+TYPED = {"tau": float, "tau_tilde": float, "lam": float, "t_end": float, "steps": int}
+"""Parameters that are numbers even where a factory's default is None (computed from the mesh)."""
+
+
 def coerce(value: Any, default: Any, key: str) -> Any:
-    """Convert a string override (from ``--set key=value``) to the type of ``default`` (any, when None)."""
-    if not isinstance(value, str) or isinstance(default, str):
-        return value
-    out = parse_bool(value) if isinstance(default, bool) else auto(value)
-    if isinstance(default, float) and is_number(out):
-        return float(out)
-    if default is None or type(out) is type(default):
+    """Parameter ``key`` typed like ``default`` (any type when None, :data:`TYPED` aside); a string is read.
+
+    Raises
+    ------
+    ProblemError
+        ``KEY must be true or false / an integer / a number, got VALUE``.
+    """
+    want = type(default) if default is not None else TYPED.get(key)
+    out = value if not isinstance(value, str) or want is str else parse_bool(value) if want is bool else auto(value)
+    if want in (None, str) or (want is bool and isinstance(out, bool)) or (value is None and default is None):
         return out
-    raise ProblemError(f"parameter {key}: cannot read {value!r} as {type(default).__name__}")
+    if want in (int, float) and is_number(out) and (want is float or float(out).is_integer()):
+        return want(out)
+    what = {bool: "true or false", int: "an integer", float: "a number"}.get(want, f"a {want.__name__}")
+    raise ProblemError(f"{key} must be {what}, got {value!r}")
 
 
 def build(name: str, **params: Any) -> tuple[Problem, dict[str, Any]]:
