@@ -44,3 +44,13 @@ def test_installed_packages_are_every_package_of_the_source() -> None:
     assert set(tool["packages"]) == source | {"willmore_nlp._problems"}
     assert tool["package-dir"] == {"willmore_nlp._problems": "problems"}
     assert (ROOT / "problems" / "__init__.py").is_file()
+
+
+def test_the_core_does_not_import_the_applications(tmp_path) -> None:
+    """willmore_nlp/apps (reproduce, study, report, bench) sits on the core: importing the library, its flow,
+    solvers, settings and registry (all problems loaded) imports none of it."""
+    code = ("import sys, willmore_nlp, willmore_nlp.flow, willmore_nlp.solvers, willmore_nlp.settings, "
+            "willmore_nlp.config, willmore_nlp.remesh; from willmore_nlp import registry; registry.load_all(); "
+            "print(sorted(m for m in sys.modules if m.startswith('willmore_nlp.apps')))")
+    r = _python(["-c", code], tmp_path)
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr

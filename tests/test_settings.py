@@ -164,5 +164,5 @@ def test_problem_parameters_read_like_options() -> None:
         "redistribute": False, "n": 64, "h": 0.1}
     pb, _ = registry.build("bunny", redistribute="false", gamma="gamma2:0.1", n="64")
     assert pb.flow_options["redistribute"] is False
-    with pytest.raises(UserInputError, match="n must be an integer, got '6.5'"):
+    with pytest.raises(UserInputError, match=r"n must be an integer, got '6\.5'"):
         registry.check_params("bunny", {"n": "6.5"})
