@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
-from willmore_nlp.settings import auto, is_number, parse_bool
+from willmore_nlp.settings import RUN_KINDS, auto, is_number, parse_bool
 
 if TYPE_CHECKING:
     from willmore_nlp.flow import WillmoreFlow
@@ -139,19 +139,16 @@ def get(name: str) -> Entry:
     return reg[name]
 
 
-TYPED = {"tau": float, "tau_tilde": float, "lam": float, "t_end": float, "steps": int}
-"""Parameters that are numbers even where a factory's default is None (computed from the mesh)."""
-
-
 def coerce(value: Any, default: Any, key: str) -> Any:
-    """Parameter ``key`` typed like ``default`` (any type when None, :data:`TYPED` aside); a string is read.
+    """Parameter ``key`` typed like ``default`` (any type when None, except the step sizes and run length,
+    :data:`~willmore_nlp.settings.RUN_KINDS`); a string is read.
 
     Raises
     ------
     ProblemError
         ``KEY must be true or false / an integer / a number, got VALUE``.
     """
-    want = type(default) if default is not None else TYPED.get(key)
+    want = type(default) if default is not None else (int if key == "steps" else float) if key in RUN_KINDS else None
     out = value if not isinstance(value, str) or want is str else parse_bool(value) if want is bool else auto(value)
     if want in (None, str) or (want is bool and isinstance(out, bool)) or (value is None and default is None):
         return out
