@@ -145,6 +145,18 @@ def test_solver_options_are_the_solvers_own() -> None:
     assert FlowSettings(relax=True).relax and FlowSettings().defaults()["remesh_repair"] == 2
 
 
+def test_kinds_say_what_they_allow() -> None:
+    """The words of the messages come from the rule itself (docs/reference/options.md shows them too)."""
+    from willmore_nlp.settings import integer, one_of, real
+
+    assert real().what == "a number" and real().ok(-1e300) and not real().ok(float("inf"))
+    assert real(0, 60).what == "a number in [0, 60)" and not real(0, 60).ok(60) and real(0, 60).ok(0)
+    assert real(1, finite=False).ok(float("inf")) and not real(1).ok(True)
+    assert real(0, lo_open=True, unset="auto").what == "a number > 0 or unset (auto)" and real(0, unset="a").ok(None)
+    assert integer(1).ok(2.0) and integer(1).convert(2.0) == 2 and not integer(1).ok(1.5) and not integer(0).ok(False)
+    assert one_of("a", "b", "c").what == "one of 'a', 'b', 'c'" and one_of("a", "b").what == "'a' or 'b'"
+
+
 def test_the_light_repairs_old_name_is_still_read(tmp_path) -> None:
     """``remesh_relax`` (before it became ``remesh_repair``, beside the equilibrium mode ``relax``) still works:
     in the API, in a config and so in the config.json of an older run directory that is resumed."""

@@ -73,7 +73,7 @@ def real(lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False, 
     if hi < math.inf:
         what = f"a number in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
     else:
-        what = f"a number {'>' if lo_open else '>='} {lo:g}"
+        what = f"a number {'>' if lo_open else '>='} {lo:g}" if lo > -math.inf else "a number"
     what += f" or unset ({unset})" if unset else ""
     what += f" ({note})" if note else ""
 
@@ -81,7 +81,7 @@ def real(lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False, 
         if v is None:
             return unset is not None
         return (is_number(v) and (math.isfinite(v) or not finite) and (lo < v if lo_open else lo <= v)
-                and (v < hi if hi_open else v <= hi))
+                and (v < hi if hi_open and hi < math.inf else v <= hi))
 
     return Kind(what, ok, lambda v: None if v is None else float(v))
 
