@@ -46,6 +46,9 @@ def test_docs_build_strict(tmp_path: Path) -> None:
 
     options = (site / "reference" / "options" / "index.html").read_text(encoding="utf-8")
     assert all(f"<code>{k}</code>" in options for k in FLOW_KEYS) and "arc-length spacing" in options
+    from willmore_nlp.config import solver_keys
+
+    assert all(f"<code>{k}</code>" in options for k in solver_keys()) and "a number in [0, 60)" in options
     from willmore_nlp.registry import load_all
 
     problems = (site / "reference" / "problems" / "index.html").read_text(encoding="utf-8")
