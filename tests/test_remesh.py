@@ -264,7 +264,7 @@ def test_light_repair_keeps_the_torus_healthy() -> None:
 
 
 @pytest.mark.parametrize("bad", [-1, 1.5, True])
-def test_remesh_relax_must_be_a_count(bad) -> None:
+def test_remesh_repair_must_be_a_count(bad) -> None:
     from willmore_nlp.errors import UserInputError
 
     m = shapes.torus(1.0, 0.5, 12, 6)
