@@ -152,7 +152,7 @@ def test_verdicts_are_computed_never_literal() -> None:
     """Verdict words come from the numbers: Match / Partly / Differs by how many checks hold."""
     import inspect
 
-    from willmore_nlp import reproduce
+    from willmore_nlp.apps import reproduce
     from willmore_nlp.apps.reproduce import Check, verdict
 
     ok, bad = Check("a", 1.0, "<=", 2.0), Check("b", 3.0, "<=", 2.0)
