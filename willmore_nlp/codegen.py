@@ -88,7 +88,8 @@ def generate_source(kernels: dict[str, ca.Function]) -> str:
     """
     cg = ca.CodeGenerator("willmore_kernels.c", {"with_header": False, "verbose": False})
     for k in KERNEL_NAMES:
-        cg.add(kernels[k])
+        if k in kernels:
+            cg.add(kernels[k])
     for k in ("k_f", "k_g"):
         cg.add(kernels[k].reverse(1))
     return cg.dump()
@@ -242,7 +243,7 @@ def compile_kernels(
         lib, meta = build_library(source, flags=flags, directory=tmp)
     if info is not None:
         info.update(meta)
-    return {k: ca.external(kernels[k].name(), str(lib)) for k in KERNEL_NAMES}
+    return {k: ca.external(kernels[k].name(), str(lib)) for k in KERNEL_NAMES if k in kernels}
 
 
 def cache_info(directory: Path | None = None) -> dict[str, Any]:

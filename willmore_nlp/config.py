@@ -44,6 +44,9 @@ FLOW_KEYS: dict[str, Any] = {
     "allow_components": False,
     "anisotropy": None,
     "tangential_weight": 1.0,
+    "c0": 0.0,
+    "volume": None,
+    "area": None,
     "tangential_control": "off",
     "tangential_control_weight": DEFAULT_CONTROL_WEIGHT,
     "tangential_control_time": 0.0,
@@ -284,6 +287,11 @@ RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "tangential_control": (" or ".join(map(repr, CONTROL_METHODS)), lambda v: v in CONTROL_METHODS),
     "tangential_control_weight": ("a number > 0", lambda v: _is_number(v) and math.isfinite(v) and v > 0),
     "tangential_control_time": ("a number >= 0", lambda v: _is_number(v) and math.isfinite(v) and v >= 0),
+    "c0": ("a number", lambda v: _is_number(v) and math.isfinite(v)),
+    "volume": ("'initial', a number > 0 or unset", lambda v: v is None or v == "initial" or (
+        _is_number(v) and math.isfinite(v) and v > 0)),
+    "area": ("'initial', a number > 0 or unset", lambda v: v is None or v == "initial" or (
+        _is_number(v) and math.isfinite(v) and v > 0)),
 }
 """Allowed values of the numeric and boolean configuration keys: (description, test)."""
 

@@ -77,6 +77,9 @@ met by iterates that barely move (measured: the unit-size steps are reproduced t
 BUDGET_WINDOW = 20
 """The iteration budget is a multiple of the median iteration count of this many last accepted steps."""
 
+CONSTRAINT_RTOL = 1e-10
+"""Largest relative residual of an outer constraint (volume, area) in an accepted step."""
+
 RELAX_SPEED = 1.0
 """Each pass of the light repair moves a vertex by at most this factor times the distance the step moved it."""
 
@@ -205,6 +208,17 @@ def _check_initial_mesh(mesh: Mesh, min_angle: float, max_edge_ratio: float) -> 
                             f"remesh, or lower min_angle")
 
 
+def _target(value: Any, name: str, mesh: Mesh) -> float | None:
+    """Target of the ``volume`` or ``area`` option: None, a positive number, or the initial mesh's value."""
+    if value is None:
+        return None
+    if value == "initial":
+        return geometry.enclosed_volume(mesh) if name == "volume" else geometry.measure(mesh)
+    if isinstance(value, bool) or not isinstance(value, Real) or not (np.isfinite(value) and value > 0):
+        raise UserInputError(f"{name} must be \"initial\", a positive number or None, got {value!r}")
+    return float(value)
+
+
 class WillmoreFlow:
     """Isotropic Willmore flow by the nested variational scheme (docs/theory/scheme.md).
 
@@ -249,6 +263,17 @@ class WillmoreFlow:
         part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
         motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
         discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000).
+    c0 : float
+        Spontaneous curvature (Canham-Helfrich, default 0): the flow of ``1/2 int (h - c0)^2`` with
+        h = k1 + k2 (> 0 on a sphere with the outward normal), closed curves in R^2 and closed
+        surfaces in R^3 (:mod:`willmore_nlp.model.terms.helfrich`). 0 is the Willmore flow bit for bit.
+    volume : "initial", float or None
+        Keep the enclosed volume (area of a closed curve in R^2) at this value, or at the initial
+        mesh's (``"initial"``): an outer equality constraint of every step, exact to 1e-10 (relative)
+        in every accepted step. None (default): free. A target other than the initial value first
+        moves the initial mesh onto it (least-norm Gauss-Newton correction), as after every mesh repair.
+    area : "initial", float or None
+        Likewise for the total area (length of a closed curve).
     tangential_control : str
         Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "off" (default, the
         paper's scheme) or "meanratio": W gains ``beta_c sum_i m_i |P_i (X_i - X^k_i - S_i)|^2`` with P_i
@@ -374,6 +399,9 @@ class WillmoreFlow:
         boundary: Any = None,
         anisotropy: Any = None,
         tangential_weight: float = 1.0,
+        c0: float = 0.0,
+        volume: float | str | None = None,
+        area: float | str | None = None,
         tangential_control: str = "off",
         tangential_control_weight: float = DEFAULT_CONTROL_WEIGHT,
         tangential_control_time: float = 0.0,
@@ -464,6 +492,8 @@ class WillmoreFlow:
         self.remesh_relax = int(remesh_relax)
         self._anisotropy = anisotropy
         self._tangential_weight = tangential_weight
+        self._c0 = c0
+        self._targets = {"volume": _target(volume, "volume", mesh), "area": _target(area, "area", mesh)}
         self._control = TangentialControl(tangential_control, tangential_control_weight, tangential_control_time)
         self.codegen_info: dict[str, Any] = {"enabled": False}
         if codegen is None:
@@ -478,7 +508,7 @@ class WillmoreFlow:
         self.stop_requested: Callable[[], bool] = _never
         self._build(mesh, boundary)
         self.build_time = time.perf_counter() - t0
-        self.X = np.array(mesh.vertices, float)
+        self.X = self._restore(np.array(mesh.vertices, float))
         self.t = 0.0
         self.k = 0
         try:
@@ -499,7 +529,8 @@ class WillmoreFlow:
         self.mesh = mesh
         self.boundary = boundary
         self.setup = build_step(mesh, boundary=boundary, anisotropy=self._anisotropy,
-                                tangential_weight=self._tangential_weight, tangential_control=self._control)
+                                tangential_weight=self._tangential_weight, tangential_control=self._control,
+                                c0=self._c0, **self._targets)
         self.problem = self.setup.problem
         bd = self.setup.boundary
         self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes
@@ -527,6 +558,28 @@ class WillmoreFlow:
         return None if self.setup.boundary is None else self.setup.boundary.free
 
     # -- helpers -----------------------------------------------------------------------
+    def constraint_violation(self, X: np.ndarray) -> float:
+        """Largest relative residual |h_i| / |target_i| of the outer constraints at X (0 without any)."""
+        P = self.problem
+        if not P.nh:
+            return 0.0
+        p = self.params(X, self.tau)
+        h = self.evaluator.h(P.pack_z(X, X), p)
+        return float(np.max(np.abs(h) / np.abs([P.params.scalar(p, t) for t in P.targets])))
+
+    def _restore(self, X: np.ndarray) -> np.ndarray:
+        """X moved onto the outer constraints (volume, area: functions of X only) by least-norm
+        Gauss-Newton steps ``-Jh^T (Jh Jh^T)^-1 h``; X itself without outer constraints."""
+        P = self.problem
+        for _ in range(30):
+            if self.constraint_violation(X) <= 1e-13:
+                return X
+            p = self.params(X, self.tau)
+            c, Jc = self.evaluator.c_jac(P.pack_z(X, X), p)
+            Jh = Jc.tocsr()[P.ng :, : P.nX * P.m].toarray()
+            X = P.unpack_x(X[P.x_free].ravel() - Jh.T @ np.linalg.solve(Jh @ Jh.T, c[P.ng :]), X)
+        raise RuntimeError(f"outer constraints not restored (relative residual {self.constraint_violation(X):.3e})")
+
     def params(self, Xk: np.ndarray, tau: float) -> np.ndarray:
         """Parameter vector of a step from Xk with step size tau."""
         return self.setup.params(Xk, tau, self.tau_tilde, self.lam)
@@ -577,6 +630,8 @@ class WillmoreFlow:
             return f"solver did not converge ({res.status}, {res.iterations} iterations)"
         if not np.all(np.isfinite(X)):
             return "non-finite positions"
+        if self.constraint_violation(X) > CONSTRAINT_RTOL:
+            return f"outer constraint violated by {self.constraint_violation(X):.3g} (relative) > {CONSTRAINT_RTOL:g}"
         variational = getattr(self.solver, "variational", True)  # the semi-implicit baseline is not
         if self.check_energy and variational and res.f > f0 + self.energy_rtol * abs(f0) + 1e-14:
             return f"energy inequality violated: W = {res.f:.12g} > W(X^k) = {f0:.12g}"
@@ -765,6 +820,7 @@ class WillmoreFlow:
         if F1.shape != F.shape or not np.array_equal(F1, F):
             self._build(Mesh(X1, F1, self.mesh.source), boundary)
         try:
+            X1 = self._restore(X1)
             Y1 = self._solve_y(X1, tau)
             if not np.all(np.isfinite(Y1)):
                 raise ArithmeticError("non-finite values")

@@ -10,6 +10,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.model.terms import CAPABILITIES
 
 
 @dataclass
@@ -53,13 +54,22 @@ class StepSolver(Protocol):
 
 SolverFactory = Callable[[StepEvaluator, dict[str, Any]], StepSolver]
 _SOLVERS: dict[str, SolverFactory] = {}
+_CAPABILITIES: dict[str, tuple[frozenset[str], str]] = {}
+_WHY = {"variational": "it does not minimise W", "nonlinear_inner": "its inner equation is linear",
+        "constraints": "it has no outer equality constraints"}
 
 
-def register_solver(name: str) -> Callable[[SolverFactory], SolverFactory]:
-    """Decorator: register a solver factory under ``name``."""
+def register_solver(name: str, capabilities: frozenset[str] = CAPABILITIES,
+                    noun: str = "the solver") -> Callable[[SolverFactory], SolverFactory]:
+    """Decorator: register a solver factory under ``name``, with what it can do (:data:`CAPABILITIES`).
+
+    ``noun`` names the solver in refusals ("the baseline").
+    :func:`make_solver` refuses a step problem with a term that needs a capability the solver lacks.
+    """
 
     def deco(factory: SolverFactory) -> SolverFactory:
         _SOLVERS[name] = factory
+        _CAPABILITIES[name] = (frozenset(capabilities), noun)
         return factory
 
     return deco
@@ -74,4 +84,8 @@ def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | N
     """Build the solver ``name`` for a step problem; ``options`` are solver-specific."""
     if name not in _SOLVERS:
         raise UserInputError(f"unknown solver {name!r}; available: {', '.join(solver_names())}")
+    capabilities, noun = _CAPABILITIES[name]
+    for cap, term in evaluator.problem.requires().items():
+        if cap not in capabilities:
+            raise UserInputError(f"solver {name}: {noun} has no {term.label} ({_WHY[cap]}); {term.hint}")
     return _SOLVERS[name](evaluator, dict(options or {}))

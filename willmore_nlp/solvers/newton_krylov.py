@@ -52,6 +52,7 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.model.terms import CAPABILITIES
 from willmore_nlp.solvers.base import SolveResult, register_solver
 from willmore_nlp.solvers.cholesky import FullFactor, KronFactor, SymmetricFactor
 from willmore_nlp.solvers.reduced import ReducedSolver, _Point
@@ -129,66 +130,54 @@ class NewtonKrylovSolver(ReducedSolver):
 
     # -- J_Y and the point X ----------------------------------------------------------
     def _factor_jy(self, Jy: sp.spmatrix) -> KronFactor | FullFactor:
-        """Factorisation of J_Y: of its N x N block (isotropic) or of the whole matrix (anisotropic)."""
+        """Factorisation of J_Y: of its N x N block (linear inner equation) or of the whole matrix."""
         with self._timed("factor"):
             self._count("n_factorizations")
-            if self.P.anisotropic:
+            if self.P.nonlinear_inner:
                 return FullFactor(self._jy.factor(Jy))
             m = self.P.m
             return KronFactor(self._jy.factor(sp.csc_matrix(Jy)[0::m, 0::m]), m)
 
     def _at(self, x: np.ndarray, p: np.ndarray, Y0: np.ndarray) -> _Point:
-        """Y[X], W^, its adjoint gradient and the factorised J_Y at the free positions ``x``."""
-        P, m, ev = self.P, self.P.m, self.ev
-        Xk = p[: P.n_vertices * m].reshape(-1, m)
-        X, _ = P.unpack_z(np.concatenate([x, np.zeros(P.ng)]), Xk)
-        Y = np.array(Y0, float, copy=True)
-        Y[~P.y_free] = Xk[~P.y_free]
-        self._count("n_inner_solve")
-        if P.anisotropic:
-            Y = ev.solve_y(X, p, Y, linear_solve=lambda Jy, r: self._factor_jy(Jy).solve(r))
-        z = P.pack_z(X, Y)
-        with self._timed("eval"):
-            g, J = ev.g_jac(z, p)
-        self._count("n_eval_jac_g")
-        fact = self._factor_jy(J[:, self.nxm :])
-        for _ in range(3):  # isotropic: g is linear in Y, one solve (+ a refinement if rounding asks)
-            scale = max(1.0, float(np.abs(J[:, self.nxm :]).max()) * float(np.abs(z[self.nxm :]).max()))
-            if np.abs(g).max() <= 1e-12 * scale:
-                break
-            if P.anisotropic:
-                raise RuntimeError(f"inner equation not solved (residual {np.abs(g).max():.3e})")
+        """Y[X] (:meth:`StepEvaluator.inner_solve` with this solver's factorisations), W^, its adjoint
+        gradient and the factorised J_Y at the free positions ``x``.
+
+        A linear inner equation has J_Y independent of Y: the last factorisation of the inner solve serves
+        the adjoint; a nonlinear one is factorised again at Y[X].
+        """
+        P = self.P
+        last: list[KronFactor | FullFactor] = []
+
+        def linear_solve(Jy: sp.csc_matrix, r: np.ndarray) -> np.ndarray:
+            last[:] = [self._factor_jy(Jy)]
             with self._timed("cg"):
-                z = z.copy()
-                z[self.nxm :] -= fact.solve(g)
-            with self._timed("eval"):
-                g, J = ev.g_jac(z, p)
-            self._count("n_eval_jac_g")
-        else:
-            raise RuntimeError(f"inner equation not solved (residual {np.abs(g).max():.3e})")
+                return last[0].solve(r)
+
+        self._count("n_inner_solve")
+        _, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0, linear_solve=linear_solve)
+        self._count("n_eval_jac_g")
+        fact = last[0] if last and not P.nonlinear_inner else self._factor_jy(J[:, self.nxm :])
         with self._timed("eval"):
-            f, gf = ev.f_grad(z, p)
+            f, gf = self.ev.f_grad(z, p)
         self._count("n_eval_grad_f")
-        return self._point(x, z, f, gf, J, fact)
+        return self._point(x, z, f, gf, J, fact, p)
 
     # -- preconditioner ---------------------------------------------------------------
     def _distance_hessian(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
         """D: the Hessian in X of the distance (and control) part of W, i.e. of W with tau = 0 (constant in X)."""
-        p0 = np.array(p, float, copy=True)
-        p0[self.P.n_vertices * self.P.m] = 0.0
+        p0 = self.P.params.replace(p, tau=0.0)
         with self._timed("eval"):
-            H = self.ev.hess_lag(z, p0, 1.0, np.zeros(self.P.ng))
+            H = self.ev.hess_lag(z, p0, 1.0, np.zeros(self.P.nc))
         self._count("n_eval_hess")
         return sp.csc_matrix(H[: self.nxm, : self.nxm])
 
     def _build_preconditioner(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
         """Factorise B = D + 2 tau K^T Ml^-1 K at ``pt`` (module docstring)."""
         P, m = self.P, self.P.m
-        N = P.n_vertices
-        tau, tt = float(p[N * m]), float(p[N * m + 1])
+        tau, tt = P.params.scalar(p, "tau"), P.params.scalar(p, "tt")
         with self._timed("factor"):
-            X, _ = P.unpack_z(pt.z, p[: N * m].reshape(-1, m))
-            ml = lumped_mass(X, P.simplices, N)[P.y_free]
+            X, _ = P.unpack_z(pt.z, P.params.xk(p))
+            ml = lumped_mass(X, P.simplices, P.n_vertices)[P.y_free]
             K = (pt.Jx + pt.Jy @ self._S) / tt
             B = D + 2.0 * tau * (K.T @ sp.diags(np.repeat(1.0 / ml, m)) @ K)
             self._pre.factor(B.tocsc())
@@ -236,7 +225,7 @@ class NewtonKrylovSolver(ReducedSolver):
         ``pt.H`` (the Lagrangian Hessian at ``pt.z`` with multipliers ``pt.lam``) must be set. Solver state
         across iterations: ``_pre_x`` (where B was built), ``_delta``, ``_g0`` (first gradient size).
         """
-        tau = float(p[self.P.n_vertices * self.P.m])
+        tau = self.P.params.scalar(p, "tau")
         if (self._pre_x is None or self._pre_tau != tau or self._cg_since_build >= self.cg_rebuild
                 or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
             self._build_preconditioner(pt, p, D)
@@ -260,8 +249,8 @@ class NewtonKrylovSolver(ReducedSolver):
         """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used)."""
         t0 = time.perf_counter()
         self._counts, self._times = {}, {}
-        P, m = self.P, self.P.m
-        Xk = p[: P.n_vertices * m].reshape(-1, m)
+        P = self.P
+        Xk = P.params.xk(p)
         h = Mesh(Xk, P.simplices).h  # mean edge of X^k, the scale of the preconditioner's rebuild rule
         with self._timed("eval"):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
@@ -320,8 +309,7 @@ class NewtonKrylovSolver(ReducedSolver):
         gd = float(pt.grad @ d)
         if not gd < 0:
             d, gd = -pt.grad, -float(pt.grad @ pt.grad)
-        Xk = p[: self.P.n_vertices * self.P.m].reshape(-1, self.P.m)
-        Y0 = self.P.unpack_z(pt.z, Xk)[1]
+        Y0 = self.P.unpack_z(pt.z, self.P.params.xk(p))[1]
         rounding = 100 * np.finfo(float).eps * abs(pt.f)
         gmax = float(np.abs(pt.grad).max())
         alpha = 1.0
@@ -339,7 +327,7 @@ class NewtonKrylovSolver(ReducedSolver):
         return None
 
 
-@register_solver("newton-krylov")
+@register_solver("newton-krylov", CAPABILITIES - {"constraints"})
 def make_newton_krylov(evaluator: StepEvaluator, options: dict[str, Any]) -> NewtonKrylovSolver:
     """Factory for :class:`NewtonKrylovSolver`."""
     return NewtonKrylovSolver(evaluator, options)

@@ -3,9 +3,9 @@
 Each iteration solves the KKT system of the step problem
 
     [ H + delta I   J^T ] [ dz  ]     [ grad f ]
-    [ J             0   ] [ lam ] = - [ g      ]
+    [ J             0   ] [ lam ] = - [ c      ]
 
-with H the exact Hessian of the Lagrangian f + lam . g (assembled from the element kernels), and
+with c = [g; h] the inner and the outer constraints, J their Jacobian, H the exact Hessian of the Lagrangian f + lam . c (assembled from the element kernels), and
 takes a backtracking step on the l1 merit function f + nu |g|_1. Where the step has too little
 curvature (dz^T H dz < kappa |dz|^2, an inertia-free test in the spirit of Chiang & Zavala 2016)
 the Hessian is regularised by delta I, increased tenfold until the test holds.
@@ -59,7 +59,7 @@ class SqpSolver:
         t0 = time.perf_counter()
         ev = self.ev
         z = np.array(z0, float)
-        lam = np.zeros(ev.problem.ng) if lam_g0 is None else np.array(lam_g0, float)
+        lam = np.zeros(ev.problem.nc) if lam_g0 is None else np.array(lam_g0, float)
         counts = {"n_eval_f": 0, "n_eval_grad_f": 0, "n_eval_jac_g": 0, "n_eval_hess": 0, "n_factorizations": 0}
         nu = 1.0
         delta = 0.0
@@ -68,7 +68,7 @@ class SqpSolver:
         inf_du = inf_pr = float("inf")
         for it in range(self.max_iter + 1):
             f, gf = ev.f_grad(z, p)
-            g, J = ev.g_jac(z, p)
+            g, J = ev.c_jac(z, p)
             counts["n_eval_grad_f"] += 1
             counts["n_eval_jac_g"] += 1
             if scale is None:
@@ -100,7 +100,8 @@ class SqpSolver:
                 zt = z + alpha * dz
                 ft = ev.f(zt, p)
                 counts["n_eval_f"] += 1
-                if np.isfinite(ft) and ft + nu * np.abs(ev.g(zt, p)).sum() <= phi0 + 1e-4 * alpha * dphi:
+                gt = np.concatenate([ev.g(zt, p), ev.h(zt, p)])
+                if np.isfinite(ft) and ft + nu * np.abs(gt).sum() <= phi0 + 1e-4 * alpha * dphi:
                     break
                 alpha *= 0.5
             z = z + alpha * dz
