@@ -11,8 +11,19 @@ from willmore_nlp.anisotropy import Anisotropy, get_anisotropy
 from willmore_nlp.boundary import Boundary, BoundaryData, boundary_data
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.step import StepProblem
-from willmore_nlp.model.terms import (AnisotropicInner, AreaConstraint, AreaEnergy, Conormal, Distance, Helfrich,
-                                      IsotropicInner, TangentialControlTerm, Term, VolumeConstraint, Willmore)
+from willmore_nlp.model.terms import (
+    AnisotropicInner,
+    AreaConstraint,
+    AreaEnergy,
+    Conormal,
+    Distance,
+    Helfrich,
+    IsotropicInner,
+    TangentialControlTerm,
+    Term,
+    VolumeConstraint,
+    Willmore,
+)
 from willmore_nlp.tangential import TangentialControl
 
 

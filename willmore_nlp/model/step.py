@@ -229,7 +229,7 @@ class StepProblem:
 
     # -- index maps (numpy, once per topology) -------------------------------------------
     def _layout(self) -> None:
-        N, m, S, K = self.n_vertices, self.m, self.simplices, self.K
+        m, S, K = self.m, self.simplices, self.K
         nl = self.spec.nl
         self.x_index = np.cumsum(self.x_free) - 1  # free-X index of each node (valid where free)
         self.y_index = np.cumsum(self.y_free) - 1
@@ -365,7 +365,8 @@ class StepProblem:
         X[self.x_free] = np.asarray(x, float).reshape(-1, self.m)
         return X
 
-    def pack_p(self, Xk: np.ndarray, tau: float, tt: float, lam: float, simplices: np.ndarray | None = None) -> np.ndarray:
+    def pack_p(self, Xk: np.ndarray, tau: float, tt: float, lam: float,
+               simplices: np.ndarray | None = None) -> np.ndarray:
         """(np,) parameter vector of a step from Xk: the base scalars and every term's values.
 
         ``simplices`` are all simplices of the mesh (default: the problem's own), for terms with

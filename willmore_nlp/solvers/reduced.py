@@ -97,7 +97,7 @@ class ReducedSolver:
 
     def _at(self, x: np.ndarray, p: np.ndarray, Y0: np.ndarray) -> _Point:
         P = self.P
-        Y, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0)
+        _, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0)
         self._count("n_inner_solve")
         f, gf = self.ev.f_grad(z, p)
         self._count("n_eval_grad_f")

@@ -5,8 +5,9 @@ Each iteration solves the KKT system of the step problem
     [ H + delta I   J^T ] [ dz  ]     [ grad f ]
     [ J             0   ] [ lam ] = - [ c      ]
 
-with c = [g; h] the inner and the outer constraints, J their Jacobian, H the exact Hessian of the Lagrangian f + lam . c (assembled from the element kernels), and
-takes a backtracking step on the l1 merit function f + nu |g|_1. Where the step has too little
+with c = [g; h] the inner and the outer constraints, J their Jacobian, H the exact Hessian of the
+Lagrangian f + lam . c (assembled from the element kernels), and
+takes a backtracking step on the l1 merit function f + nu |c|_1. Where the step has too little
 curvature (dz^T H dz < kappa |dz|^2, an inertia-free test in the spirit of Chiang & Zavala 2016)
 the Hessian is regularised by delta I, increased tenfold until the test holds.
 

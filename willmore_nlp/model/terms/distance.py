@@ -27,7 +27,8 @@ class Distance(Term):
     def __init__(self, beta: float = 1.0) -> None:
         beta = float(beta)
         if not (beta == beta and beta >= 1.0 and beta != float("inf")):
-            raise UserInputError(f"tangential_weight must be a number >= 1 (1 = the paper's L^2 distance), got {beta!r}")
+            raise UserInputError(f"tangential_weight must be a number >= 1 (1 = the paper's L^2 distance), "
+                                 f"got {beta!r}")
         self.beta = beta
         self.requires = frozenset() if beta == 1.0 else frozenset({"variational"})
         self.name = "" if beta == 1.0 else f"tw{beta:g}"
