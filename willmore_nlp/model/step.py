@@ -2,12 +2,12 @@
 
 Symbolic form -> element kernels -> assembled global functions:
 
-* An *energy* (see :mod:`willmore_nlp.model.energies`) writes, for one simplex, the local outer
-  objective ``w_T(X_T, Y_T, Xk_T, par, c_T)`` and the local inner energy ``e_T``. The inner
-  Euler-Lagrange residual of the element is ``g_T = 1/2 d e_T / d Y_T``.
-* :func:`element_kernels` differentiates these with CasADi AD *per element* into five small
-  SX functions (value, gradient, constraint, constraint Jacobian, Lagrangian Hessian). Their size
-  does not depend on the mesh.
+* The *terms* (:mod:`willmore_nlp.model.terms`) write, for one simplex, their parts of the local outer
+  objective ``w_T(X_T, Y_T, Xk_T, par, c_T, Q_T)``, of the local inner energy ``e_T`` and of the outer
+  constraints ``h_T``. The inner Euler-Lagrange residual of the element is ``g_T = 1/2 d e_T / d Y_T``.
+* :func:`element_kernels` differentiates their sums with CasADi AD *per element* into five small
+  SX functions (value, gradient, constraint, constraint Jacobian, Lagrangian Hessian), two more
+  with outer constraints. Their size does not depend on the mesh.
 * :class:`StepProblem` precomputes, with numpy, the gather indices of every element's inputs
   and the global sparsity patterns with an element-entry -> global-nonzero map, and builds MX
   functions ``nlp_f, nlp_g, grad_f, jac_g, hess_lag`` as: gather -> mapped kernel -> scatter-add.

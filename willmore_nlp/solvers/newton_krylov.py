@@ -52,7 +52,6 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.model.evaluator import StepEvaluator
-from willmore_nlp.model.terms import CAPABILITIES
 from willmore_nlp.solvers.base import SolveResult, register_solver
 from willmore_nlp.solvers.cholesky import FullFactor, KronFactor, SymmetricFactor
 from willmore_nlp.solvers.reduced import ReducedSolver, _Point
@@ -186,7 +185,9 @@ class NewtonKrylovSolver(ReducedSolver):
     # -- Newton-CG --------------------------------------------------------------------
     def _pcg(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, delta: float,
              eta: float) -> tuple[np.ndarray, int, bool]:
-        """Preconditioned CG on (Hess W^ + delta D) d = -grad; stops at non-positive curvature.
+        """Preconditioned CG on (Hess W^ + delta D) d = -grad; stops at non-positive curvature. With outer
+        constraints projected CG in the null space of their reduced Jacobian C (:meth:`_precondition`),
+        on the Hessian of the reduced Lagrangian W^ + mu . h^, stopped on the projected residual.
 
         Returns
         -------
@@ -194,13 +195,13 @@ class NewtonKrylovSolver(ReducedSolver):
         its : CG iterations
         negative : True when a direction of non-positive curvature was met
         """
-        g = pt.grad
+        g = pt.pgrad
         x = np.zeros_like(g)
         r = -g
-        s = self._pre.solve(r)
+        s = self._precondition(pt, r)
         d = s.copy()
         rs = float(r @ s)
-        gnorm = float(np.linalg.norm(g))
+        gnorm = float(np.linalg.norm(g)) if pt.C is None else np.sqrt(rs)
         for k in range(self.cg_max_iter):
             Ad = self._hessp(pt, p, d)
             if delta:
@@ -211,13 +212,26 @@ class NewtonKrylovSolver(ReducedSolver):
             alpha = rs / dAd
             x += alpha * d
             r -= alpha * Ad
-            if np.linalg.norm(r) <= eta * gnorm:
+            if pt.C is None and np.linalg.norm(r) <= eta * gnorm:
                 return x, k + 1, False
-            s = self._pre.solve(r)
+            s = self._precondition(pt, r)
             rs_new = float(r @ s)
+            if pt.C is not None and np.sqrt(max(rs_new, 0.0)) <= eta * gnorm:  # projected residual
+                return x, k + 1, False
             d = s + (rs_new / rs) * d
             rs = rs_new
         return x, self.cg_max_iter, False
+
+    def _precondition(self, pt: _Point, r: np.ndarray) -> np.ndarray:
+        """B^-1 r; with outer constraints projected onto the null space of C in the B inner product,
+        ``s - B^-1 C^T (C B^-1 C^T)^-1 C s`` (the constraint preconditioner of projected CG)."""
+        s = self._pre.solve(r)
+        if pt.C is None:
+            return s
+        if getattr(pt, "BC", None) is None:
+            pt.BC = self._pre.solve(np.ascontiguousarray(pt.C.T))
+            pt.CBC = pt.C @ pt.BC
+        return s - pt.BC @ np.linalg.solve(pt.CBC, pt.C @ s)
 
     def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray:
         """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed.
@@ -230,7 +244,7 @@ class NewtonKrylovSolver(ReducedSolver):
                 or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
             self._build_preconditioner(pt, p, D)
             self._pre_x, self._pre_tau, self._cg_since_build = pt.x.copy(), tau, 0
-        gmax = float(np.abs(pt.grad).max())
+        gmax = float(np.abs(pt.pgrad).max())
         eta = min(0.5, float(np.sqrt(gmax / self._g0)))
         delta = self._delta / 10 if self._delta >= 1e-3 else 0.0
         with self._timed("cg"):
@@ -256,9 +270,9 @@ class NewtonKrylovSolver(ReducedSolver):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
         gtol = self.tol * scale
-        pt = self._at(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
+        pt = self._feasible(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
         D = self._distance_hessian(pt.z, p)
-        self._g0 = max(float(np.abs(pt.grad).max()), 1e-300)
+        self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
         self._delta = self._delta_max = 0.0
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
         stats: dict[str, Any] = dict(self._counts)
@@ -282,7 +296,7 @@ class NewtonKrylovSolver(ReducedSolver):
         status = "maximum iterations"
         it = 0
         for it in range(self.max_iter + 1):
-            gmax = float(np.abs(pt.grad).max())
+            gmax = float(np.abs(pt.pgrad).max())
             if gmax <= gtol:
                 status = "converged"
                 break
@@ -301,33 +315,33 @@ class NewtonKrylovSolver(ReducedSolver):
                 break
             pt = new
         with self._timed("eval"):
-            inf_pr = float(np.abs(self.ev.g(pt.z, p)).max())
-        return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.grad).max()), "inf_pr": inf_pr}
+            inf_pr = float(np.abs(np.concatenate([self.ev.g(pt.z, p), self.ev.h(pt.z, p)])).max())
+        return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.pgrad).max()), "inf_pr": inf_pr}
 
     def _line_search(self, pt: _Point, p: np.ndarray, d: np.ndarray) -> _Point | None:
         """Backtracking from the full step: Armijo on W^ (module docstring); None when it fails."""
         gd = float(pt.grad @ d)
         if not gd < 0:
-            d, gd = -pt.grad, -float(pt.grad @ pt.grad)
+            d, gd = -pt.pgrad, -float(pt.pgrad @ pt.pgrad)
         Y0 = self.P.unpack_z(pt.z, self.P.params.xk(p))[1]
         rounding = 100 * np.finfo(float).eps * abs(pt.f)
-        gmax = float(np.abs(pt.grad).max())
+        gmax = float(np.abs(pt.pgrad).max())
         alpha = 1.0
         for _ in range(40):
             try:
-                new = self._at(pt.x + alpha * d, p, Y0)
+                new = self._feasible(pt.x + alpha * d, p, Y0)
             except RuntimeError:
                 new = None
             if new is not None and np.isfinite(new.f):
                 if new.f <= pt.f + self.armijo * alpha * gd:
                     return new
-                if -alpha * gd <= rounding and new.f <= pt.f + rounding and np.abs(new.grad).max() < gmax:
+                if -alpha * gd <= rounding and new.f <= pt.f + rounding and np.abs(new.pgrad).max() < gmax:
                     return new
             alpha *= 0.5
         return None
 
 
-@register_solver("newton-krylov", CAPABILITIES - {"constraints"})
+@register_solver("newton-krylov")
 def make_newton_krylov(evaluator: StepEvaluator, options: dict[str, Any]) -> NewtonKrylovSolver:
     """Factory for :class:`NewtonKrylovSolver`."""
     return NewtonKrylovSolver(evaluator, options)

@@ -61,6 +61,8 @@ class _Point:
     pgrad: Any = None  # gradient projected on the tangent space of the outer constraints (= grad without)
     h: Any = None  # (nh,) outer constraint residual
     C: Any = None  # (nh, nX m) reduced outer constraint Jacobian
+    BC: Any = None  # B^-1 C^T and C B^-1 C^T of a preconditioner B (newton-krylov)
+    CBC: Any = None
 
 
 class ReducedSolver:
@@ -121,7 +123,7 @@ class ReducedSolver:
         if self.P.nh:
             c, Jc = self.ev.c_jac(z, p)
             Jh = Jc.tocsr()[self.P.ng :]
-            nu = lu.solve(-Jh[:, self.nxm :].toarray().T, trans="T").reshape(self.P.ng, -1)
+            nu = np.column_stack([lu.solve(-row, trans="T") for row in Jh[:, self.nxm :].toarray()])
             self._count("n_linear_solves", self.P.nh)
             pt.h, pt.C = c[self.P.ng :], Jh[:, : self.nxm].toarray() + (Jx.T @ nu).T
             mu = -np.linalg.solve(pt.C @ pt.C.T, pt.C @ grad)
