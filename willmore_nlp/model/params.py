@@ -41,10 +41,6 @@ class StepParams:
         """Offset of the per-node block (node-major, ``n_nodal`` per node)."""
         return self.n_vertices * self.m + len(self.scalars)
 
-    def vector_start(self, name: str) -> int:
-        """Offset of the nodal vector ``name``."""
-        return self.nodal_start + self.n_vertices * self.n_nodal + self.vectors.index(name) * self.n_vertices * self.m
-
     @property
     def size(self) -> int:
         """Length of p."""
@@ -71,8 +67,9 @@ class StepParams:
 
     def vector(self, p: Any, name: str) -> Any:
         """The (N m,) nodal vector ``name``."""
-        i = self.vector_start(name)
-        return p[i : i + self.n_vertices * self.m]
+        n = self.n_vertices * self.m
+        i = self.nodal_start + self.n_vertices * self.n_nodal + self.vectors.index(name) * n
+        return p[i : i + n]
 
     def replace(self, p: np.ndarray, **scalars: float) -> np.ndarray:
         """A copy of p with some scalars changed."""
