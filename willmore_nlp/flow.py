@@ -512,7 +512,11 @@ class WillmoreFlow:
         self.stop_requested: Callable[[], bool] = _never
         self._build(mesh, boundary)
         self.build_time = time.perf_counter() - t0
-        self.X = self._restore(np.array(mesh.vertices, float))
+        try:
+            self.X = self._restore(np.array(mesh.vertices, float))
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
+            raise UserInputError(f"volume/area: the initial mesh cannot be moved onto the targets {self._targets} "
+                                 f"({exc})") from exc
         self.t = 0.0
         self.k = 0
         try:
@@ -704,7 +708,10 @@ class WillmoreFlow:
                 X = Xr
             if reason is None and self.problem.nh:
                 moved["constraint_violation_solver"] = self.constraint_violation(X)
-                X = self._restore(X)
+                try:
+                    X = self._restore(X)
+                except (RuntimeError, np.linalg.LinAlgError) as exc:
+                    reason = str(exc)
             if reason is None:
                 try:
                     Y = self._solve_y(X, tau, Y)
