@@ -32,6 +32,12 @@ differs is the linear algebra and the globalisation:
   rounding level of W^ (100 eps |W^|) is accepted when it reduces |grad W^|_inf instead (the
   last, quadratically convergent iterations).
 
+* Outer constraints (volume, area; :mod:`willmore_nlp.solvers.reduced`). Every iterate is feasible
+  (restored after each trial step); CG runs in the null space of the reduced constraint Jacobian C,
+  the preconditioner projected in its own inner product, s = B^-1 r - B^-1 C^T (C B^-1 C^T)^-1 C B^-1 r,
+  on the Hessian of the reduced Lagrangian W^ + mu . h^, and stops on the projected residual
+  sqrt(r . s); grad W^ below is then the projected gradient. Without outer constraints nothing changes.
+
 Stopping test: |grad W^|_inf <= tol * max(|grad W(z0)|_inf, tiny), i.e. relative to the size of the
 step problem's own objective gradient at the start (the Willmore part 2 tau/tt^2 M (Y - X) does not
 vanish when the flow is at rest), the reduced counterpart of IPOPT's dual infeasibility; the
