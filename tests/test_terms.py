@@ -218,8 +218,9 @@ def test_curve_with_fixed_area_becomes_the_circle_of_that_area() -> None:
     R = np.sqrt(A0 / (16 * np.sin(2 * np.pi / 32)))
     fixed = WillmoreFlow(mesh, 0.2, mesh.h**2 / 100, volume="initial")
     free = WillmoreFlow(mesh, 0.2, mesh.h**2 / 100)
-    for r, q in zip(fixed.run(t_end=10.0), free.run(t_end=10.0), strict=True):
+    for r in fixed.run(t_end=10.0):
         assert abs(r.volume - A0) / A0 < 1e-10
+    q = list(free.run(t_end=10.0))[-1]
     radii = np.linalg.norm(r.vertices - r.vertices.mean(0), axis=1)
     assert np.abs(radii / R - 1).max() < 3e-3
     grown = np.linalg.norm(q.vertices - q.vertices.mean(0), axis=1).mean()
