@@ -596,7 +596,8 @@ class WillmoreFlow:
         return self.evaluator.solve_y(X, self.params(X, tau), Y0)
 
     def discrete_energy(self, X: np.ndarray, Y: np.ndarray | None = None) -> float:
-        """``e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X]``, the energy the scheme decreases."""
+        """``e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X]``, the energy the scheme decreases (with ``c0``:
+        ``1/2 int |(Y[X] - X)/tt + c0 n|^2 + lam A[X]``)."""
         p = self.params(X, 1.0)
         Y = self.evaluator.solve_y(X, p) if Y is None else Y
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0
