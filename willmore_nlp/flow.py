@@ -256,9 +256,10 @@ class WillmoreFlow:
     anisotropy : str, callable or Anisotropy, optional
         Anisotropy gamma for the fully nonlinear anisotropic scheme (paper Secs. 2.3, 3.3): a
         preset name ("gamma0", "gamma1", "gamma2"), a 1-homogeneous gamma(z) written with CasADi
-        operations, or an :class:`~willmore_nlp.anisotropy.Anisotropy`. Closed curves in R^2 and
-        closed surfaces in R^3; the inner equation is then nonlinear in Y (damped Newton). Each
-        StepResult reports the anisotropic Willmore energy ``willmore_gamma``.
+        operations, or an :class:`~willmore_nlp.anisotropy.Anisotropy`. Closed curves in R^2,
+        closed surfaces in R^3 and clamped patches with the "ring" boundary variant; the inner
+        equation is then nonlinear in Y (damped Newton). Each StepResult reports the anisotropic
+        Willmore energy ``willmore_gamma``.
     tangential_weight : float
         beta >= 1 (default 1, the paper's scheme): the distance term of W charges the tangential
         part of X - X^k beta times (:class:`willmore_nlp.model.terms.distance.Distance`). The normal

@@ -63,7 +63,8 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None, tang
         problem on the patch with the co-normal term ``g -= tt Nco``; the "ring" variant on patch +
         ring, with the outer objective weighted 0 on the ring and Y fixed on the ring's outer nodes.
     anisotropy : str, callable or Anisotropy, optional
-        Anisotropy gamma of the fully nonlinear anisotropic inner energy (closed meshes).
+        Anisotropy gamma of the fully nonlinear anisotropic inner energy (closed meshes, or the "ring"
+        boundary variant).
     tangential_weight : float
         beta >= 1 of the distance term (:class:`~willmore_nlp.model.terms.distance.Distance`).
     tangential_control : TangentialControl, optional

@@ -25,8 +25,9 @@ def area_vector(Y: ca.SX) -> ca.SX:
 class AnisotropicInner(Term):
     """``E_T = M[X](Y-X).(Y-X) + 2 tt gamma(z_T)``, z_T = :func:`area_vector` (gamma 1-homogeneous,
     so gamma(z_T) = |T| gamma(n_T)). The outer objective stays the isotropic one: the approximate
-    Willmore term measures Y - X, now the anisotropic mean-curvature step. Closed meshes only: with a
-    clamped boundary the co-normal term would have to be gamma's Cahn-Hoffman vector."""
+    Willmore term measures Y - X, now the anisotropic mean-curvature step. Closed meshes, or a clamped
+    patch with the fixed-ring variant (A_gamma over patch and ring); the co-normal variant is refused:
+    its co-normal term would have to be gamma's Cahn-Hoffman vector."""
 
     label = "anisotropy"
     hint = "the semi-implicit baseline is isotropic"
@@ -38,10 +39,10 @@ class AnisotropicInner(Term):
         self.name = f"aniso_{anisotropy.name}"
 
     def check(self, mesh: Mesh, variant: str | None) -> None:
-        if variant is not None:
-            raise UserInputError("anisotropy: anisotropic flow with a clamped boundary is not supported "
-                                 "(closed curves and surfaces only)")
-        if not mesh.is_closed:
+        if variant == "conormal":
+            raise UserInputError("anisotropy: the co-normal boundary variant is not supported with anisotropy "
+                                 "(its co-normal term would be gamma's Cahn-Hoffman vector); use variant \"ring\"")
+        if variant is None and not mesh.is_closed:
             raise MeshError(f"{mesh.source}: anisotropic flow needs a closed curve or surface")
         if mesh.d == 1 and mesh.m != 2:
             raise MeshError(f"{mesh.source}: anisotropic curve flow needs a curve in R^2 (the normal of a curve "
