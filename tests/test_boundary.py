@@ -77,7 +77,7 @@ def test_boundary_step_problem_matches_numpy_assembly(make, variant) -> None:
     mesh, _, setup, ev, z, p, _ = _setup(make, variant)
     P, bd = setup.problem, setup.boundary
     X, Y = P.unpack_z(z, mesh.vertices)
-    tau, tt, lam = p[P.n_vertices * P.m :][:3]
+    tau, tt, lam = (P.params.scalar(p, k) for k in ("tau", "tt", "lam"))
     S, N = mesh.simplices, mesh.n_vertices
     Sp, Se = S[bd.patch], S[bd.patch | bd.ring]
     M, Le = mass_stiffness(X, Se, N)

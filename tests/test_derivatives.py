@@ -58,7 +58,7 @@ def test_constraint_is_dziuk_step(make) -> None:
     mesh = make()
     P, ev, z, p, _ = _setup(mesh)
     X, Y = P.unpack_z(z, mesh.vertices)
-    tau, tt, lam = p[P.n_vertices * P.m :][:3]
+    tau, tt, lam = (P.params.scalar(p, k) for k in ("tau", "tt", "lam"))
     M, L = mass_stiffness(X, mesh.simplices)
     g = (M + tt * L) @ Y - M @ X
     np.testing.assert_allclose(ev.g(z, p), g.ravel(), atol=1e-13 * np.abs(M @ X).max())

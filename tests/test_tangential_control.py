@@ -81,8 +81,8 @@ def test_control_term_matches_numpy_and_derivatives_fd(case: str, check_step_der
     p0, p1 = s0.params(V, tau, tt, lam), s1.params(V, tau, tt, lam)
     Q = nodal_parameters(V, mesh.simplices, P.x_free)
     cells = np.arange(mesh.n_simplices)
-    if P.element_const.shape[1]:  # clamped: the term lives on the patch (the ring's nodes are fixed anyway)
-        key = {tuple(s) for s in P.simplices[P.element_const[:, 0] > 0]}
+    if P.element_const:  # clamped: the term lives on the patch (the ring's nodes are fixed anyway)
+        key = {tuple(s) for s in P.simplices[P.element_const["patch"] > 0]}
         cells = np.array([k for k, s in enumerate(mesh.simplices) if tuple(s) in key])
     expected = ON.weight * _control_value(V, X, mesh.simplices, Q, cells)
     assert expected > 1e-5 * ev1.f(z, p1)  # well above the 1e-10 relative check below

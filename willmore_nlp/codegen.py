@@ -82,15 +82,17 @@ def default_flags() -> tuple[str, ...]:
 def generate_source(kernels: dict[str, ca.Function]) -> str:
     """C source of the kernels (one file, no header; size independent of the mesh).
 
-    Besides the five kernels, the reverse derivatives ``adj1_<name>`` of the value kernels k_f and
-    k_g are generated: CasADi's external functions find them by name, which makes the compiled
+    Besides the kernels, the reverse derivatives ``adj1_<name>`` of the value kernels k_f, k_g (and
+    k_h) are generated: CasADi's external functions find them by name, which makes the compiled
     f and g differentiable (IPOPT's setup builds the gradient of the Lagrangian from them once).
     """
     cg = ca.CodeGenerator("willmore_kernels.c", {"with_header": False, "verbose": False})
     for k in KERNEL_NAMES:
-        cg.add(kernels[k])
-    for k in ("k_f", "k_g"):
-        cg.add(kernels[k].reverse(1))
+        if k in kernels:
+            cg.add(kernels[k])
+    for k in ("k_f", "k_g", "k_h"):
+        if k in kernels:
+            cg.add(kernels[k].reverse(1))
     return cg.dump()
 
 
@@ -242,7 +244,7 @@ def compile_kernels(
         lib, meta = build_library(source, flags=flags, directory=tmp)
     if info is not None:
         info.update(meta)
-    return {k: ca.external(kernels[k].name(), str(lib)) for k in KERNEL_NAMES}
+    return {k: ca.external(kernels[k].name(), str(lib)) for k in KERNEL_NAMES if k in kernels}
 
 
 def cache_info(directory: Path | None = None) -> dict[str, Any]:

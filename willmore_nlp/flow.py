@@ -78,6 +78,10 @@ met by iterates that barely move (measured: the unit-size steps are reproduced t
 BUDGET_WINDOW = 20
 """The iteration budget is a multiple of the median iteration count of this many last accepted steps."""
 
+CONSTRAINT_RTOL_SOLVER = 1e-6
+"""Largest relative residual of an outer constraint (volume, area) that a solve may leave: the state is
+then moved onto the constraints (:meth:`WillmoreFlow._restore`, to 1e-13); more rejects the step."""
+
 REPAIR_SPEED = 1.0
 """Each pass of the light repair moves a vertex by at most this factor times the distance the step moved it."""
 
@@ -206,6 +210,13 @@ def _check_initial_mesh(mesh: Mesh, min_angle: float, max_edge_ratio: float) -> 
                             f"remesh, or lower min_angle")
 
 
+def _target(value: float | str | None, name: str, mesh: Mesh) -> float | None:
+    """Target of the ``volume`` or ``area`` option (validated by FlowSettings); "initial": the initial mesh's."""
+    if value == "initial":
+        return geometry.enclosed_volume(mesh) if name == "volume" else geometry.measure(mesh)
+    return value  # type: ignore[return-value]
+
+
 class WillmoreFlow:
     """Isotropic Willmore flow by the nested variational scheme (docs/theory/scheme.md).
 
@@ -276,6 +287,7 @@ class WillmoreFlow:
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
         self._control = TangentialControl(s.tangential_control, s.tangential_control_weight,
                                           s.tangential_control_time)
+        self._targets = {"volume": _target(s.volume, "volume", mesh), "area": _target(s.area, "area", mesh)}
         self.codegen_info: dict[str, Any] = {"enabled": False}
         codegen = s.codegen
         if codegen is None:
@@ -289,7 +301,11 @@ class WillmoreFlow:
         self.stop_requested: Callable[[], bool] = _never
         self._build(mesh, boundary)
         self.build_time = time.perf_counter() - t0
-        self.X = np.array(mesh.vertices, float)
+        try:
+            self.X = self._restore(np.array(mesh.vertices, float))
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
+            raise UserInputError(f"volume/area: the initial mesh cannot be moved onto the targets {self._targets} "
+                                 f"({exc})") from exc
         self.t = 0.0
         self.k = 0
         try:
@@ -310,7 +326,8 @@ class WillmoreFlow:
         self.mesh = mesh
         self.boundary = boundary
         self.setup = build_step(mesh, boundary=boundary, anisotropy=self.settings.anisotropy,
-                                tangential_weight=self.settings.tangential_weight, tangential_control=self._control)
+                                tangential_weight=self.settings.tangential_weight, tangential_control=self._control,
+                                c0=self.settings.c0, **self._targets)
         self.problem = self.setup.problem
         bd = self.setup.boundary
         self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes
@@ -338,6 +355,28 @@ class WillmoreFlow:
         return None if self.setup.boundary is None else self.setup.boundary.free
 
     # -- helpers -----------------------------------------------------------------------
+    def constraint_violation(self, X: np.ndarray) -> float:
+        """Largest relative residual |h_i| / |target_i| of the outer constraints at X (0 without any)."""
+        P = self.problem
+        if not P.nh:
+            return 0.0
+        p = self.params(X, self.tau)
+        h = self.evaluator.h(P.pack_z(X, X), p)
+        return float(np.max(np.abs(h) / np.abs([P.params.scalar(p, t) for t in P.targets])))
+
+    def _restore(self, X: np.ndarray) -> np.ndarray:
+        """X moved onto the outer constraints (volume, area: functions of X only) by least-norm
+        Gauss-Newton steps ``-Jh^T (Jh Jh^T)^-1 h``; X itself without outer constraints."""
+        P = self.problem
+        for _ in range(30):
+            if self.constraint_violation(X) <= 1e-13:
+                return X
+            p = self.params(X, self.tau)
+            c, Jc = self.evaluator.c_jac(P.pack_z(X, X), p)
+            Jh = Jc.tocsr()[P.ng :, : P.nX * P.m].toarray()
+            X = P.unpack_x(X[P.x_free].ravel() - Jh.T @ np.linalg.solve(Jh @ Jh.T, c[P.ng :]), X)
+        raise RuntimeError(f"outer constraints not restored (relative residual {self.constraint_violation(X):.3e})")
+
     def params(self, Xk: np.ndarray, tau: float) -> np.ndarray:
         """Parameter vector of a step from Xk with step size tau."""
         return self.setup.params(Xk, tau, self.tau_tilde, self.lam)
@@ -346,7 +385,8 @@ class WillmoreFlow:
         return self.evaluator.solve_y(X, self.params(X, tau), Y0)
 
     def discrete_energy(self, X: np.ndarray, Y: np.ndarray | None = None) -> float:
-        """``e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X]``, the energy the scheme decreases."""
+        """``e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X]``, the energy the scheme decreases (with ``c0``:
+        ``1/2 int |(Y[X] - X)/tt + c0 n|^2 + lam A[X]``)."""
         p = self.params(X, 1.0)
         Y = self.evaluator.solve_y(X, p) if Y is None else Y
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0
@@ -388,6 +428,9 @@ class WillmoreFlow:
             return f"solver did not converge ({res.status}, {res.iterations} iterations)"
         if not np.all(np.isfinite(X)):
             return "non-finite positions"
+        if self.constraint_violation(X) > CONSTRAINT_RTOL_SOLVER:
+            return (f"outer constraint violated by {self.constraint_violation(X):.3g} (relative) > "
+                    f"{CONSTRAINT_RTOL_SOLVER:g}")
         variational = getattr(self.solver, "variational", True)  # the semi-implicit baseline is not
         if self.settings.check_energy and variational and res.f > f0 + self.settings.energy_rtol * abs(f0) + 1e-14:
             return f"energy inequality violated: W = {res.f:.12g} > W(X^k) = {f0:.12g}"
@@ -453,6 +496,12 @@ class WillmoreFlow:
                 Xr = geometry.redistribute_curve(self.mesh.with_vertices(X))
                 moved = {"redistribution_shift": float(np.abs(Xr - X).max()), "energy_before_redistribution": e_step}
                 X = Xr
+            if reason is None and self.problem.nh:
+                moved["constraint_violation_solver"] = self.constraint_violation(X)
+                try:
+                    X = self._restore(X)
+                except (RuntimeError, np.linalg.LinAlgError) as exc:
+                    reason = str(exc)
             if reason is None:
                 try:
                     Y = self._solve_y(X, tau, Y)
@@ -577,6 +626,7 @@ class WillmoreFlow:
         if F1.shape != F.shape or not np.array_equal(F1, F):
             self._build(Mesh(X1, F1, self.mesh.source), boundary)
         try:
+            X1 = self._restore(X1)
             Y1 = self._solve_y(X1, tau)
             if not np.all(np.isfinite(Y1)):
                 raise ArithmeticError("non-finite values")

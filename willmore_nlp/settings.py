@@ -101,6 +101,9 @@ def one_of(*choices: str) -> Kind:
 BOOL = Kind("true or false", lambda v: isinstance(v, bool), parse=parse_bool)
 BOOL_OR_UNSET = Kind("true, false or unset", lambda v: v is None or isinstance(v, bool), parse=parse_bool)
 ANY = Kind("any value", lambda v: True)
+TARGET = Kind("'initial', a number > 0 or unset",
+              lambda v: v is None or v == "initial" or (is_number(v) and math.isfinite(v) and v > 0),
+              lambda v: v if v is None or isinstance(v, str) else float(v))
 
 
 def option(default: Any, kind: Kind) -> Any:
@@ -251,6 +254,20 @@ class FlowSettings(Settings):
         part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
         motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
         discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000).
+    c0 : float
+        Spontaneous curvature (Canham-Helfrich, default 0): the flow of ``1/2 int (h - c0)^2`` with
+        h = k1 + k2 (> 0 on a sphere with the outward normal), closed curves in R^2 and closed
+        surfaces in R^3 (:mod:`willmore_nlp.model.terms.helfrich`). 0 is the Willmore flow bit for bit.
+    volume : "initial", float or None
+        Keep the enclosed volume (area of a closed curve in R^2) at this value, or at the initial
+        mesh's (``"initial"``): an outer equality constraint of every step (solvers ipopt, sqp, gd,
+        newton-krylov). The solver's residual (``stats["constraint_violation_solver"]``, relative;
+        measured <= 4e-11) is then removed by least-norm Gauss-Newton steps, so every accepted state
+        holds the constraint to 1e-13; a residual above 1e-6 rejects the step. None (default): free. A
+        target other than the initial value first moves the initial mesh onto it the same way, as after
+        every mesh repair.
+    area : "initial", float or None
+        Likewise for the total area (length of a closed curve).
     tangential_control : str
         Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "off" (default, the
         paper's scheme) or "meanratio": W gains ``beta_c sum_i m_i |P_i (X_i - X^k_i - S_i)|^2`` with P_i
@@ -358,6 +375,9 @@ class FlowSettings(Settings):
     allow_components: bool = option(False, BOOL)
     anisotropy: object = option(None, ANY)
     tangential_weight: float = option(1.0, real(1, note="1 = the paper's L^2 distance"))
+    c0: float = option(0.0, real())
+    volume: float | str | None = option(None, TARGET)
+    area: float | str | None = option(None, TARGET)
     tangential_control: str = option("off", one_of(*CONTROL_METHODS))
     tangential_control_weight: float = option(DEFAULT_CONTROL_WEIGHT, real(0, lo_open=True))
     tangential_control_time: float = option(0.0, real(0))

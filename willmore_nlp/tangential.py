@@ -4,8 +4,8 @@ With ``tangential_control = "meanratio"`` the outer objective of the step gets t
 
     beta * sum_i m_i |P_i (X_i - Xk_i - S_i)|^2            (m_i = lumped mass of node i in Xk)
 
-(:func:`willmore_nlp.model.energies.control_term`). ``P_i`` is the orthogonal projector onto the
-tangent space of the mesh at node i in Xk (``t t^T`` along the unit vertex tangent of a curve,
+(:class:`~willmore_nlp.model.terms.tangential_control.TangentialControlTerm`). ``P_i`` is the orthogonal
+projector onto the tangent space of the mesh at node i in Xk (``t t^T`` along the unit vertex tangent of a curve,
 ``I - n n^T`` with the area-weighted unit vertex normal of a surface) and ``S_i = P_i U_i`` the
 tangential part of a mesh-improving step U of Xk: on a surface a diagonally scaled descent step of
 the scale-invariant mean-ratio distortion of the triangles (:func:`surface_displacement`), on a

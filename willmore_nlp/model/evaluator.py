@@ -80,6 +80,18 @@ class StepEvaluator:
         """(ng,) constraint residual g = 1/2 dE/dY."""
         return self._eval("g", z, p)[0]
 
+    def h(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """(nh,) outer constraint residual (empty without outer constraints)."""
+        if not self.problem.nh:
+            return np.zeros(0)
+        return self._eval("h", z, p)[0]
+
+    def c_jac(self, z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, sp.csc_matrix]:
+        """(nc,) all constraints c = [g; h] and their (nc, nx) Jacobian (IPOPT's and SQP's view)."""
+        name = "jac_c" if self.problem.nh else "jac_g"
+        cv, J = self._eval(name, z, p)
+        return cv, self._sparse(name, 1, J)
+
     def f_grad(self, z: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray]:
         """W and its (nx,) gradient from one evaluation."""
         fv, gv = self._eval("grad_f", z, p)
@@ -99,23 +111,30 @@ class StepEvaluator:
         return self.g_jac(z, p)[1]
 
     def hess_lag_upper(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> sp.csc_matrix:
-        """(nx, nx) upper triangle of the Hessian of lam_f W + lam_g . g."""
+        """(nx, nx) upper triangle of the Hessian of lam_f W + lam_c . c; ``lam_c`` is (nc,) = [lam_g; lam_h]."""
         return self._sparse("hess_lag", 0, self._eval("hess_lag", z, p, lam_f, lam_g)[0])
 
     def hess_lag(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> sp.csc_matrix:
-        """(nx, nx) full symmetric Hessian of lam_f W + lam_g . g."""
+        """(nx, nx) full symmetric Hessian of lam_f W + lam_c . c (see :meth:`hess_lag_upper`)."""
         U = self.hess_lag_upper(z, p, lam_f, lam_g)
         return (U + sp.triu(U, 1).T).tocsc()
 
-    def solve_y(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None,
-                tol: float = 1e-12, max_iter: int = 100,
-                linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None) -> np.ndarray:
-        """Y[X]: solve the inner equation g(X, Y) = 0 for the free Y by damped Newton.
+    def solve_y(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None, tol: float = 1e-12,
+                max_iter: int = 100, linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None
+                ) -> np.ndarray:
+        """Y[X]: solve the inner equation g(X, Y) = 0 for the free Y (:meth:`inner_solve`)."""
+        return self.inner_solve(X, p, Y0, tol, max_iter, linear_solve)[0]
 
-        Linear (one Newton step) for the isotropic scheme. For anisotropic energies g = 1/2 dE/dY
-        is the gradient of a strictly convex energy, but a nearly non-smooth gamma (the
-        regularised l1 norm ``gamma2``) makes plain Newton overshoot: steps are halved until the
-        residual decreases (backtracking on |g|).
+    def inner_solve(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None, tol: float = 1e-12,
+                    max_iter: int = 100, linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, sp.csc_matrix]:
+        """Solve the inner equation g(X, Y) = 0 (only g: the outer constraints h play no part) by damped Newton.
+
+        One Newton step (plus a refinement if rounding asks) for a linear inner equation. For
+        nonlinear inner energies g = 1/2 dE/dY is the gradient of a strictly convex energy, but a
+        nearly non-smooth gamma (the regularised l1 norm ``gamma2``) makes plain Newton overshoot:
+        steps are halved until the residual decreases (backtracking on |g|). Converged when
+        ``|g|_inf <= tol * max(1, |J_Y|_max |Y|_max)``.
 
         Parameters
         ----------
@@ -129,30 +148,34 @@ class StepEvaluator:
         Returns
         -------
         Y : (N, m)
+        z : (nx,) the unknowns (X, Y)
+        J : (ng, nx) the inner Jacobian at z
         """
         P = self.problem
         m = P.m
-        Xk = p[: P.n_vertices * m].reshape(-1, m)
+        Xk = P.params.xk(p)
         Y = np.array(X if Y0 is None else Y0, float, copy=True)
         Y[~P.y_free] = Xk[~P.y_free]
         nXm = P.nX * m
-        r, J = self.g_jac(P.pack_z(X, Y), p)
+        z = P.pack_z(X, Y)
+        r, J = self.g_jac(z, p)
         for _ in range(max_iter):
             Jy = J[:, nXm:]
             scale = max(1.0, float(np.abs(Jy).max()) * float(np.abs(Y).max()))
             if np.linalg.norm(r, np.inf) <= tol * scale:
-                return Y
+                return Y, z, J
             dy = (spla.spsolve(Jy.tocsc(), -r) if linear_solve is None else linear_solve(Jy.tocsc(), -r)).reshape(-1, m)
             rn = np.linalg.norm(r)
             alpha = 1.0
             for _ in range(40):
                 Yt = Y.copy()
                 Yt[P.y_free] += alpha * dy
-                rt, Jt = self.g_jac(P.pack_z(X, Yt), p)
+                zt = P.pack_z(X, Yt)
+                rt, Jt = self.g_jac(zt, p)
                 if np.linalg.norm(rt) < rn or alpha < 1e-9:
                     break
                 alpha *= 0.5
-            Y, r, J = Yt, rt, Jt
+            Y, z, r, J = Yt, zt, rt, Jt
         raise RuntimeError(
             f"inner equation not solved to {tol:g} in {max_iter} Newton iterations "
             f"(residual {np.linalg.norm(r, np.inf):.3e})"

@@ -10,6 +10,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.model.terms import CAPABILITIES
 from willmore_nlp.settings import SolverSettings
 
 
@@ -54,16 +55,23 @@ class StepSolver(Protocol):
 
 SolverFactory = Callable[[StepEvaluator, Any], StepSolver]
 _SOLVERS: dict[str, tuple[SolverFactory, type[SolverSettings]]] = {}
+_CAPABILITIES: dict[str, tuple[frozenset[str], str]] = {}
+_WHY = {"variational": "it does not minimise W", "nonlinear_inner": "its inner equation is linear",
+        "constraints": "it has no outer equality constraints"}
 
 
-def register_solver(name: str, settings: type[SolverSettings]) -> Callable[[SolverFactory], SolverFactory]:
-    """Decorator: register a solver factory under ``name``; ``settings`` declares and validates its options.
+def register_solver(name: str, settings: type[SolverSettings], capabilities: frozenset[str] = CAPABILITIES,
+                    noun: str = "the solver") -> Callable[[SolverFactory], SolverFactory]:
+    """Decorator: register a solver factory under ``name``.
 
-    The factory is called with the evaluator and an instance of ``settings``.
+    The factory is called with the evaluator and an instance of ``settings``, which declares and validates the
+    solver's options. ``capabilities`` says what it can do (:data:`CAPABILITIES`): :func:`make_solver` refuses a
+    step problem with a term that needs one the solver lacks; ``noun`` names the solver in refusals ("the baseline").
     """
 
     def deco(factory: SolverFactory) -> SolverFactory:
         _SOLVERS[name] = (factory, settings)
+        _CAPABILITIES[name] = (frozenset(capabilities), noun)
         return factory
 
     return deco
@@ -84,4 +92,8 @@ def solver_settings(name: str) -> type[SolverSettings]:
 def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | None = None) -> StepSolver:
     """Build the solver ``name`` for a step problem; ``options`` are validated by its settings class."""
     settings = solver_settings(name).from_options(dict(options or {}))
+    capabilities, noun = _CAPABILITIES[name]
+    for cap, term in evaluator.problem.requires().items():
+        if cap not in capabilities:
+            raise UserInputError(f"solver {name}: {noun} has no {term.label} ({_WHY[cap]}); {term.hint}")
     return _SOLVERS[name][0](evaluator, settings)

@@ -213,8 +213,9 @@ class IpoptSolver:
     Parameters
     ----------
     evaluator : StepEvaluator
-        Supplies ``f``/``g`` expressions and the assembled ``grad_f``, ``jac_g`` and
-        ``hess_lag`` functions, passed to IPOPT directly (no global AD).
+        Supplies ``f``/``g`` expressions and the assembled ``grad_f``, ``jac_c`` and
+        ``hess_lag`` functions, passed to IPOPT directly (no global AD); IPOPT's constraints are
+        ``c = [g; h]``, the inner constraint and the outer ones.
     settings : IpoptSettings
         IPOPT options (``tol``, ``max_iter``, ``mu_strategy`` ...), merged over
         :data:`IPOPT_DEFAULTS`. ``warm_start=True`` passes the previous multipliers and sets
@@ -257,7 +258,7 @@ class IpoptSolver:
             nlp,
             {
                 "grad_f": fn["grad_f"],
-                "jac_g": fn["jac_g"],
+                "jac_g": fn["jac_c"],
                 "hess_lag": fn["hess_lag"],
                 "print_time": False,
                 "record_time": True,
@@ -266,7 +267,7 @@ class IpoptSolver:
                 "ipopt": opts,
             },
         )
-        self.ng = evaluator.problem.ng
+        self.ng = evaluator.problem.nc
 
     def _poll(self, f: float, g: np.ndarray, x: np.ndarray, lam_g: np.ndarray) -> bool:
         """The hook's test: a requested stop (signal) first, then the budget and stall test."""
@@ -275,7 +276,7 @@ class IpoptSolver:
     def _dual_residual(self, x: np.ndarray, lam_g: np.ndarray) -> float:
         """max |grad f + J_g^T lam_g| at ``x`` with the parameters of the solve under way."""
         ev = self._evaluator
-        return float(np.max(np.abs(ev.grad_f(x, self._p) + ev.jac_g(x, self._p).T @ lam_g)))
+        return float(np.max(np.abs(ev.grad_f(x, self._p) + ev.c_jac(x, self._p)[1].T @ lam_g)))
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """Solve from ``z0``; ``lam_g0`` is used when warm starting.

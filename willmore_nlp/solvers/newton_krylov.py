@@ -32,6 +32,12 @@ differs is the linear algebra and the globalisation:
   rounding level of W^ (100 eps |W^|) is accepted when it reduces |grad W^|_inf instead (the
   last, quadratically convergent iterations).
 
+* Outer constraints (volume, area; :mod:`willmore_nlp.solvers.reduced`). Every iterate is feasible
+  (restored after each trial step); CG runs in the null space of the reduced constraint Jacobian C,
+  the preconditioner projected in its own inner product, s = B^-1 r - B^-1 C^T (C B^-1 C^T)^-1 C B^-1 r,
+  on the Hessian of the reduced Lagrangian W^ + mu . h^, and stops on the projected residual
+  sqrt(r . s); grad W^ below is then the projected gradient. Without outer constraints nothing changes.
+
 Stopping test: |grad W^|_inf <= tol * max(|grad W(z0)|_inf, tiny), i.e. relative to the size of the
 step problem's own objective gradient at the start (the Willmore part 2 tau/tt^2 M (Y - X) does not
 vanish when the flow is at rest), the reduced counterpart of IPOPT's dual infeasibility; the
@@ -133,66 +139,54 @@ class NewtonKrylovSolver(ReducedSolver):
 
     # -- J_Y and the point X ----------------------------------------------------------
     def _factor_jy(self, Jy: sp.spmatrix) -> KronFactor | FullFactor:
-        """Factorisation of J_Y: of its N x N block (isotropic) or of the whole matrix (anisotropic)."""
+        """Factorisation of J_Y: of its N x N block (linear inner equation) or of the whole matrix."""
         with self._timed("factor"):
             self._count("n_factorizations")
-            if self.P.anisotropic:
+            if self.P.nonlinear_inner:
                 return FullFactor(self._jy.factor(Jy))
             m = self.P.m
             return KronFactor(self._jy.factor(sp.csc_matrix(Jy)[0::m, 0::m]), m)
 
     def _at(self, x: np.ndarray, p: np.ndarray, Y0: np.ndarray) -> _Point:
-        """Y[X], W^, its adjoint gradient and the factorised J_Y at the free positions ``x``."""
-        P, m, ev = self.P, self.P.m, self.ev
-        Xk = p[: P.n_vertices * m].reshape(-1, m)
-        X, _ = P.unpack_z(np.concatenate([x, np.zeros(P.ng)]), Xk)
-        Y = np.array(Y0, float, copy=True)
-        Y[~P.y_free] = Xk[~P.y_free]
-        self._count("n_inner_solve")
-        if P.anisotropic:
-            Y = ev.solve_y(X, p, Y, linear_solve=lambda Jy, r: self._factor_jy(Jy).solve(r))
-        z = P.pack_z(X, Y)
-        with self._timed("eval"):
-            g, J = ev.g_jac(z, p)
-        self._count("n_eval_jac_g")
-        fact = self._factor_jy(J[:, self.nxm :])
-        for _ in range(3):  # isotropic: g is linear in Y, one solve (+ a refinement if rounding asks)
-            scale = max(1.0, float(np.abs(J[:, self.nxm :]).max()) * float(np.abs(z[self.nxm :]).max()))
-            if np.abs(g).max() <= 1e-12 * scale:
-                break
-            if P.anisotropic:
-                raise RuntimeError(f"inner equation not solved (residual {np.abs(g).max():.3e})")
+        """Y[X] (:meth:`StepEvaluator.inner_solve` with this solver's factorisations), W^, its adjoint
+        gradient and the factorised J_Y at the free positions ``x``.
+
+        A linear inner equation has J_Y independent of Y: the last factorisation of the inner solve serves
+        the adjoint; a nonlinear one is factorised again at Y[X].
+        """
+        P = self.P
+        last: list[KronFactor | FullFactor] = []
+
+        def linear_solve(Jy: sp.csc_matrix, r: np.ndarray) -> np.ndarray:
+            last[:] = [self._factor_jy(Jy)]
             with self._timed("cg"):
-                z = z.copy()
-                z[self.nxm :] -= fact.solve(g)
-            with self._timed("eval"):
-                g, J = ev.g_jac(z, p)
-            self._count("n_eval_jac_g")
-        else:
-            raise RuntimeError(f"inner equation not solved (residual {np.abs(g).max():.3e})")
+                return last[0].solve(r)
+
+        self._count("n_inner_solve")
+        _, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0, linear_solve=linear_solve)
+        self._count("n_eval_jac_g")
+        fact = last[0] if last and not P.nonlinear_inner else self._factor_jy(J[:, self.nxm :])
         with self._timed("eval"):
-            f, gf = ev.f_grad(z, p)
+            f, gf = self.ev.f_grad(z, p)
         self._count("n_eval_grad_f")
-        return self._point(x, z, f, gf, J, fact)
+        return self._point(x, z, f, gf, J, fact, p)
 
     # -- preconditioner ---------------------------------------------------------------
     def _distance_hessian(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
         """D: the Hessian in X of the distance (and control) part of W, i.e. of W with tau = 0 (constant in X)."""
-        p0 = np.array(p, float, copy=True)
-        p0[self.P.n_vertices * self.P.m] = 0.0
+        p0 = self.P.params.replace(p, tau=0.0)
         with self._timed("eval"):
-            H = self.ev.hess_lag(z, p0, 1.0, np.zeros(self.P.ng))
+            H = self.ev.hess_lag(z, p0, 1.0, np.zeros(self.P.nc))
         self._count("n_eval_hess")
         return sp.csc_matrix(H[: self.nxm, : self.nxm])
 
     def _build_preconditioner(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
         """Factorise B = D + 2 tau K^T Ml^-1 K at ``pt`` (module docstring)."""
         P, m = self.P, self.P.m
-        N = P.n_vertices
-        tau, tt = float(p[N * m]), float(p[N * m + 1])
+        tau, tt = P.params.scalar(p, "tau"), P.params.scalar(p, "tt")
         with self._timed("factor"):
-            X, _ = P.unpack_z(pt.z, p[: N * m].reshape(-1, m))
-            ml = lumped_mass(X, P.simplices, N)[P.y_free]
+            X, _ = P.unpack_z(pt.z, P.params.xk(p))
+            ml = lumped_mass(X, P.simplices, P.n_vertices)[P.y_free]
             K = (pt.Jx + pt.Jy @ self._S) / tt
             B = D + 2.0 * tau * (K.T @ sp.diags(np.repeat(1.0 / ml, m)) @ K)
             self._pre.factor(B.tocsc())
@@ -201,7 +195,9 @@ class NewtonKrylovSolver(ReducedSolver):
     # -- Newton-CG --------------------------------------------------------------------
     def _pcg(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, delta: float,
              eta: float) -> tuple[np.ndarray, int, bool]:
-        """Preconditioned CG on (Hess W^ + delta D) d = -grad; stops at non-positive curvature.
+        """Preconditioned CG on (Hess W^ + delta D) d = -grad; stops at non-positive curvature. With outer
+        constraints projected CG in the null space of their reduced Jacobian C (:meth:`_precondition`),
+        on the Hessian of the reduced Lagrangian W^ + mu . h^, stopped on the projected residual.
 
         Returns
         -------
@@ -209,13 +205,13 @@ class NewtonKrylovSolver(ReducedSolver):
         its : CG iterations
         negative : True when a direction of non-positive curvature was met
         """
-        g = pt.grad
+        g = pt.pgrad
         x = np.zeros_like(g)
         r = -g
-        s = self._pre.solve(r)
+        s = self._precondition(pt, r)
         d = s.copy()
         rs = float(r @ s)
-        gnorm = float(np.linalg.norm(g))
+        gnorm = float(np.linalg.norm(g)) if pt.C is None else np.sqrt(rs)
         for k in range(self.cg_max_iter):
             Ad = self._hessp(pt, p, d)
             if delta:
@@ -226,13 +222,26 @@ class NewtonKrylovSolver(ReducedSolver):
             alpha = rs / dAd
             x += alpha * d
             r -= alpha * Ad
-            if np.linalg.norm(r) <= eta * gnorm:
+            if pt.C is None and np.linalg.norm(r) <= eta * gnorm:
                 return x, k + 1, False
-            s = self._pre.solve(r)
+            s = self._precondition(pt, r)
             rs_new = float(r @ s)
+            if pt.C is not None and np.sqrt(max(rs_new, 0.0)) <= eta * gnorm:  # projected residual
+                return x, k + 1, False
             d = s + (rs_new / rs) * d
             rs = rs_new
         return x, self.cg_max_iter, False
+
+    def _precondition(self, pt: _Point, r: np.ndarray) -> np.ndarray:
+        """B^-1 r; with outer constraints projected onto the null space of C in the B inner product,
+        ``s - B^-1 C^T (C B^-1 C^T)^-1 C s`` (the constraint preconditioner of projected CG)."""
+        s = self._pre.solve(r)
+        if pt.C is None:
+            return s
+        if getattr(pt, "BC", None) is None:
+            pt.BC = self._pre.solve(np.ascontiguousarray(pt.C.T))
+            pt.CBC = pt.C @ pt.BC
+        return s - pt.BC @ np.linalg.solve(pt.CBC, pt.C @ s)
 
     def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray:
         """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed.
@@ -240,12 +249,12 @@ class NewtonKrylovSolver(ReducedSolver):
         ``pt.H`` (the Lagrangian Hessian at ``pt.z`` with multipliers ``pt.lam``) must be set. Solver state
         across iterations: ``_pre_x`` (where B was built), ``_delta``, ``_g0`` (first gradient size).
         """
-        tau = float(p[self.P.n_vertices * self.P.m])
+        tau = self.P.params.scalar(p, "tau")
         if (self._pre_x is None or self._pre_tau != tau or self._cg_since_build >= self.cg_rebuild
                 or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
             self._build_preconditioner(pt, p, D)
             self._pre_x, self._pre_tau, self._cg_since_build = pt.x.copy(), tau, 0
-        gmax = float(np.abs(pt.grad).max())
+        gmax = float(np.abs(pt.pgrad).max())
         eta = min(0.5, float(np.sqrt(gmax / self._g0)))
         delta = self._delta / 10 if self._delta >= 1e-3 else 0.0
         with self._timed("cg"):
@@ -264,16 +273,16 @@ class NewtonKrylovSolver(ReducedSolver):
         """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used)."""
         t0 = time.perf_counter()
         self._counts, self._times = {}, {}
-        P, m = self.P, self.P.m
-        Xk = p[: P.n_vertices * m].reshape(-1, m)
+        P = self.P
+        Xk = P.params.xk(p)
         h = Mesh(Xk, P.simplices).h  # mean edge of X^k, the scale of the preconditioner's rebuild rule
         with self._timed("eval"):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
         gtol = self.tol * scale
-        pt = self._at(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
+        pt = self._feasible(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
         D = self._distance_hessian(pt.z, p)
-        self._g0 = max(float(np.abs(pt.grad).max()), 1e-300)
+        self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
         self._delta = self._delta_max = 0.0
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
         stats: dict[str, Any] = dict(self._counts)
@@ -297,7 +306,7 @@ class NewtonKrylovSolver(ReducedSolver):
         status = "maximum iterations"
         it = 0
         for it in range(self.max_iter + 1):
-            gmax = float(np.abs(pt.grad).max())
+            gmax = float(np.abs(pt.pgrad).max())
             if gmax <= gtol:
                 status = "converged"
                 break
@@ -316,28 +325,27 @@ class NewtonKrylovSolver(ReducedSolver):
                 break
             pt = new
         with self._timed("eval"):
-            inf_pr = float(np.abs(self.ev.g(pt.z, p)).max())
-        return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.grad).max()), "inf_pr": inf_pr}
+            inf_pr = float(np.abs(np.concatenate([self.ev.g(pt.z, p), self.ev.h(pt.z, p)])).max())
+        return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.pgrad).max()), "inf_pr": inf_pr}
 
     def _line_search(self, pt: _Point, p: np.ndarray, d: np.ndarray) -> _Point | None:
         """Backtracking from the full step: Armijo on W^ (module docstring); None when it fails."""
         gd = float(pt.grad @ d)
         if not gd < 0:
-            d, gd = -pt.grad, -float(pt.grad @ pt.grad)
-        Xk = p[: self.P.n_vertices * self.P.m].reshape(-1, self.P.m)
-        Y0 = self.P.unpack_z(pt.z, Xk)[1]
+            d, gd = -pt.pgrad, -float(pt.pgrad @ pt.pgrad)
+        Y0 = self.P.unpack_z(pt.z, self.P.params.xk(p))[1]
         rounding = 100 * np.finfo(float).eps * abs(pt.f)
-        gmax = float(np.abs(pt.grad).max())
+        gmax = float(np.abs(pt.pgrad).max())
         alpha = 1.0
         for _ in range(40):
             try:
-                new = self._at(pt.x + alpha * d, p, Y0)
+                new = self._feasible(pt.x + alpha * d, p, Y0)
             except RuntimeError:
                 new = None
             if new is not None and np.isfinite(new.f):
                 if new.f <= pt.f + self.armijo * alpha * gd:
                     return new
-                if -alpha * gd <= rounding and new.f <= pt.f + rounding and np.abs(new.grad).max() < gmax:
+                if -alpha * gd <= rounding and new.f <= pt.f + rounding and np.abs(new.pgrad).max() < gmax:
                     return new
             alpha *= 0.5
         return None

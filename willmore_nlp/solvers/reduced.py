@@ -15,8 +15,15 @@ the Lagrangian Hessian H of f + lam . g:
 One sparse LU of J_Y at each evaluation point serves the adjoint and every Hessian-vector product
 there (the inner Newton solve for Y factorises on its own).
 
-Methods: ``gd`` (gradient descent with Armijo backtracking, the paper's method), ``lbfgs``
-(scipy L-BFGS-B), ``newton`` (scipy trust-region Newton-CG with exact Hessian-vector products).
+Outer constraints h(X, Y) = 0 (a few rows: volume, area) become constraints h^(X) = h(X, Y[X]) of the
+reduced problem, with the reduced Jacobian C = dh^/dX = Jh_X + nu^T J_X, J_Y^T nu = -Jh_Y^T (one adjoint
+per row). ``gd`` then follows the projected gradient G + C^T mu, mu = -(C C^T)^-1 C G (the least-squares
+multipliers), and restores h^ = 0 at every trial point by Gauss-Newton steps -C^T (C C^T)^-1 h^: every
+iterate is feasible, W^ decreases. The step problem's multipliers are [lam + nu mu; mu].
+
+Methods: ``gd`` (gradient descent with Armijo backtracking, the paper's method; with outer constraints
+projected), ``lbfgs`` (scipy L-BFGS-B), ``newton`` (scipy trust-region Newton-CG with exact
+Hessian-vector products); the last two refuse outer constraints.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import scipy.optimize as so
 import scipy.sparse.linalg as spla
 
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.model.terms import CAPABILITIES
 from willmore_nlp.settings import SolverSettings, integer, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
@@ -67,6 +75,11 @@ class _Point:
     lu: Any
     H: Any = None
     Jy: Any = None
+    pgrad: Any = None  # gradient projected on the tangent space of the outer constraints (= grad without)
+    h: Any = None  # (nh,) outer constraint residual
+    C: Any = None  # (nh, nX m) reduced outer constraint Jacobian
+    BC: Any = None  # B^-1 C^T and C B^-1 C^T of a preconditioner B (newton-krylov)
+    CBC: Any = None
 
 
 class ReducedSolver:
@@ -94,22 +107,20 @@ class ReducedSolver:
         self._counts[key] = self._counts.get(key, 0) + n
 
     def _at(self, x: np.ndarray, p: np.ndarray, Y0: np.ndarray) -> _Point:
-        P, m = self.P, self.P.m
-        Xk = p[: P.n_vertices * m].reshape(-1, m)
-        X, _ = P.unpack_z(np.concatenate([x, np.zeros(int(P.y_free.sum()) * m)]), Xk)
-        Y = self.ev.solve_y(X, p, Y0)
+        P = self.P
+        _, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0)
         self._count("n_inner_solve")
-        z = P.pack_z(X, Y)
         f, gf = self.ev.f_grad(z, p)
-        J = self.ev.jac_g(z, p)
         self._count("n_eval_grad_f")
         self._count("n_eval_jac_g")
         lu = spla.splu(J[:, self.nxm :].tocsc())
         self._count("n_factorizations")
-        return self._point(x, z, f, gf, J, lu)
+        return self._point(x, z, f, gf, J, lu, p)
 
-    def _point(self, x: np.ndarray, z: np.ndarray, f: float, gf: np.ndarray, J: Any, lu: Any) -> _Point:
-        """The reduced gradient at a feasible z from the adjoint ``J_Y^T lam = -f_Y`` (module docstring).
+    def _point(self, x: np.ndarray, z: np.ndarray, f: float, gf: np.ndarray, J: Any, lu: Any,
+               p: np.ndarray) -> _Point:
+        """The reduced gradient at a feasible z from the adjoint ``J_Y^T lam = -f_Y`` (module docstring);
+        with outer constraints also their reduced Jacobian and the projected gradient.
 
         ``lu`` is any factorisation of J_Y with ``solve(b, trans="T")``.
         """
@@ -117,7 +128,31 @@ class ReducedSolver:
         self._count("n_linear_solves")
         Jx = J[:, : self.nxm]
         grad = gf[: self.nxm] + Jx.T @ lam
-        return _Point(x.copy(), z, f, grad, lam, Jx, lu, Jy=J[:, self.nxm :])
+        pt = _Point(x.copy(), z, f, grad, lam, Jx, lu, Jy=J[:, self.nxm :], pgrad=grad)
+        if self.P.nh:
+            c, Jc = self.ev.c_jac(z, p)
+            Jh = Jc.tocsr()[self.P.ng :]
+            nu = np.column_stack([lu.solve(-row, trans="T") for row in Jh[:, self.nxm :].toarray()])
+            self._count("n_linear_solves", self.P.nh)
+            pt.h, pt.C = c[self.P.ng :], Jh[:, : self.nxm].toarray() + (Jx.T @ nu).T
+            mu = -np.linalg.solve(pt.C @ pt.C.T, pt.C @ grad)
+            pt.pgrad = grad + pt.C.T @ mu
+            pt.lam = np.concatenate([lam + nu @ mu, mu])
+        return pt
+
+    def _feasible(self, x: np.ndarray, p: np.ndarray, Y0: np.ndarray) -> _Point:
+        """The point at x pulled onto h^ = 0 by Gauss-Newton steps along C^T (module docstring)."""
+        pt = self._at(x, p, Y0)
+        if not self.P.nh:
+            return pt
+        P = self.P
+        htol = 1e-13 * max(1.0, *(abs(P.params.scalar(p, t)) for t in P.targets))
+        for _ in range(30):
+            if np.abs(pt.h).max() <= htol:
+                return pt
+            pt = self._at(pt.x - pt.C.T @ np.linalg.solve(pt.C @ pt.C.T, pt.h), p, Y0)
+            self._count("n_restoration")
+        raise RuntimeError(f"outer constraints not restored (|h| = {np.abs(pt.h).max():.3e})")
 
     def _hessp(self, pt: _Point, p: np.ndarray, v: np.ndarray) -> np.ndarray:
         vy = -pt.lu.solve(pt.Jx @ v)
@@ -133,15 +168,15 @@ class ReducedSolver:
     def _gd(self, pt: _Point, p: np.ndarray, gtol: float) -> tuple[_Point, int, str]:
         step = 1.0
         for it in range(self.max_iter):
-            if np.abs(pt.grad).max() <= gtol:
+            if np.abs(pt.pgrad).max() <= gtol:
                 return pt, it, "converged"
-            d = -pt.grad
+            d = -pt.pgrad
             gd = float(pt.grad @ d)
             step *= 2.0
-            Y0 = self.P.unpack_z(pt.z, p[: self.P.n_vertices * self.P.m].reshape(-1, self.P.m))[1]
+            Y0 = self.P.unpack_z(pt.z, self.P.params.xk(p))[1]
             while True:
                 try:
-                    new = self._at(pt.x + step * d, p, Y0)
+                    new = self._feasible(pt.x + step * d, p, Y0)
                     ok = np.isfinite(new.f) and new.f <= pt.f + self.armijo * step * gd
                 except RuntimeError:
                     ok = False
@@ -155,7 +190,7 @@ class ReducedSolver:
 
     def _scipy(self, pt0: _Point, p: np.ndarray, gtol: float) -> tuple[_Point, int, str]:
         cache: dict[str, _Point] = {"pt": pt0}
-        Xk = p[: self.P.n_vertices * self.P.m].reshape(-1, self.P.m)
+        Xk = self.P.params.xk(p)
 
         def point(x: np.ndarray) -> _Point:
             if not np.array_equal(x, cache["pt"].x):
@@ -183,23 +218,23 @@ class ReducedSolver:
         """Minimise W^ from the X part of ``z0`` (its Y part warm-starts the inner solves)."""
         t0 = time.perf_counter()
         self._counts = {}
-        Xk = p[: self.P.n_vertices * self.P.m].reshape(-1, self.P.m)
-        pt = self._at(np.asarray(z0[: self.nxm], float), p, self.P.unpack_z(z0, Xk)[1])
-        gtol = self.tol * max(1.0, float(np.abs(pt.grad).max()))
+        Xk = self.P.params.xk(p)
+        pt = self._feasible(np.asarray(z0[: self.nxm], float), p, self.P.unpack_z(z0, Xk)[1])
+        gtol = self.tol * max(1.0, float(np.abs(pt.pgrad).max()))
         if self.name == "gd":
             pt, it, status = self._gd(pt, p, gtol)
         else:
             pt, it, status = self._scipy(pt, p, gtol)
         stats: dict[str, Any] = dict(self._counts)
         stats["t_wall_total"] = time.perf_counter() - t0
-        stats["kkt_residual"] = float(np.abs(pt.grad).max())
+        stats["kkt_residual"] = float(np.abs(pt.pgrad).max())
         stats["gtol"] = gtol
-        stats["inf_pr"] = float(np.abs(self.ev.g(pt.z, p)).max())
+        stats["inf_pr"] = float(np.abs(np.concatenate([self.ev.g(pt.z, p), self.ev.h(pt.z, p)])).max())
         return SolveResult(z=pt.z, f=pt.f, lam_g=pt.lam, converged=status == "converged", status=status,
                            iterations=it, stats=stats)
 
 
-
 for _name in ("gd", "lbfgs", "newton"):
-    register_solver(_name, type(f"{_name.title()}Settings", (ReducedSettings,), {"solver": _name}))(
+    register_solver(_name, type(f"{_name.title()}Settings", (ReducedSettings,), {"solver": _name}),
+                    CAPABILITIES if _name == "gd" else CAPABILITIES - {"constraints"})(
         partial(ReducedSolver, method=_name))

@@ -42,7 +42,7 @@ class SemiImplicitSettings(SolverSettings):
     ignores = (*SOLVER_IGNORED, "tol", "max_iter")
 
 
-@register_solver("semi-implicit", SemiImplicitSettings)
+@register_solver("semi-implicit", SemiImplicitSettings, capabilities=frozenset(), noun="the baseline")
 class SemiImplicitSolver:
     """One linear solve per step for closed curves and surfaces (see the module docstring).
 
@@ -63,14 +63,6 @@ class SemiImplicitSolver:
         if P.nX != P.n_vertices or (P.simplices.shape[1] == 3 and P.m != 3):
             raise UserInputError("solver semi-implicit: the baseline is implemented for closed curves and closed "
                              "surfaces in R^3 (no clamped boundaries)")
-        if P.anisotropic:
-            raise UserInputError("solver semi-implicit: the baseline is isotropic (no anisotropy)")
-        if P.tangential_weight != 1.0:
-            raise UserInputError("solver semi-implicit: the baseline has no tangential weight (it does not "
-                                 "minimise W); use tangential_weight=1")
-        if P.n_nodal:
-            raise UserInputError("solver semi-implicit: the baseline has no tangential control (it does not "
-                                 "minimise W); use tangential_control=off")
         self.ev = evaluator
         self.P = P
 
@@ -79,8 +71,8 @@ class SemiImplicitSolver:
         t0 = time.perf_counter()
         P, m = self.P, self.P.m
         N = P.n_vertices
-        Xk = p[: N * m].reshape(-1, m)
-        tau, lam = float(p[N * m]), float(p[N * m + 2])
+        Xk = P.params.xk(p)
+        tau, lam = P.params.scalar(p, "tau"), P.params.scalar(p, "lam")
         S = P.simplices
         M, L = mass_stiffness(Xk, S, N)
         Ml = lumped_mass(Xk, S, N)
@@ -96,6 +88,6 @@ class SemiImplicitSolver:
         ok = bool(np.all(np.isfinite(X)))
         stats = {"n_linear_solves": m, "n_factorizations": 1, "t_wall_total": time.perf_counter() - t0,
                  "kkt_residual": 0.0}
-        return SolveResult(z=z, f=self.ev.f(z, p) if ok else float("nan"), lam_g=np.zeros(P.ng), converged=ok,
+        return SolveResult(z=z, f=self.ev.f(z, p) if ok else float("nan"), lam_g=np.zeros(P.nc), converged=ok,
                            status="linear solve" if ok else "non-finite solution", iterations=1, stats=stats)
 

@@ -1,0 +1,71 @@
+"""Outer equality constraints of closed meshes: enclosed volume V[X] = V0 and total area A[X] = A0."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.fem.element import measure
+from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.model.terms.base import Element, Term
+
+
+def _target(value: float, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value) and value > 0):
+        raise UserInputError(f"{what} must be a positive number, \"initial\" or None, got {value!r}")
+    return float(value)
+
+
+class VolumeConstraint(Term):
+    """``sum_T det(X_0, ..., X_d) / (d + 1)! = V0``: the signed enclosed volume (area for a curve in R^2),
+    positive for outward-oriented meshes. Target: scalar ``volume0``."""
+
+    name = "vol"
+    label = "volume constraint"
+    hint = "use volume=None"
+    scalars = ("volume0",)
+    constraint_targets = ("volume0",)
+    requires = frozenset({"constraints"})
+
+    def __init__(self, target: float) -> None:
+        self.target = _target(target, "volume")
+
+    def check(self, mesh: Mesh, variant: str | None) -> None:
+        if variant is not None or not mesh.is_closed or mesh.m != mesh.d + 1:
+            raise MeshError(f"{mesh.source}: volume needs a closed curve in R^2 or a closed surface in R^3")
+
+    def constraints(self, e: Element) -> list[ca.SX]:
+        X = e.X
+        if X.shape[1] == 2:
+            return [0.5 * (X[0, 0] * X[1, 1] - X[1, 0] * X[0, 1])]
+        return [ca.dot(X[:, 0], ca.cross(X[:, 1], X[:, 2])) / 6]
+
+    def values(self, Xk: np.ndarray, tau: float, simplices: np.ndarray, x_free: np.ndarray) -> dict[str, Any]:
+        return {"volume0": self.target}
+
+
+class AreaConstraint(Term):
+    """``sum_T |T| = A0`` (length for a curve). Target: scalar ``area0``."""
+
+    name = "are"
+    label = "area constraint"
+    hint = "use area=None"
+    scalars = ("area0",)
+    constraint_targets = ("area0",)
+    requires = frozenset({"constraints"})
+
+    def __init__(self, target: float) -> None:
+        self.target = _target(target, "area")
+
+    def check(self, mesh: Mesh, variant: str | None) -> None:
+        if variant is not None or not mesh.is_closed:
+            raise MeshError(f"{mesh.source}: area needs a closed curve or surface")
+
+    def constraints(self, e: Element) -> list[ca.SX]:
+        return [measure(e.X)]
+
+    def values(self, Xk: np.ndarray, tau: float, simplices: np.ndarray, x_free: np.ndarray) -> dict[str, Any]:
+        return {"area0": self.target}
