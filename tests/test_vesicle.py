@@ -75,3 +75,55 @@ def test_evolver_bad_target() -> None:
     _evolver()
     with pytest.raises(ValueError, match="volume target must be positive"):
         evolver_equilibrium(shapes.icosphere(1), volume=-1.0)
+
+
+def test_spheroid_area_volume_closed_forms() -> None:
+    """The closed-form spheroid area against a quadrature of 2 pi int x ds over the generating ellipse,
+    for prolate and oblate; continuous through the sphere; V = 4/3 pi a^2 c."""
+    from scipy.integrate import quad
+
+    for a, c in ((1.0, 2.5), (1.3, 0.4), (0.7, 0.7)):
+        area, vol = shapes.spheroid_area_volume(a, c)
+        quad_area = quad(lambda t, a=a, c=c: 2 * np.pi * a * np.sin(t) * np.hypot(a * np.cos(t), c * np.sin(t)),
+                     0, np.pi, epsabs=0, epsrel=1e-13)[0]
+        assert area == pytest.approx(quad_area, rel=1e-12)
+        assert vol == pytest.approx(4 / 3 * np.pi * a * a * c, rel=1e-15)
+    for eps in (1e-6, -1e-6):
+        assert shapes.spheroid_area_volume(1.0, 1.0 + eps)[0] == pytest.approx(4 * np.pi, rel=1e-5)
+    assert shapes.reduced_volume(4 * np.pi, 4 / 3 * np.pi) == pytest.approx(1.0, rel=1e-15)
+
+
+@pytest.mark.parametrize("kind", ["prolate", "oblate"])
+def test_ellipsoid_of_reduced_volume(kind: str) -> None:
+    """exact="smooth": the vertices lie on the spheroid whose closed-form v is the requested one and whose
+    area is 4 pi; the polyhedron's own v is below it by O(h^2) (ratio ~4 per refinement).
+    exact="mesh": the polyhedron's v is the requested one to 1e-12; the volume normalisation holds."""
+    v = 0.65
+    gaps = []
+    for s in (2, 3, 4):
+        m = shapes.ellipsoid_of_reduced_volume(v, kind, s)
+        X = m.vertices
+        a = np.abs(X[:, 0]).max()
+        c = np.abs(X[:, 2]).max()
+        assert (c > a) == (kind == "prolate")
+        np.testing.assert_allclose((X[:, 0] ** 2 + X[:, 1] ** 2) / a**2 + X[:, 2] ** 2 / c**2, 1.0, atol=1e-12)
+        area, vol = shapes.spheroid_area_volume(a, c)
+        assert shapes.reduced_volume(area, vol) == pytest.approx(v, abs=1e-12)
+        assert area == pytest.approx(4 * np.pi, rel=1e-12)
+        gaps.append(v - shapes.reduced_volume(measure(m), enclosed_volume(m)))
+    assert 0 < gaps[2] < gaps[1] < gaps[0] and 3.5 < gaps[0] / gaps[1] < 4.5 and 3.5 < gaps[1] / gaps[2] < 4.5
+    m = shapes.ellipsoid_of_reduced_volume(v, kind, 3, exact="mesh", volume=2.0)
+    assert shapes.reduced_volume(measure(m), enclosed_volume(m)) == pytest.approx(v, abs=1e-12)
+    assert enclosed_volume(m) == pytest.approx(2.0, rel=1e-12)
+    assert enclosed_volume(shapes.ellipsoid_of_reduced_volume(v, kind, 3)) > 0  # outward normals
+
+
+def test_ellipsoid_of_reduced_volume_bad_input() -> None:
+    from willmore_nlp.mesh.core import MeshError
+
+    with pytest.raises(MeshError, match="reduced volume must be in"):
+        shapes.ellipsoid_of_reduced_volume(1.2)
+    with pytest.raises(MeshError, match="kind must be"):
+        shapes.ellipsoid_of_reduced_volume(0.8, "sphere")
+    with pytest.raises(MeshError, match="area or volume, not both"):
+        shapes.ellipsoid_of_reduced_volume(0.8, area=1.0, volume=1.0)
