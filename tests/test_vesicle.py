@@ -9,7 +9,7 @@ import pytest
 from willmore_nlp.geometry import enclosed_volume, measure
 from willmore_nlp.mesh import shapes
 
-SHORT = ("g 20", "V") * 5 + ("g 20",)
+SHORT = ("hessian_normal on", "normal_motion on", "g 20") + ("hessian_seek", "g 5") * 3
 
 
 def _evolver() -> None:
