@@ -151,9 +151,12 @@ def solve_axisymmetric(v: float, branch: str, n: int = 200, start: AxisymmetricS
     # closure x(L) = 0, area 4 pi, volume v 4 pi / 3; interior nodes off the axis (x > 0)
     nlp = {"x": ca.vertcat(p, L), "f": w / (8 * np.pi),
            "g": ca.vertcat(x[n], A / (4 * np.pi) - 1, V / (4 * np.pi / 3) - v, x[1:n])}
-    solver = ca.nlpsol("axisym", "ipopt", nlp, {"print_time": False,
-                                                "ipopt": {"print_level": 0, "tol": tol, "max_iter": 3000,
-                                                          "sb": "yes"}})
+    opts: dict[str, object] = {"print_level": 0, "tol": tol, "max_iter": 3000, "sb": "yes"}
+    if start is not None:
+        # a warm start: a small initial barrier keeps IPOPT near the given contour (the default 0.1
+        # pushes a stomatocyte's narrow neck off the axis and lands on wound contours, w / 8 pi ~ 10)
+        opts["mu_init"] = 1e-6
+    solver = ca.nlpsol("axisym", "ipopt", nlp, {"print_time": False, "ipopt": opts})
     res = solver(x0=np.concatenate([psi0[1:-1], [L0]]), lbg=0, ubg=[0.0] * 3 + [np.inf] * (n - 1),
                  lbx=[-np.inf] * (n - 1) + [1e-3], ubx=np.inf)
     sol = np.asarray(res["x"]).ravel()
