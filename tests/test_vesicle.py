@@ -127,6 +127,8 @@ def test_ellipsoid_of_reduced_volume_bad_input() -> None:
         shapes.ellipsoid_of_reduced_volume(0.8, "sphere")
     with pytest.raises(MeshError, match="area or volume, not both"):
         shapes.ellipsoid_of_reduced_volume(0.8, area=1.0, volume=1.0)
+    with pytest.raises(MeshError, match="needs v below the icosphere's own"):
+        shapes.ellipsoid_of_reduced_volume(0.999, subdivisions=2, exact="mesh")
 
 
 def test_vesicle_problem_start() -> None:

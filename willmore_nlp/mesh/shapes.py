@@ -301,6 +301,10 @@ def ellipsoid_of_reduced_volume(v: float, kind: str = "prolate", subdivisions: i
     elif exact == "smooth":
         ratio = _spheroid_ratio(v, kind)
     else:
+        v_max = reduced_volume(*mesh_av(1.0))
+        if v >= v_max:
+            raise MeshError(f"ellipsoid_of_reduced_volume: exact='mesh' needs v below the icosphere's own "
+                            f"{v_max:.6f} at subdivisions={subdivisions}, got {v}")
         guess = np.log(_spheroid_ratio(v, kind))
 
         def g(t: float) -> float:
