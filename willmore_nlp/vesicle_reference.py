@@ -242,3 +242,19 @@ def revolve_contour(shape: AxisymmetricShape, subdivisions: int = 3) -> Mesh:
     phi = np.arctan2(U[:, 1], U[:, 0])
     X = np.column_stack([rho * np.cos(phi), rho * np.sin(phi), z - 0.5 * (shape.z.max() + shape.z.min())])
     return Mesh(X, ico.simplices, f"revolved {classify(shape)} (v={shape.v}, {X.shape[0]} vertices)")
+
+
+REFERENCE_ENERGIES: dict[tuple[float, str], float] = {
+    (0.85, "prolate"): 1.285676,
+    (0.85, "discocyte"): 1.333543,
+    (0.65, "prolate"): 1.827930,
+    (0.65, "discocyte"): 1.826233,
+    (0.59, "discocyte"): 1.981835,
+    (0.59, "stomatocyte"): 1.978893,
+    (0.55, "discocyte"): 2.087298,
+    (0.55, "stomatocyte"): 1.983834,
+}
+"""w / (8 pi) of the axisymmetric minimisers at c0 = 0, keyed by (v, shape), Richardson-extrapolated from
+n = 200 and 400 (:func:`extrapolated_energy`; regenerated with all digits by reports/vesicle_evolver.py,
+where n = 200 and 400 differ by at most 1.5e-4). The lowest shape: prolate above v = 0.6511, discocyte
+down to 0.5912, stomatocyte below (Seifert, Berndl & Lipowsky 1991 quote 0.652 and 0.591)."""
