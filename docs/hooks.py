@@ -6,7 +6,8 @@
   options, with default, allowed values and the meaning from their docstrings, replacing ``<!-- generated:options -->``.
 * ``reference/problems.md``: the registered problems with their parameters and defaults
   (:func:`willmore_nlp.registry.load_all`), replacing ``<!-- generated:problems -->``.
-* ``evidence/*.md``: the measured studies committed in ``reports/`` (anisotropy, boundaries, scale).
+* ``evidence/*.md``: the measured studies committed in ``reports/`` (anisotropy, boundaries, scale,
+  vesicles).
 * ``gallery/index.md``: every section of ``reports/REPRODUCTION.md`` (heading, verdicts, figures),
   replacing ``<!-- generated:gallery -->``; the figures of ``reports/figures`` are added to the site.
 """
@@ -148,7 +149,7 @@ GENERATED = {
 }
 
 
-EVIDENCE = ("anisotropic_study.md", "boundary_study.md", "benchmark_scale.md")
+EVIDENCE = ("anisotropic_study.md", "boundary_study.md", "benchmark_scale.md", "vesicle_evolver.md")
 """Measured studies of ``reports/`` shown under ``evidence/`` as they are committed."""
 
 

@@ -1,0 +1,35 @@
+"""Helfrich vesicles: bending energy at fixed enclosed volume and total area (issue 16, beyond the paper)."""
+
+from __future__ import annotations
+
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.mesh import shapes
+from willmore_nlp.registry import Problem, register
+
+
+@register("vesicle")
+def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0, subdivisions: int = 3,
+            tau: float | None = None, tau_tilde: float | None = None, steps: int = 300) -> Problem:
+    """Vesicle of reduced volume v relaxing at fixed V and A: prolate ~0.85, discocyte ~0.65, stomatocyte below.
+
+    The start is a spheroid (``start`` = "prolate" or "oblate", an icosphere of ``subdivisions``
+    mapped onto it, area 4 pi) whose polyhedron has exactly the reduced volume
+    v = 6 sqrt(pi) V / A^(3/2) = ``reduced_volume`` (the flow keeps the discrete V and A).
+    Flow options: ``volume="initial"``, ``area="initial"``, ``c0`` (spontaneous curvature,
+    h = k1 + k2 convention) and ``relax=True`` (stop at equilibrium). Defaults tau = h^2 / 25,
+    tau_tilde = h^2 / 100: the oblate start's rim is stiff (measured with the constrained flow of the
+    `terms` branch, 642 vertices, v = 0.65: the first step fails to converge in 200 IPOPT iterations
+    for every tau from h = 0.16 down to 0.01, and converges in 4 iterations per step at tau = 1e-3). Reference energies: reports/vesicle_evolver.md (Surface Evolver on the
+    same mesh, and the axisymmetric minimisers of willmore_nlp.vesicle_reference).
+    """
+    if start not in ("prolate", "oblate"):
+        raise UserInputError(f"parameter start: must be 'prolate' or 'oblate', got {start!r}")
+    if not 0 < reduced_volume < 1:
+        raise UserInputError(f"parameter reduced_volume: must be in (0, 1), got {reduced_volume}")
+    mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
+    h = mesh.h
+    tau_ = h * h / 25 if tau is None else float(tau)
+    tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)
+    return Problem(mesh, tau_, tt_, 0.0, steps=steps,
+                   flow_options={"volume": "initial", "area": "initial", "c0": float(c0), "relax": True},
+                   description=f"{start} vesicle of reduced volume {reduced_volume} relaxing at fixed V and A")

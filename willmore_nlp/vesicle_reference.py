@@ -1,0 +1,260 @@
+"""Axisymmetric vesicle shapes of minimal bending energy at fixed area and volume (c0 = 0).
+
+An independent reference for the vesicle problem: the shape equations of the spontaneous-curvature
+model reduce, for surfaces of revolution, to a one-dimensional variational problem for the
+generating curve (Seifert, Berndl & Lipowsky, Phys. Rev. A 44, 1182 (1991), Sec. II; Seifert,
+Adv. Phys. 46, 13 (1997), Sec. 4.2). This module solves that problem directly, without any
+triangulated surface: the contour is parametrised by arc length s in [0, L] and the tangent angle
+psi(s) (psi = 0 at the lower pole, psi = pi at the upper pole); with x the distance to the axis,
+
+    x' = cos psi,  z' = sin psi,  k1 = psi',  k2 = sin(psi) / x,
+    w = 1/2 int (k1 + k2)^2 dA = pi int x (psi' + sin(psi)/x)^2 ds,
+    A = 2 pi int x ds,  V = pi int x^2 sin(psi) ds.
+
+Discretisation: psi at ``n + 1`` equally spaced nodes, x and z by the midpoint rule, the energy,
+area and volume integrands at segment midpoints (second order in 1/n). The constraints x(L) = 0,
+A = 4 pi and V = v 4 pi / 3 (reduced volume v = 6 sqrt(pi) V / A^(3/2)) are imposed exactly and the
+energy is minimised by IPOPT (CasADi, exact Hessian). The branch (prolate, oblate/discocyte,
+stomatocyte) is chosen by the starting contour. The energy is reported in units of the sphere's
+8 pi (= 8 pi kappa in the papers' units, since this library's w is the papers' F / kappa).
+
+Checks (tests/test_vesicle_reference.py): v = 1 gives the sphere (w / 8 pi = 1); the energy of a
+spheroid contour (no minimisation) matches the closed form of the spheroid's bending energy; the
+minimised energies converge at second order in n; the prolate branch tends to 2 (two spheres)
+as v -> 1/sqrt(2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from willmore_nlp.mesh.core import Mesh
+
+BRANCHES = ("prolate", "oblate", "stomatocyte")
+
+
+@dataclass(frozen=True)
+class AxisymmetricShape:
+    """A minimised contour.
+
+    Attributes
+    ----------
+    branch : the starting branch ("prolate", "oblate" or "stomatocyte")
+    v : reduced volume
+    energy : w / (8 pi), w = 1/2 int (k1 + k2)^2 dA
+    length : contour length L (area 4 pi)
+    psi : (n + 1,) tangent angles at the nodes
+    x, z : (n + 1,) node positions (distance to the axis, height)
+    converged : whether IPOPT reported success
+    """
+
+    branch: str
+    v: float
+    energy: float
+    length: float
+    psi: np.ndarray
+    x: np.ndarray
+    z: np.ndarray
+    converged: bool
+
+
+def _contour(psi: np.ndarray, L: float) -> tuple[np.ndarray, np.ndarray]:
+    """(x, z) at the nodes from tangent angles at the nodes and the length (midpoint rule)."""
+    h = L / (psi.size - 1)
+    pm = 0.5 * (psi[1:] + psi[:-1])
+    x = np.concatenate([[0.0], np.cumsum(h * np.cos(pm))])
+    z = np.concatenate([[0.0], np.cumsum(h * np.sin(pm))])
+    return x, z
+
+
+def contour_energy_area_volume(psi, L, lib=np):  # numpy arrays or CasADi symbols
+    """Discrete w, A, V and end point x(L) of a contour (numpy or CasADi expressions).
+
+    Parameters
+    ----------
+    psi : (n + 1,) tangent angles at the nodes
+    L : contour length
+    lib : ``numpy`` or ``casadi`` (the functions ``cos``, ``sin``, ``cumsum``, ``sum1``/``sum`` used)
+
+    Returns
+    -------
+    (w, A, V, x) with x the (n + 1,) distances of the nodes to the axis (x[0] = 0; closure needs x[n] = 0)
+    """
+    n = psi.shape[0] - 1
+    h = L / n
+    pm = 0.5 * (psi[1:] + psi[:-1])
+    dx = h * lib.cos(pm)
+    if lib is np:
+        x = np.concatenate([[0.0], np.cumsum(dx)])
+        total = np.sum
+    else:
+        x = lib.vertcat(0, lib.cumsum(dx))
+        total = lib.sum1
+    xm = 0.5 * (x[1:] + x[:-1])
+    k = (psi[1:] - psi[:-1]) / h + lib.sin(pm) / xm
+    w = np.pi * total(h * xm * k**2)
+    A = 2 * np.pi * total(h * xm)
+    V = np.pi * total(h * xm**2 * lib.sin(pm))
+    return w, A, V, x
+
+
+def _start(branch: str, v: float, n: int) -> tuple[np.ndarray, float]:
+    """Starting contour (psi at n + 1 nodes, L) of the branch, area about 4 pi."""
+    u = np.linspace(0.0, 1.0, n + 1)
+    if branch in ("prolate", "oblate"):
+        from willmore_nlp.mesh.shapes import _spheroid_ratio, spheroid_area_volume
+
+        r = _spheroid_ratio(v, branch) if v < 1 else 1.0
+        t = np.linspace(0.0, np.pi, 20001)
+        xs, zs = np.sin(t), -r * np.cos(t)
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xs), np.diff(zs)))])
+        ang = np.arctan2(r * np.sin(t), np.cos(t))
+        ang[0], ang[-1] = 0.0, np.pi
+        scale = np.sqrt(4 * np.pi / spheroid_area_volume(1.0, r)[0])
+        return np.interp(u * s[-1], s, ang), float(scale * s[-1])
+    # stomatocyte: outer sphere turning to psi = 0.8 pi, a tight rim turning to 1.5 pi, an inner cap back to pi
+    knots_u, knots_psi = [0.0, 0.62, 0.70, 1.0], [0.0, 0.8 * np.pi, 1.5 * np.pi, np.pi]
+    return np.interp(u, knots_u, knots_psi), 4.0
+
+
+def solve_axisymmetric(v: float, branch: str, n: int = 200, start: AxisymmetricShape | None = None,
+                       tol: float = 1e-12) -> AxisymmetricShape:
+    """Minimal-energy contour of reduced volume ``v`` on a branch, area 4 pi, c0 = 0.
+
+    Parameters
+    ----------
+    v : reduced volume in (0, 1]
+    branch : "prolate", "oblate" (discocytes below v ~ 0.7) or "stomatocyte"
+    n : number of contour segments
+    start : a previous solution to start from (continuation in v or n); its contour is resampled
+    tol : IPOPT tolerance
+
+    Returns
+    -------
+    AxisymmetricShape
+    """
+    import casadi as ca
+
+    if branch not in BRANCHES:
+        raise ValueError(f"branch must be one of {BRANCHES}, got {branch!r}")
+    if start is None:
+        psi0, L0 = _start(branch, v, n)
+    else:
+        psi0 = np.interp(np.linspace(0, 1, n + 1), np.linspace(0, 1, start.psi.size), start.psi)
+        L0 = start.length
+    p = ca.SX.sym("p", n - 1)
+    L = ca.SX.sym("L")
+    psi = ca.vertcat(0, p, np.pi)
+    w, A, V, x = contour_energy_area_volume(psi, L, ca)
+    # closure x(L) = 0, area 4 pi, volume v 4 pi / 3; interior nodes off the axis (x > 0)
+    nlp = {"x": ca.vertcat(p, L), "f": w / (8 * np.pi),
+           "g": ca.vertcat(x[n], A / (4 * np.pi) - 1, V / (4 * np.pi / 3) - v, x[1:n])}
+    opts: dict[str, object] = {"print_level": 0, "tol": tol, "max_iter": 3000, "sb": "yes"}
+    if start is not None:
+        # a warm start: a small initial barrier keeps IPOPT near the given contour (the default 0.1
+        # pushes a stomatocyte's narrow neck off the axis and lands on wound contours, w / 8 pi ~ 10)
+        opts["mu_init"] = 1e-6
+    solver = ca.nlpsol("axisym", "ipopt", nlp, {"print_time": False, "ipopt": opts})
+    res = solver(x0=np.concatenate([psi0[1:-1], [L0]]), lbg=0, ubg=[0.0] * 3 + [np.inf] * (n - 1),
+                 lbx=[-np.inf] * (n - 1) + [1e-3], ubx=np.inf)
+    sol = np.asarray(res["x"]).ravel()
+    psi_n = np.concatenate([[0.0], sol[:-1], [np.pi]])
+    x, z = _contour(psi_n, float(sol[-1]))
+    return AxisymmetricShape(branch, float(v), float(res["f"]), float(sol[-1]), psi_n, x, z,
+                             bool(solver.stats()["success"]))
+
+
+def classify(shape: AxisymmetricShape) -> str:
+    """Name of the shape: "stomatocyte" (the contour turns past straight down, psi > 3 pi / 2, into an
+    invagination at the upper pole, or psi < -pi / 2 at the lower one), "discocyte" (psi < 0 near the
+    pole: a dimple, biconcave), "prolate" (longer along the axis than across) or "oblate"."""
+    if shape.psi.max() > 1.5 * np.pi or shape.psi.min() < -0.5 * np.pi:
+        return "stomatocyte"
+    if shape.psi.min() < -1e-6:
+        return "discocyte"
+    return "prolate" if np.ptp(shape.z) > 2 * shape.x.max() else "oblate"
+
+
+STOMATOCYTE_SEED_V = 0.55
+"""Reduced volume at which the stomatocyte start contour converges to a stomatocyte (at n = 100);
+other v on that branch are reached by continuation in v from there."""
+
+
+def branch_energy(v: float, branch: str, n: int = 200, dv: float = 0.01) -> AxisymmetricShape:
+    """Minimal contour on a branch, reached robustly.
+
+    The prolate and oblate branches start from the spheroid of reduced volume ``v`` at n = 100; the
+    stomatocyte branch starts from the stomatocyte contour at v = 0.55 and follows the branch in steps
+    of ``dv`` to ``v`` (its start contour alone lands on a discocyte or a multiply wound contour at
+    other v). The n = 100 solution is then refined to ``n``.
+
+    Returns
+    -------
+    AxisymmetricShape (check :func:`classify`: a branch can end, e.g. the stomatocyte turns into a
+    discocyte above v ~ 0.6).
+    """
+    n0 = min(n, 100)
+    if branch == "stomatocyte":
+        s = solve_axisymmetric(STOMATOCYTE_SEED_V, branch, n0)
+        steps = max(1, int(np.ceil(abs(v - STOMATOCYTE_SEED_V) / dv)))
+        for vi in np.linspace(STOMATOCYTE_SEED_V, v, steps + 1)[1:]:
+            s = solve_axisymmetric(float(vi), branch, n0, start=s)
+    else:
+        s = solve_axisymmetric(v, branch, n0)
+    return s if n == n0 else solve_axisymmetric(v, branch, n, start=s)
+
+
+def extrapolated_energy(v: float, branch: str, n: int = 200) -> tuple[float, float, float]:
+    """Energy at ``n`` and ``2 n`` segments and its Richardson extrapolation (second order).
+
+    Returns
+    -------
+    (e_n, e_2n, e_inf) with e_inf = (4 e_2n - e_n) / 3, all in units of 8 pi.
+    """
+    a = branch_energy(v, branch, n)
+    b = solve_axisymmetric(v, branch, 2 * n, start=a)
+    return a.energy, b.energy, (4 * b.energy - a.energy) / 3
+
+
+def revolve_contour(shape: AxisymmetricShape, subdivisions: int = 3) -> Mesh:
+    """The surface of revolution of a contour with an icosphere's connectivity.
+
+    Icosphere vertex at polar angle theta (from the lower pole) and azimuth phi goes to the contour
+    point at arc length s = L theta / pi, azimuth kept (exact for the sphere). Arc length rather than
+    area fraction: a stomatocyte's neck has little area but a long contour, and mapping by area put
+    too few vertices there (measured at 642 vertices: zig-zag triangles, mesh area 9 % above 4 pi).
+    Orientation is kept (outward normals), so the mesh can start a flow or an Evolver run on the
+    branch of ``shape`` (e.g. a stomatocyte).
+
+    Returns
+    -------
+    Mesh with 10 * 4**subdivisions + 2 vertices, symmetry axis x3, area close to 4 pi.
+    """
+    from willmore_nlp.mesh.shapes import icosphere
+
+    ico = icosphere(subdivisions)
+    U = ico.vertices / np.linalg.norm(ico.vertices, axis=1, keepdims=True)
+    s = np.arccos(np.clip(-U[:, 2], -1.0, 1.0)) / np.pi * shape.length
+    sn = np.linspace(0.0, shape.length, shape.psi.size)
+    rho, z = np.interp(s, sn, shape.x), np.interp(s, sn, shape.z)
+    phi = np.arctan2(U[:, 1], U[:, 0])
+    X = np.column_stack([rho * np.cos(phi), rho * np.sin(phi), z - 0.5 * (shape.z.max() + shape.z.min())])
+    return Mesh(X, ico.simplices, f"revolved {classify(shape)} (v={shape.v}, {X.shape[0]} vertices)")
+
+
+REFERENCE_ENERGIES: dict[tuple[float, str], float] = {
+    (0.85, "prolate"): 1.285676,
+    (0.85, "discocyte"): 1.333543,
+    (0.65, "prolate"): 1.827930,
+    (0.65, "discocyte"): 1.826233,
+    (0.59, "discocyte"): 1.981835,
+    (0.59, "stomatocyte"): 1.978893,
+    (0.55, "discocyte"): 2.087298,
+    (0.55, "stomatocyte"): 1.983834,
+}
+"""w / (8 pi) of the axisymmetric minimisers at c0 = 0, keyed by (v, shape), Richardson-extrapolated from
+n = 200 and 400 (:func:`extrapolated_energy`; regenerated with all digits by reports/vesicle_evolver.py,
+where n = 200 and 400 differ by at most 1.5e-4). The lowest shape: prolate above v = 0.6511, discocyte
+down to 0.5912, stomatocyte below (Seifert, Berndl & Lipowsky 1991 quote 0.652 and 0.591)."""
