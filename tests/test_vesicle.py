@@ -152,20 +152,11 @@ def test_vesicle_problem_start() -> None:
 
 def test_vesicle_flow_keeps_volume_and_area() -> None:
     """Three steps of the `vesicle` flow (162 vertices, v = 0.85 prolate): V and A exact to 1e-10 in every
-    step (issue 16) and the bending energy decreases. Skipped while the flow has no volume/area/c0
-    options (they come with the `terms` branch)."""
-    from willmore_nlp import WillmoreFlow
+    step (issue 16) and the bending energy decreases."""
     from willmore_nlp.registry import build
 
     pb, _ = build("vesicle", reduced_volume=0.85, start="prolate", subdivisions=2)
-    try:
-        make = getattr(pb, "make_flow", None)
-        flow = make() if callable(make) else WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, lam=pb.lam,
-                                                          **pb.flow_options)
-    except Exception as exc:  # which error a missing option raises depends on the branch
-        if any(k in str(exc) for k in ("volume", "area", "c0")):
-            pytest.skip(f"the flow has no volume/area/c0 options yet: {exc}")
-        raise
+    flow = pb.make_flow()
     V0, A0 = enclosed_volume(pb.mesh), measure(pb.mesh)
     w = [flow.state().willmore]
     for _ in range(3):
