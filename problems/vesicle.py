@@ -16,11 +16,14 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     mapped onto it, area 4 pi) whose polyhedron has exactly the reduced volume
     v = 6 sqrt(pi) V / A^(3/2) = ``reduced_volume`` (the flow keeps the discrete V and A).
     Flow options: ``volume="initial"``, ``area="initial"``, ``c0`` (spontaneous curvature,
-    h = k1 + k2 convention) and ``relax=True`` (stop at equilibrium). Defaults tau = h^2 / 25,
-    tau_tilde = h^2 / 100: the oblate start's rim is stiff (measured with the constrained flow of the
-    `terms` branch, 642 vertices, v = 0.65: the first step fails to converge in 200 IPOPT iterations
-    for every tau from h = 0.16 down to 0.01, and converges in 4 iterations per step at tau = 1e-3). Reference energies: reports/vesicle_evolver.md (Surface Evolver on the
-    same mesh, and the axisymmetric minimisers of willmore_nlp.vesicle_reference).
+    h = k1 + k2 convention) and the equilibrium mode ``relax=True`` with ``relax_max_tau = 8 tau``
+    and ``relax_tol = 1e-5``. Defaults tau = h^2 / 25, tau_tilde = h^2 / 100. Measured on 642 vertices:
+    the oblate v = 0.65 start's first step fails to converge in 200 IPOPT iterations at every tau from
+    h = 0.16 down to 0.01 and converges in 4 iterations at 1e-3; steps above ~16 tau make the Willmore
+    energy oscillate by 2e-4 and cost 3x the iterations, and with the generic ``relax_tol = 1e-4``
+    the prolate v = 0.85 start stopped 0.14% above its equilibrium. Reference energies:
+    reports/vesicle_evolver.md (Surface Evolver on the same mesh, and the axisymmetric minimisers of
+    :mod:`willmore_nlp.vesicle_reference`).
     """
     if start not in ("prolate", "oblate"):
         raise UserInputError(f"parameter start: must be 'prolate' or 'oblate', got {start!r}")
@@ -31,5 +34,6 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     tau_ = h * h / 25 if tau is None else float(tau)
     tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)
     return Problem(mesh, tau_, tt_, 0.0, steps=steps,
-                   flow_options={"volume": "initial", "area": "initial", "c0": float(c0), "relax": True},
+                   flow_options={"volume": "initial", "area": "initial", "c0": float(c0), "relax": True,
+                                 "relax_max_tau": 8 * tau_, "relax_tol": 1e-5},
                    description=f"{start} vesicle of reduced volume {reduced_volume} relaxing at fixed V and A")

@@ -78,6 +78,9 @@ met by iterates that barely move (measured: the unit-size steps are reproduced t
 BUDGET_WINDOW = 20
 """The iteration budget is a multiple of the median iteration count of this many last accepted steps."""
 
+RELAX_WINDOW = 3
+"""The relax test looks at the Willmore energy over this many last steps (:meth:`WillmoreFlow.step`)."""
+
 CONSTRAINT_RTOL_SOLVER = 1e-6
 """Largest relative residual of an outer constraint (volume, area) that a solve may leave: the state is
 then moved onto the constraints (:meth:`WillmoreFlow._restore`, to 1e-13); more rejects the step."""
@@ -314,7 +317,7 @@ class WillmoreFlow:
             raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
-        self._willmore_before = geometry.willmore_energy(self.mesh, self.energy_nodes)  # of the state (relax test)
+        self._relax_window = [geometry.willmore_energy(self.mesh, self.energy_nodes)]  # of the states (relax test)
         self._X_prev = self.X
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
@@ -521,12 +524,12 @@ class WillmoreFlow:
                 result.stats.update(mstats)
                 result.stats["rejected_iterations"] = spent - res.iterations
                 result.remeshed = action
-                heavy = bool({"smooth", "remesh"} & set(action.split("+")))  # the light repair follows every step
-                if self.settings.relax and attempt == 0 and tau >= self.tau and not heavy:
-                    w0 = self._willmore_before
-                    result.relaxed = self.relaxed = (w0 - result.willmore
-                                                     <= self.settings.relax_tol * abs(result.willmore))
-                self._willmore_before = result.willmore
+                if self.settings.relax:
+                    # the relax test: over the last RELAX_WINDOW steps, all taken at their first attempt with
+                    # tau >= the nominal tau and no smoothing or remeshing, the Willmore energy fell by less than
+                    # relax_tol relative per step, or rose (a single Delaunay flip of the light repair moves it
+                    # by ~1e-3 relative on a 642-vertex vesicle, so one step is too noisy a measure)
+                    result.relaxed = self.relaxed = self._relax_test(result.willmore, attempt, tau, action)
                 return result
             if self.stop_requested():  # the solve was cut short (or failed): do not retry
                 raise StepInterrupted(self.k + 1)
@@ -641,10 +644,22 @@ class WillmoreFlow:
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before}
 
+    def _relax_test(self, willmore: float, retries: int, tau: float, action: str) -> bool:
+        """Record an accepted state in the relax window and say whether the relaxation has ended.
+
+        A state counts when its step was taken at the first attempt with tau >= the nominal tau and was
+        followed by no smoothing or remeshing (``action``; the light repair follows every step); any other
+        state restarts the window from itself.
+        """
+        heavy = bool({"smooth", "remesh"} & set(action.split("+")))
+        ok = retries == 0 and tau >= self.tau and not heavy
+        w = self._relax_window = [*self._relax_window, willmore][-RELAX_WINDOW - 1:] if ok else [willmore]
+        return len(w) > RELAX_WINDOW and w[0] - w[-1] <= RELAX_WINDOW * self.settings.relax_tol * abs(w[-1])
+
     def restart(self, X: np.ndarray, Y: np.ndarray, t: float, k: int,
                 lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0,
                 simplices: np.ndarray | None = None, free: np.ndarray | None = None,
-                iterations: list[int] | None = None) -> None:
+                iterations: list[int] | None = None, history: list[dict[str, Any]] | None = None) -> None:
         """Continue from a saved state (X^k, Y[X^k], t, k), e.g. a run directory's checkpoint.
 
         With the ``Y`` and multipliers ``lam_g`` that the flow held at that state (both are in
@@ -664,6 +679,8 @@ class WillmoreFlow:
         free : (N,) bool free-vertex mask of a clamped problem on that connectivity
         iterations : solver iterations of the accepted steps up to this state (the iteration budget
             is a multiple of their median over the last ``BUDGET_WINDOW``); None: an empty history
+        history : rows (:meth:`StepResult.row`, e.g. read from history.csv) of the states up to this one, from
+            the initial state on: the relax test continues from its window over them; None: from this state
         """
         X = np.array(X, dtype=float)
         Y = np.array(Y, dtype=float)
@@ -685,7 +702,13 @@ class WillmoreFlow:
         self._X_prev = self.X
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
-        self._willmore_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
+        self._relax_window = [geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)]
+        for r in history or []:
+            w = float(r["willmore_energy"])
+            if int(float(r["step"])) == 0:
+                self._relax_window = [w]
+            else:
+                self._relax_test(w, int(float(r["retries"])), float(r["tau"]), str(r.get("remesh_action") or ""))
         self._tau_adapt = (float("inf") if last_tau is None
                            else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
 

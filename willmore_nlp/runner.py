@@ -351,7 +351,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                 flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)),
                              simplices=ck.simplices, free=ck.free,
                              iterations=[int(float(r["iterations"])) for r in writer.rows
-                                         if int(float(r["step"])) > 0 and "iterations" in r])
+                                         if int(float(r["step"])) > 0 and "iterations" in r],
+                             history=writer.rows if flow.settings.relax else None)
                 writer.set_status("running")
             if not quiet:
                 print(f"resuming {d} at step {flow.k} (t = {flow.t:.6g})")

@@ -318,11 +318,12 @@ class FlowSettings(Settings):
     relax : bool
         Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
         every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``, and
-        :meth:`run` stops early, with ``relaxed`` set, after a step taken at its first attempt with
-        tau >= the nominal tau that lowered the Willmore energy
-        (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than ``relax_tol``
-        relative, or raised it (not counting steps after which the mesh was smoothed or remeshed;
-        the light repair, ``remesh_repair``, follows every step and counts). Near the
+        :meth:`run` stops early, with ``relaxed`` set, after the first state whose last 3 steps
+        (``RELAX_WINDOW``), each taken at its first attempt with tau >= the nominal tau, lowered the
+        Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than
+        ``relax_tol`` relative per step, or raised it (not counting steps after which the mesh was
+        smoothed or remeshed; the light repair, ``remesh_repair``, follows every step and counts; one
+        step is too noisy a measure: a Delaunay flip alone moves the energy by ~1e-3 on 642 vertices). Near the
         equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
         rises by ~1e-3 on a 162-vertex sphere) and by an O(tau_tilde) drift that shrinks closed
         surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere, docs/theory/pitfalls.md), which ends in
