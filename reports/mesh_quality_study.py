@@ -88,6 +88,18 @@ def torus_fit(V: np.ndarray) -> tuple[float, float]:
     return float(a), float(np.sqrt(c + a * a + b * b))
 
 
+def sector_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
+    """R/r of :func:`torus_fit` in each of ``sectors`` equal angular sectors about the principal axis (the
+    direction of least extent) through the centroid: all equal on a torus of revolution; they spread when the
+    flow leaves the rotational symmetry (a Moebius image of a torus, a cyclide, has the same smooth energy)."""
+    c = V.mean(axis=0)
+    _, vec = np.linalg.eigh(np.cov((V - c).T))
+    axis, e1 = vec[:, 0], vec[:, 2]
+    Y = (V - c) @ np.column_stack([e1, np.cross(axis, e1), axis])
+    k = np.floor((np.arctan2(Y[:, 1], Y[:, 0]) + np.pi) / (2 * np.pi / sectors)).astype(int) % sectors
+    return np.array([(lambda R, r: R / r)(*torus_fit(Y[k == i])) for i in range(sectors)])
+
+
 def torus_projection(V: np.ndarray, R: float, r: float) -> np.ndarray:
     """Closest points of V on the torus of revolution (R, r) about x3 through the centroid height."""
     zc = V[:, 2].mean()
@@ -146,14 +158,15 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     def cb(r: Any) -> None:
         rows.append(r.row())
         last[:] = [r]
-        if name.startswith(("torus 24", "torus 36", "torus 48")) and marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
+        if name.startswith("torus ") and marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
             while marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
                 marks.pop(0)
             R, rr = torus_fit(r.vertices)
             before = [x["min_angle_before_remesh"] if x["remeshed"] else x["q_min_angle"] for x in rows[1:]]
             m = flow.mesh.with_vertices(r.vertices)
+            sec = sector_ratios(r.vertices)
             series.append([r.t, R / rr, r.willmore, float(min(before)), float(min(x["q_min_angle"] for x in rows)),
-                           float(reference(m, flow))])
+                           float(reference(m, flow)), float(sec.min()), float(sec.max())])
             print(f"  {name}: series {series[-1]} N = {r.vertices.shape[0]}", flush=True)
         if len(rows) % 50 == 0:
             print(f"  {name}: step {r.step} t = {r.t:.4g} W = {r.willmore:.5g} min angle "
@@ -184,7 +197,7 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
            "retries": int(sum(r["retries"] for r in rows[1:])), "failed": failed, "W0": float(W[0]),
            "W": float(W[-1]), "W_ref": ref, "stationarity": float(stat), "wall": wall,
            "min_tau_seen": float(min((r["tau"] for r in rows[1:]), default=float("nan")))}
-    if name.startswith(("torus 24", "torus 36", "torus 48")):
+    if name.startswith("torus "):
         R, r = torus_fit(flow.X)
         n = int(np.rint(np.sqrt(2 * mesh.n_vertices)))
         out.update({"R_over_r": R / r,
@@ -240,7 +253,9 @@ def cases(scale: float) -> dict[str, Any]:
         "torus": torus(),
         "torus_threshold": torus(remesh_repair=0),
         "torus24": torus(24),
+        "torus32": torus(32),
         "torus36": torus(36),
+        "torus64": torus(64),
         "torus_off": torus(mesh_control="off"),
         "blend_conormal": boundary("surface_blending", 200, variant="conormal"),
         "blend_ring": boundary("surface_blending", 200, variant="ring"),
@@ -335,10 +350,12 @@ def main() -> None:
             if r.get("series"):
                 lines += ["", f"{r['name']} over time (W_ref: the mesh of that time projected onto the Clifford "
                           "torus of the fitted size):", "",
-                          "| t | R/r | W | W/W_grid - 1 | W_ref | W/W_ref - 1 | min angle so far, before / after "
-                          "repair |",
-                          "|---|---|---|---|---|---|---|"]
-                lines += [f"| {x[0]:.4g} | {x[1]:.4f} | {x[2]:.4f} | {x[2] / r['clifford_grid'] - 1:+.2%} | "
+                          "| t | R/r | R/r in 8 sectors, min - max | W | W/W_grid - 1 | W_ref | W/W_ref - 1 | "
+                          "min angle so far, before / after repair |",
+                          "|---|---|---|---|---|---|---|---|"]
+                lines += [f"| {x[0]:.4g} | {x[1]:.4f} | "
+                          + (f"{x[6]:.3f} - {x[7]:.3f} | " if len(x) > 7 else "| ")
+                          + f"{x[2]:.4f} | {x[2] / r['clifford_grid'] - 1:+.2%} | "
                           + (f"{x[5]:.4f} | {x[2] / x[5] - 1:+.2%} | " if len(x) > 5 else "| | ")
                           + f"{x[3]:.3g} / {x[4]:.3g} |" for x in r["series"]]
         lines += ["", "The discrete Willmore energy of the tori of revolution meshed on the n x n/2 grid (R/r varied, "
