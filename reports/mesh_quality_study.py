@@ -88,16 +88,44 @@ def torus_fit(V: np.ndarray) -> tuple[float, float]:
     return float(a), float(np.sqrt(c + a * a + b * b))
 
 
-def sector_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
-    """R/r of :func:`torus_fit` in each of ``sectors`` equal angular sectors about the principal axis (the
-    direction of least extent) through the centroid: all equal on a torus of revolution; they spread when the
-    flow leaves the rotational symmetry (a Moebius image of a torus, a cyclide, has the same smooth energy)."""
+def sector_circles(V: np.ndarray, sectors: int = 8) -> np.ndarray:
+    """(sectors, 3) cross-section circles (distance of the centre from the axis, its height, radius), fitted by
+    least squares in each of ``sectors`` equal angular sectors about the principal axis (the direction of least
+    extent) through the centroid."""
     c = V.mean(axis=0)
     _, vec = np.linalg.eigh(np.cov((V - c).T))
     axis, e1 = vec[:, 0], vec[:, 2]
     Y = (V - c) @ np.column_stack([e1, np.cross(axis, e1), axis])
     k = np.floor((np.arctan2(Y[:, 1], Y[:, 0]) + np.pi) / (2 * np.pi / sectors)).astype(int) % sectors
-    return np.array([(lambda R, r: R / r)(*torus_fit(Y[k == i])) for i in range(sectors)])
+    out = np.empty((sectors, 3))
+    for i in range(sectors):
+        rho, z = np.hypot(Y[k == i, 0], Y[k == i, 1]), Y[k == i, 2]
+        A = np.column_stack([2 * rho, 2 * z, np.ones_like(rho)])
+        (a, b, cc), *_ = np.linalg.lstsq(A, rho**2 + z**2, rcond=None)
+        out[i] = a, b, np.sqrt(cc + a * a + b * b)
+    return out
+
+
+def sector_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
+    """R/r of the :func:`sector_circles`: all equal on a torus of revolution; they spread when the flow leaves
+    the rotational symmetry (a Moebius image of a torus, a cyclide, has the same smooth energy)."""
+    C = sector_circles(V, sectors)
+    return C[:, 0] / C[:, 2]
+
+
+def conformal_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
+    """(sectors/2,) R/r of the torus of revolution Moebius-equivalent to the shape, from opposite sector circles.
+
+    Two circles of one meridian plane (radii r1, r2, centres d apart) have the Moebius-invariant inversive
+    distance delta = (d^2 - r1^2 - r2^2) / (2 r1 r2), which is 2 (R/r)^2 - 1 on a torus of revolution. On the
+    64x32 Clifford torus inverted in spheres centred 3 and 4 away, where the circle fit gives R/r = 1.26 and
+    1.76, these give 1.36-1.42 and 1.42-1.44 (sectors are wedges, not the cyclide's planes of circles).
+    """
+    C = sector_circles(V, sectors)
+    h = sectors // 2
+    (Ra, za, ra), (Rb, zb, rb) = C[:h].T, C[h:].T
+    delta = ((Ra + Rb) ** 2 + (za - zb) ** 2 - ra**2 - rb**2) / (2 * ra * rb)
+    return np.sqrt((delta + 1) / 2)
 
 
 def torus_projection(V: np.ndarray, R: float, r: float) -> np.ndarray:
@@ -151,7 +179,9 @@ def resolution_table(tor: list[dict[str, Any]], times: tuple[float, ...] = (0.1,
         for t in times:
             x = next((x for x in ser if abs(x[0] - t) <= 0.01 * t + 1e-3), None)
             cells.append("" if x is None else
-                         f"{x[1]:.3f} ({x[6]:.2f}-{x[7]:.2f}), {x[2] / x[5] - 1:+.2%}")
+                         f"{x[1]:.3f} ({x[6]:.2f}-{x[7]:.2f}"
+                         + (f"; conformal {x[8]:.3f}-{x[9]:.3f}" if len(x) > 9 else "")
+                         + f"), {x[2] / x[5] - 1:+.2%}")
         out.append(f"| {r['name']} | " + " | ".join(cells) + " |")
     return out
 
@@ -180,9 +210,10 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
             R, rr = torus_fit(r.vertices)
             before = [x["min_angle_before_remesh"] if x["remeshed"] else x["q_min_angle"] for x in rows[1:]]
             m = flow.mesh.with_vertices(r.vertices)
-            sec = sector_ratios(r.vertices)
+            sec, conf = sector_ratios(r.vertices), conformal_ratios(r.vertices)
             series.append([r.t, R / rr, r.willmore, float(min(before)), float(min(x["q_min_angle"] for x in rows)),
-                           float(reference(m, flow)), float(sec.min()), float(sec.max())])
+                           float(reference(m, flow)), float(sec.min()), float(sec.max()), float(conf.min()),
+                           float(conf.max())])
             print(f"  {name}: series {series[-1]} N = {r.vertices.shape[0]}", flush=True)
         if len(rows) % 50 == 0:
             print(f"  {name}: step {r.step} t = {r.t:.4g} W = {r.willmore:.5g} min angle "
@@ -216,7 +247,8 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     if name.startswith("torus "):
         R, r = torus_fit(flow.X)
         n = int(np.rint(np.sqrt(2 * mesh.n_vertices)))
-        out.update({"R_over_r": R / r,
+        out.update({"R_over_r": R / r, "sector_R_over_r": sector_ratios(flow.X).tolist(),
+                    "conformal_R_over_r": conformal_ratios(flow.X).tolist(),
                     "clifford_grid": geometry.willmore_energy(shapes.torus(np.sqrt(2), 1.0, n, n // 2)),
                     "W_min": float(W.min()), "series": series})
     return out
