@@ -484,7 +484,8 @@ class WillmoreFlow:
             z0 = self.problem.pack_z(self.X, self.Y)
             f0 = self.evaluator.f(z0, p)
             if hasattr(self.solver, "iteration_limit"):
-                self.solver.iteration_limit = self._iteration_limit() if attempt < self.settings.max_retries else None
+                last = attempt >= self.settings.max_retries
+                self.solver.iteration_limit = None if last else self._iteration_limit() or self._first_step_limit()
             try:
                 res = self.solver.solve(z0, p, self.lam_g)
             except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
@@ -545,12 +546,25 @@ class WillmoreFlow:
         """Iteration budget of the next attempt: ``max(iteration_budget_min, iteration_budget x median)``.
 
         None (no budget) before the first accepted step: there is nothing to compare with (the first
-        step of the 2,562-vertex ellipsoid needs 63 iterations and converges).
+        step of the 2,562-vertex ellipsoid needs 63 iterations and converges); :meth:`_first_step_limit`
+        applies there.
         """
         if self.settings.iteration_budget == 0 or not self._accepted_iterations:
             return None
         med = float(np.median(self._accepted_iterations))
         return max(self.settings.iteration_budget_min, int(np.ceil(self.settings.iteration_budget * med)))
+
+    def _first_step_limit(self) -> int | None:
+        """Iteration budget of the first step's attempts: ``first_step_budget`` (None when 0, after a step,
+        or when ``iteration_budget = 0`` turns every budget off, as the reproduction's paper scheme does).
+
+        The first step of a noisy input can be far harder than the rest (the noisy capsule of
+        ``reports/mesh_quality_study.py``: 200 iterations at tau, tau/2 and tau/4, then 16 at tau/8),
+        while first steps that converge take 3-63 iterations on the measured meshes.
+        """
+        if self.k or self._accepted_iterations or self.settings.iteration_budget == 0:
+            return None
+        return self.settings.first_step_budget or None
 
     # -- mesh control ------------------------------------------------------------------
     @staticmethod

@@ -304,10 +304,19 @@ class FlowSettings(Settings):
         ``max(iteration_budget_min, iteration_budget * median)`` iterations is cut (status
         ``"Iteration_Budget"``) and the step retried with tau/2 at once, instead of running to
         ``max_iter`` (measured: a 200-iteration attempt that fails costs 4 min on the 2,562-vertex
-        ellipsoid, and the same step converges at tau/2 in 5 iterations). No budget before the
-        first accepted step, nor on the last attempt of a step (``max_retries`` used up). IPOPT only.
+        ellipsoid, and the same step converges at tau/2 in 5 iterations). Not before the first
+        accepted step (``first_step_budget`` then), nor on the last attempt of a step (``max_retries``
+        used up). IPOPT only.
     iteration_budget_min : int
         Floor of that budget (default 30).
+    first_step_budget : int
+        Iteration budget of the attempts of the first step, when there is no median yet (default
+        100; 0, or ``iteration_budget = 0``: none): an unconverged attempt is cut after this many
+        iterations and retried with tau/2, except the last one (``max_retries`` used up). Measured:
+        first steps that converge need 3-22 iterations on the registry's surfaces and the study's
+        meshes, 57 on the bunny curve, 63 on the 2,562-vertex ellipsoid at tau = h; the noisy capsule
+        of the mesh-quality study (578 v) spent 200 iterations in each attempt at tau, tau/2 and
+        tau/4 before tau/8 converged in 16 (docs/guide/mesh_quality.md). IPOPT only.
     stall_iterations : int
         Cut a solve (status ``"Stalled"``, then retried with tau/2) whose iterates are stuck: for
         ``stall_iterations`` iterations the objective stayed within 1e-8 (relative), the largest
@@ -387,6 +396,7 @@ class FlowSettings(Settings):
     min_tau: float | None = option(None, real(0, unset="0.01 h^4"))
     iteration_budget: float = option(2.0, real(0, note="0: no budget"))
     iteration_budget_min: int = option(30, integer(1))
+    first_step_budget: int = option(100, integer(0, "0: no budget"))
     stall_iterations: int = option(15, integer(0, "0: off"))
     relax: bool = option(False, BOOL)
     relax_tol: float = option(1e-4, real(0))

@@ -1,0 +1,61 @@
+"""The iteration budget of the first step (``first_step_budget``): before any accepted step there is no
+median to budget against, and a first step that IPOPT cannot solve at tau (a noisy input) used to run
+every attempt to ``max_iter``."""
+
+import numpy as np
+
+from willmore_nlp import WillmoreFlow
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.core import Mesh
+
+
+def _ellipsoid() -> Mesh:
+    """Icosphere (162 v) stretched to 1:1:2; its first step at tau = h needs more than 2 iterations."""
+    s = shapes.icosphere(2)
+    V = np.array(s.vertices)
+    V[:, 2] *= 2.0
+    return Mesh(V, s.simplices, "ellipsoid 1:1:2 (162 v)")
+
+
+def test_first_step_budget_cuts_and_retries_at_half_step() -> None:
+    """A first attempt over the first-step budget is cut (Iteration_Budget) and retried at tau/2 without a
+    budget (the last attempt); the accepted step is bit for bit the first step of a flow started at tau/2.
+    After it, the median budget takes over."""
+    mesh = _ellipsoid()
+    tau, tt = mesh.h, 0.01 * mesh.h**2
+    flow = WillmoreFlow(mesh, tau, tt, first_step_budget=2, max_retries=1)
+    assert flow._first_step_limit() == 2 and flow._iteration_limit() is None
+    r = flow.step()
+    assert r.retries == 1 and r.tau == tau / 2
+    assert "Iteration_Budget, 2 iterations" in r.rejected[0]
+    assert r.stats["rejected_iterations"] == 2
+    ref = WillmoreFlow(mesh, tau / 2, tt, first_step_budget=0)
+    r2 = ref.step()
+    assert r2.iterations > 2 and r2.retries == 0
+    np.testing.assert_array_equal(r.vertices, r2.vertices)
+    assert flow._first_step_limit() is None
+    assert flow._iteration_limit() == max(30, int(np.ceil(2 * r.iterations)))
+
+
+def test_first_step_budget_leaves_converging_first_steps_alone() -> None:
+    """With the default budget (100) the first step is that of a flow without it, bit for bit; 0, or
+    iteration_budget = 0 (the reproduction's paper scheme), turns it off; a flow restarted at a later step
+    (k > 0) never gets the first-step budget."""
+    mesh = _ellipsoid()
+    tau, tt = mesh.h, 0.01 * mesh.h**2
+    a = WillmoreFlow(mesh, tau, tt)
+    assert a.settings.first_step_budget == 100 and a._first_step_limit() == 100
+    b = WillmoreFlow(mesh, tau, tt, first_step_budget=0)
+    assert b._first_step_limit() is None
+    ra, rb = a.step(), b.step()
+    assert ra.retries == rb.retries == 0 and ra.iterations == rb.iterations
+    np.testing.assert_array_equal(ra.vertices, rb.vertices)
+    off = WillmoreFlow(mesh, tau, tt, first_step_budget=2, iteration_budget=0)
+    assert off._first_step_limit() is None
+    r_off = off.step()
+    assert r_off.retries == 0 and r_off.iterations > 2
+    c = WillmoreFlow(mesh, tau, tt, first_step_budget=1)
+    c.restart(ra.vertices, ra.Y, ra.t, ra.step, a.lam_g)
+    assert c._first_step_limit() is None and c._iteration_limit() is None
+    rc = c.step()  # k = 1 and no recorded iterations: neither budget applies
+    assert rc.retries == 0 and rc.iterations > 1
