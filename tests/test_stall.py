@@ -161,7 +161,8 @@ def test_shrinking_sphere_at_rest_keeps_stepping_with_cheap_retries() -> None:
 @pytest.mark.parametrize("mesh_control", ["off", "auto"])
 def test_relax_stops_by_its_criterion_at_the_sphere(mesh_control: str) -> None:
     """relax=true doubles tau while steps are accepted and stops after the first state whose last RELAX_WINDOW
-    steps (at tau >= h) lowered the Willmore energy by less than relax_tol per step; the final energy agrees with a long ordinary flow
+    steps (at tau >= h) lowered the Willmore energy by less than relax_tol per step; the final energy agrees
+    with a long ordinary flow
     (20 steps at tau = h, the same mesh control) to 2e-3, and, for the paper's scheme, with the mesh-matched
     round sphere of the final mesh to 2e-3. With the light repair between steps (the default) the relaxed
     polyhedron lies 0.66% below its projected sphere on this 162-vertex mesh and 0.17% on the 642-vertex one
