@@ -47,8 +47,10 @@ from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.registry import build
 from willmore_nlp.vesicle_reference import (
     AxisymmetricShape,
+    axis_profile,
     branch_energy,
     classify,
+    mesh_shape,
     revolve_contour,
     solve_axisymmetric,
 )
@@ -99,32 +101,6 @@ def start_mesh(start: str, v: float, sub: int, contour: AxisymmetricShape) -> Me
     if start == "revolved":
         return revolve_contour(contour, sub)
     return shapes.ellipsoid_of_reduced_volume(v, start, sub, exact="mesh")
-
-
-def axis_profile(M: Mesh) -> tuple[float, float]:
-    """Where the symmetry axis (through the vertex mean, along x3) pierces the surface: (distance of the
-    lowest and highest piercing / height, their centre's offset from mid-height / height). A convex shape
-    gives (1, 0), a discocyte (< 1, 0), a stomatocyte an offset (both poles on one side)."""
-    X = M.vertices - M.vertices.mean(axis=0)
-    T = X[M.simplices]  # (F, 3, 3)
-    a, b, c = T[:, 0, :2], T[:, 1, :2], T[:, 2, :2]
-    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    ok = np.abs(det) > 1e-300  # triangles seen edge-on along the axis cannot be pierced
-    d = np.where(ok, det, 1.0)
-    l1 = np.where(ok, (-a[:, 0] * (c[:, 1] - a[:, 1]) + (c[:, 0] - a[:, 0]) * a[:, 1]) / d, -1.0)
-    l2 = np.where(ok, (-(b[:, 0] - a[:, 0]) * a[:, 1] + a[:, 0] * (b[:, 1] - a[:, 1])) / d, -1.0)
-    hit = ok & (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
-    z = ((1 - l1 - l2) * T[:, 0, 2] + l1 * T[:, 1, 2] + l2 * T[:, 2, 2])[hit]
-    height = np.ptp(X[:, 2])
-    mid = 0.5 * (X[:, 2].max() + X[:, 2].min())
-    return float(np.ptp(z) / height), float((0.5 * (z.max() + z.min()) - mid) / height)
-
-
-def mesh_shape(thick: float, offset: float) -> str:
-    """Shape name from :func:`axis_profile`: an invagination on one side, a dimple on both, or convex."""
-    if abs(offset) >= 0.1:
-        return "stomatocyte"
-    return "discocyte" if thick < 0.95 else "convex"
 
 
 def run_evolver(ref: dict[tuple[float, str], dict[str, Any]]) -> list[dict[str, Any]]:
