@@ -37,7 +37,7 @@ import numpy as np
 
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
 from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS
-from willmore_nlp.flow import FlowError, StepInterrupted, StepResult, WillmoreFlow
+from willmore_nlp.flow import RELAX_WINDOW, FlowError, StepInterrupted, StepResult, WillmoreFlow
 from willmore_nlp.rundir import (
     RunError,
     RunWriter,
@@ -180,8 +180,8 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
         if guard.signum is None and (remaining is None or remaining > 0):
             flow.run(t_end=t_end, steps=remaining, callback=on_step)
         if guard.signum is None:
-            relaxed = (f"relaxed: step {flow.k} lowered the Willmore energy by less than relax_tol = "
-                       f"{flow.settings.relax_tol:g}") if flow.relaxed else ""
+            relaxed = (f"relaxed: step {flow.k} ended {RELAX_WINDOW} steps that changed the Willmore energy by less "
+                       f"than relax_tol = {flow.settings.relax_tol:g} per step") if flow.relaxed else ""
             writer.set_status("completed", **({"message": relaxed} if relaxed else {}))
             if not quiet:
                 bar.close()

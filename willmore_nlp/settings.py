@@ -330,7 +330,7 @@ class FlowSettings(Settings):
         :meth:`run` stops early, with ``relaxed`` set, after the first state whose last 3 steps
         (``RELAX_WINDOW``), each taken at its first attempt with tau >= the nominal tau, lowered the
         Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than
-        ``relax_tol`` relative per step, or raised it (not counting steps after which the mesh was
+        ``relax_tol`` relative per step, or raised it with no Delaunay flip (not counting steps after which the mesh was
         smoothed or remeshed; the light repair, ``remesh_repair``, follows every step and counts; one
         step is too noisy a measure: a Delaunay flip alone moves the energy by ~1e-3 on 642 vertices). Near the
         equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
