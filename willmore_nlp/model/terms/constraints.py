@@ -13,25 +13,31 @@ from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.terms.base import Element, Term
 
 
-def _target(value: float, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value) and value > 0):
-        raise UserInputError(f"{what} must be a positive number, \"initial\" or None, got {value!r}")
-    return float(value)
+class _Constraint(Term):
+    """An outer equality constraint ``sum_T local - target = 0`` whose target is the scalar :attr:`scalars` [0]."""
+
+    requires = frozenset({"constraints"})
+    what = ""
+
+    def __init__(self, target: float) -> None:
+        if isinstance(target, bool) or not isinstance(target, (int, float)) or not (np.isfinite(target) and target > 0):
+            raise UserInputError(f"{self.what} must be a positive number, \"initial\" or None, got {target!r}")
+        self.target = float(target)
+
+    def values(self, Xk: np.ndarray, tau: float, simplices: np.ndarray, x_free: np.ndarray) -> dict[str, Any]:
+        return {self.scalars[0]: self.target}
 
 
-class VolumeConstraint(Term):
+class VolumeConstraint(_Constraint):
     """``sum_T det(X_0, ..., X_d) / (d + 1)! = V0``: the signed enclosed volume (area for a curve in R^2),
     positive for outward-oriented meshes. Target: scalar ``volume0``."""
 
     name = "vol"
     label = "volume constraint"
     hint = "use volume=None"
+    what = "volume"
     scalars = ("volume0",)
     constraint_targets = ("volume0",)
-    requires = frozenset({"constraints"})
-
-    def __init__(self, target: float) -> None:
-        self.target = _target(target, "volume")
 
     def check(self, mesh: Mesh, variant: str | None) -> None:
         if variant is not None or not mesh.is_closed or mesh.m != mesh.d + 1:
@@ -43,22 +49,16 @@ class VolumeConstraint(Term):
             return [0.5 * (X[0, 0] * X[1, 1] - X[1, 0] * X[0, 1])]
         return [ca.dot(X[:, 0], ca.cross(X[:, 1], X[:, 2])) / 6]
 
-    def values(self, Xk: np.ndarray, tau: float, simplices: np.ndarray, x_free: np.ndarray) -> dict[str, Any]:
-        return {"volume0": self.target}
 
-
-class AreaConstraint(Term):
+class AreaConstraint(_Constraint):
     """``sum_T |T| = A0`` (length for a curve). Target: scalar ``area0``."""
 
     name = "are"
     label = "area constraint"
     hint = "use area=None"
+    what = "area"
     scalars = ("area0",)
     constraint_targets = ("area0",)
-    requires = frozenset({"constraints"})
-
-    def __init__(self, target: float) -> None:
-        self.target = _target(target, "area")
 
     def check(self, mesh: Mesh, variant: str | None) -> None:
         if variant is not None or not mesh.is_closed:
@@ -66,6 +66,3 @@ class AreaConstraint(Term):
 
     def constraints(self, e: Element) -> list[ca.SX]:
         return [measure(e.X)]
-
-    def values(self, Xk: np.ndarray, tau: float, simplices: np.ndarray, x_free: np.ndarray) -> dict[str, Any]:
-        return {"area0": self.target}
