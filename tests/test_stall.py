@@ -219,6 +219,29 @@ def test_relaxed_run_directory(tmp_path) -> None:
     assert 2 < len(rows) < 21 and rows[-1]["relaxed"] == "1" and all(r["relaxed"] == "0" for r in rows[:-1])
 
 
+def test_relaxed_run_resumes_to_the_same_stop(tmp_path) -> None:
+    """A relaxation cut short (fewer steps) and resumed ends at the same step with the same history as one
+    that ran through: the relax window is rebuilt from history.csv."""
+    import csv
+
+    from willmore_nlp.runner import resume, start
+
+    def history(d):
+        return list(csv.DictReader((d / "history.csv").open()))
+
+    full = resolve("sphere", {"subdivisions": "2", "relax": "true", "steps": "20"})
+    assert start(full, tmp_path / "full", quiet=True) == 0
+    ref = history(tmp_path / "full")
+    stop = int(ref[-1]["step"])
+    assert stop > RELAX_WINDOW  # the cut run holds a full window to rebuild
+    cut = resolve("sphere", {"subdivisions": "2", "relax": "true", "steps": str(stop - 1)})
+    assert start(cut, tmp_path / "cut", quiet=True) == 0
+    assert resume(tmp_path / "cut", steps=20, quiet=True) == 0
+    rows = history(tmp_path / "cut")
+    assert [r["step"] for r in rows] == [r["step"] for r in ref] and rows[-1]["relaxed"] == "1"
+    assert [r["willmore_energy"] for r in rows] == [r["willmore_energy"] for r in ref]
+
+
 def test_evolver_trajectory_reads_back_the_surface() -> None:
     """evolver_trajectory (the relax study's Evolver side): the initial record is the input mesh and
     Evolver's energy of it agrees with evolver_reference; hessian_seek lowers the energy toward the

@@ -431,9 +431,9 @@ class WillmoreFlow:
             return f"solver did not converge ({res.status}, {res.iterations} iterations)"
         if not np.all(np.isfinite(X)):
             return "non-finite positions"
-        if self.constraint_violation(X) > CONSTRAINT_RTOL_SOLVER:
-            return (f"outer constraint violated by {self.constraint_violation(X):.3g} (relative) > "
-                    f"{CONSTRAINT_RTOL_SOLVER:g}")
+        violation = self.constraint_violation(X)
+        if violation > CONSTRAINT_RTOL_SOLVER:
+            return f"outer constraint violated by {violation:.3g} (relative) > {CONSTRAINT_RTOL_SOLVER:g}"
         variational = getattr(self.solver, "variational", True)  # the semi-implicit baseline is not
         if self.settings.check_energy and variational and res.f > f0 + self.settings.energy_rtol * abs(f0) + 1e-14:
             return f"energy inequality violated: W = {res.f:.12g} > W(X^k) = {f0:.12g}"
@@ -724,11 +724,13 @@ class WillmoreFlow:
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         self._relax_window = [(geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes), False)]
         for r in history or []:
-            w = float(r["willmore_energy"])
-            if int(float(r["step"])) == 0:
-                self._relax_window = [(w, False)]
+            if "willmore_energy" not in r:  # a checkpoint without its history row: the window starts after it
+                self._relax_window = []
+            elif int(float(r["step"])) == 0:
+                self._relax_window = [(float(r["willmore_energy"]), False)]
             else:
-                self._relax_test(w, int(float(r["retries"])), float(r["tau"]), str(r.get("remesh_action") or ""))
+                self._relax_test(float(r["willmore_energy"]), int(float(r["retries"])), float(r["tau"]),
+                                 str(r.get("remesh_action") or ""))
         self._tau_adapt = (float("inf") if last_tau is None
                            else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
 
