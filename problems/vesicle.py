@@ -4,12 +4,16 @@ from __future__ import annotations
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import Problem, register
+
+
+STARTS = ("prolate", "oblate", "cup")
 
 
 @register("vesicle")
 def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0, subdivisions: int = 3,
-            tau: float | None = None, tau_tilde: float | None = None, steps: int = 300) -> Problem:
+            bend: float = 1.2, tau: float | None = None, tau_tilde: float | None = None, steps: int = 300) -> Problem:
     """Vesicle of reduced volume v relaxing at fixed V and A: prolate ~0.85, discocyte ~0.65, stomatocyte below.
 
     The start is a spheroid (``start`` = "prolate" or "oblate", an icosphere of ``subdivisions``
@@ -25,11 +29,19 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     reports/vesicle_evolver.md (Surface Evolver on the same mesh, and the axisymmetric minimisers of
     :mod:`willmore_nlp.vesicle_reference`).
     """
-    if start not in ("prolate", "oblate"):
-        raise UserInputError(f"parameter start: must be 'prolate' or 'oblate', got {start!r}")
+    if start not in STARTS:
+        raise UserInputError(f"parameter start: must be one of {', '.join(STARTS)}, got {start!r}")
     if not 0 < reduced_volume < 1:
         raise UserInputError(f"parameter reduced_volume: must be in (0, 1), got {reduced_volume}")
-    mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
+    if start == "cup":
+        if not bend > 0:
+            raise UserInputError(f"parameter bend: must be > 0, got {bend}")
+        try:
+            mesh = shapes.cup_of_reduced_volume(reduced_volume, subdivisions, bend)
+        except MeshError as e:
+            raise UserInputError(f"parameter reduced_volume: {e}") from None
+    else:
+        mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
     h = mesh.h
     tau_ = h * h / 25 if tau is None else float(tau)
     tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)

@@ -316,3 +316,54 @@ def ellipsoid_of_reduced_volume(v: float, kind: str = "prolate", subdivisions: i
     s = (volume / V1) ** (1.0 / 3.0) if volume is not None else np.sqrt((4 * np.pi if area is None else area) / A1)
     return Mesh(s * U * [1.0, 1.0, ratio], icosphere(subdivisions).simplices,
                 f"{kind} spheroid(v={v}, c/a={ratio:.6g}, {exact}, {U.shape[0]} vertices)")
+
+
+def cup_of_reduced_volume(v: float, subdivisions: int = 3, bend: float = 0.6, *, area: float | None = None) -> Mesh:
+    """An oblate spheroid bent into a cup, with the polyhedron's reduced volume exactly ``v``.
+
+    The icosphere's unit vertices (x, y, z) go to (x, y, r z + bend (x^2 + y^2)): an oblate spheroid of
+    aspect ratio r (equatorial radius 1) sheared along x3 into a bowl that opens towards +x3. The shear
+    keeps the enclosed volume and adds area, so it breaks the up-down symmetry of the oblate start
+    (which the flow keeps, and with it the discocyte branch) without leaving the family of
+    surfaces of revolution. r is found by a 1-D root find so that the polyhedron's discrete V and A
+    (those a constrained flow keeps) give ``v`` to 1e-12; the surface is then scaled to ``area``.
+
+    Parameters
+    ----------
+    v : float
+        Reduced volume 6 sqrt(pi) V / A^(3/2) in (0, 1); must lie below the v of the bent sphere (r = 1).
+    subdivisions : icosphere level (642 vertices for 3, 2,562 for 4)
+    bend : float
+        Shear coefficient b >= 0 (0: the oblate spheroid of ``ellipsoid_of_reduced_volume(..., exact="mesh")``).
+    area : float, optional
+        Total area of the result (default 4 pi).
+
+    Returns
+    -------
+    Mesh with outward normals and the icosphere's connectivity.
+    """
+    from scipy.optimize import brentq
+
+    from willmore_nlp.geometry import enclosed_volume, measure
+
+    if not bend >= 0:
+        raise MeshError(f"cup_of_reduced_volume: bend must be >= 0, got {bend}")
+    ico = icosphere(subdivisions)
+    U = ico.vertices
+
+    def shaped(ratio: float) -> Mesh:
+        X = np.column_stack([U[:, 0], U[:, 1], ratio * U[:, 2] + bend * (U[:, 0] ** 2 + U[:, 1] ** 2)])
+        return Mesh(X, ico.simplices, "cup")
+
+    def g(t: float) -> float:
+        M = shaped(float(np.exp(t)))
+        return reduced_volume(measure(M), enclosed_volume(M)) - v
+
+    if not 0 < v < g(0.0) + v:
+        raise MeshError(f"cup_of_reduced_volume: v must be in (0, {g(0.0) + v:.6f}) for bend={bend} at "
+                        f"subdivisions={subdivisions}, got {v}")
+    ratio = float(np.exp(brentq(g, -12.0, 0.0, xtol=1e-14)))
+    M = shaped(ratio)
+    s = np.sqrt((4 * np.pi if area is None else area) / measure(M))
+    return Mesh(s * M.vertices, ico.simplices,
+                f"cup(v={v}, c/a={ratio:.6g}, bend={bend}, {U.shape[0]} vertices)")
