@@ -7,7 +7,6 @@ from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import Problem, register
 
-
 STARTS = ("prolate", "oblate", "cup")
 
 
@@ -18,7 +17,13 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
 
     The start is a spheroid (``start`` = "prolate" or "oblate", an icosphere of ``subdivisions``
     mapped onto it, area 4 pi) whose polyhedron has exactly the reduced volume
-    v = 6 sqrt(pi) V / A^(3/2) = ``reduced_volume`` (the flow keeps the discrete V and A).
+    v = 6 sqrt(pi) V / A^(3/2) = ``reduced_volume`` (the flow keeps the discrete V and A), or
+    ``start="cup"``: an oblate spheroid sheared along x3 by ``bend`` (x, y, r z + bend (x^2 + y^2)),
+    r root-found for the same exact v (:func:`willmore_nlp.mesh.shapes.cup_of_reduced_volume`). The
+    cup breaks the up-down symmetry that the flow keeps from the oblate start (which therefore stays
+    on the discocyte branch below v = 0.59, where the stomatocyte is lower); ``bend`` is used by the
+    cup only. Measured at v = 0.55, 642 vertices: bend = 1.2 (default) reaches the stomatocyte,
+    bend = 0.6 relaxes into an open bowl (w / 8 pi = 2.045, above the stomatocyte).
     Flow options: ``volume="initial"``, ``area="initial"``, ``c0`` (spontaneous curvature,
     h = k1 + k2 convention) and the equilibrium mode ``relax=True`` with ``relax_max_tau = 8 tau``
     and ``relax_tol = 1e-5``. Defaults tau = h^2 / 25, tau_tilde = h^2 / 100. Measured on 642 vertices:

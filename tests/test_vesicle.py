@@ -3,11 +3,15 @@ the axisymmetric reference energies."""
 
 from __future__ import annotations
 
+import itertools
+from typing import Any
+
 import numpy as np
 import pytest
 
 from willmore_nlp.geometry import enclosed_volume, measure
 from willmore_nlp.mesh import shapes
+from willmore_nlp.registry import Problem
 
 SHORT = ("hessian_normal on", "normal_motion on", "g 20") + ("hessian_seek", "g 5") * 3
 
@@ -146,7 +150,11 @@ def test_vesicle_problem_start() -> None:
         X = pb.mesh.vertices
         assert (np.ptp(X[:, 2]) > np.ptp(X[:, 0])) == (start == "prolate")
     with pytest.raises(UserInputError, match="parameter start"):
-        build("vesicle", start="cup")
+        build("vesicle", start="torus")
+    with pytest.raises(UserInputError, match="parameter bend"):
+        build("vesicle", start="cup", bend=-1.0)
+    with pytest.raises(UserInputError, match=r"parameter reduced_volume: .* v must be in"):
+        build("vesicle", start="cup", reduced_volume=0.95, bend=1.2)
     with pytest.raises(UserInputError, match="parameter reduced_volume"):
         build("vesicle", reduced_volume=1.5)
 
@@ -185,3 +193,63 @@ def test_vesicle_flow_forms_the_discocyte_dimple() -> None:
     V0, A0 = enclosed_volume(pb.mesh), measure(pb.mesh)
     assert all(abs(r.volume / V0 - 1) < 1e-10 and abs(r.measure / A0 - 1) < 1e-10 for r in res)
     assert res[-1].willmore < willmore_energy(pb.mesh)
+
+
+@pytest.mark.parametrize("v, bend", [(0.55, 1.2), (0.5, 0.6), (0.65, 0.9)])
+def test_cup_start_has_the_requested_reduced_volume(v: float, bend: float) -> None:
+    """The cup start: the polyhedron's reduced volume is the requested one to 1e-12 at 162 and 642 vertices,
+    area 4 pi, outward normals; it opens towards +x3 (an invagination there, axis points below mid-height);
+    bend = 0 is the oblate start of ``ellipsoid_of_reduced_volume(..., exact="mesh")`` (same vertices)."""
+    from willmore_nlp.vesicle_reference import axis_profile, invagination_depth
+
+    for s in (2, 3):
+        m = shapes.cup_of_reduced_volume(v, s, bend)
+        assert shapes.reduced_volume(measure(m), enclosed_volume(m)) == pytest.approx(v, abs=1e-12)
+        assert measure(m) == pytest.approx(4 * np.pi, rel=1e-13) and enclosed_volume(m) > 0
+        assert invagination_depth(m) > 0.1 and axis_profile(m)[1] < -0.05
+        flat = shapes.cup_of_reduced_volume(v, s, 0.0)
+        oblate = shapes.ellipsoid_of_reduced_volume(v, "oblate", s, exact="mesh")
+        np.testing.assert_allclose(flat.vertices, oblate.vertices, atol=1e-10)
+    pb, _ = build_cup(v, bend)
+    np.testing.assert_array_equal(pb.mesh.vertices, shapes.cup_of_reduced_volume(v, 2, bend).vertices)
+
+
+def build_cup(v: float, bend: float, subdivisions: int = 2) -> tuple[Problem, dict[str, Any]]:
+    from willmore_nlp.registry import build
+
+    return build("vesicle", reduced_volume=v, start="cup", bend=bend, subdivisions=subdivisions)
+
+
+def test_cup_start_bad_input() -> None:
+    from willmore_nlp.mesh.core import MeshError
+
+    with pytest.raises(MeshError, match="bend must be >= 0"):
+        shapes.cup_of_reduced_volume(0.55, 2, -0.1)
+    with pytest.raises(MeshError, match="v must be in"):
+        shapes.cup_of_reduced_volume(0.99, 2, 1.2)
+
+
+def test_vesicle_flow_from_the_cup_deepens_toward_the_stomatocyte() -> None:
+    """From the 642-vertex cup of v = 0.55 the constrained flow moves toward the stomatocyte, the lowest shape
+    there: in 4 steps the invagination deepens in every step, from 0.42 of the height toward the depth of the
+    axisymmetric stomatocyte (its contour's (z_max - z(inner pole)) / height, computed here independently of
+    any mesh, 0.80), getting closer to it; V and A stay exact and the bending energy falls."""
+    from willmore_nlp.geometry import willmore_energy
+    from willmore_nlp.vesicle_reference import invagination_depth, solve_axisymmetric
+
+    ref = solve_axisymmetric(0.55, "stomatocyte", 100)
+    ref_depth = (ref.z.max() - ref.z[-1]) / np.ptp(ref.z)
+    assert ref.converged and 0.6 < ref_depth < 1
+    pb, _ = build_cup(0.55, 1.2, subdivisions=3)
+    V0, A0 = enclosed_volume(pb.mesh), measure(pb.mesh)
+    depth = [invagination_depth(pb.mesh)]
+    flow = pb.make_flow()
+    w = [willmore_energy(pb.mesh)]
+    for _ in range(4):
+        r = flow.step()
+        assert abs(r.volume / V0 - 1) < 1e-10 and abs(r.measure / A0 - 1) < 1e-10
+        depth.append(invagination_depth(flow.mesh.with_vertices(flow.X)))
+        w.append(r.willmore)
+    assert all(b > a for a, b in itertools.pairwise(depth))
+    assert abs(depth[-1] - ref_depth) < 0.5 * abs(depth[0] - ref_depth)
+    assert w[-1] < w[0]

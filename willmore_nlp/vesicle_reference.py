@@ -272,11 +272,22 @@ def axis_profile(M: Mesh) -> tuple[float, float]:
     d = np.where(ok, det, 1.0)
     l1 = np.where(ok, (-a[:, 0] * (c[:, 1] - a[:, 1]) + (c[:, 0] - a[:, 0]) * a[:, 1]) / d, -1.0)
     l2 = np.where(ok, (-(b[:, 0] - a[:, 0]) * a[:, 1] + a[:, 0] * (b[:, 1] - a[:, 1])) / d, -1.0)
-    hit = ok & (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
+    eps = 1e-9  # the axis through a vertex (an icosphere's poles, kept there to 1e-10 by a flow): hit all its triangles
+    hit = ok & (l1 >= -eps) & (l2 >= -eps) & (l1 + l2 <= 1 + eps)
     z = ((1 - l1 - l2) * T[:, 0, 2] + l1 * T[:, 1, 2] + l2 * T[:, 2, 2])[hit]
     height = np.ptp(X[:, 2])
     mid = 0.5 * (X[:, 2].max() + X[:, 2].min())
     return float(np.ptp(z) / height), float((0.5 * (z.max() + z.min()) - mid) / height)
+
+
+def invagination_depth(M: Mesh) -> float:
+    """Depth of the invagination opening towards +x3, from :func:`axis_profile`: (top of the surface - the
+    highest point where the axis pierces it) / height = 1/2 - offset - thick/2. 0 for a convex shape, the
+    dimple's depth for a discocyte (< 1/2), about 0.8 for the stomatocyte of v = 0.55 (its contour's
+    (z_max - z(inner pole)) / height is 0.797). The cup start (:func:`willmore_nlp.mesh.shapes.cup_of_reduced_volume`)
+    opens towards +x3."""
+    thick, offset = axis_profile(M)
+    return 0.5 - offset - 0.5 * thick
 
 
 def mesh_shape(thick: float, offset: float) -> str:

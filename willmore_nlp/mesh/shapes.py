@@ -355,14 +355,15 @@ def cup_of_reduced_volume(v: float, subdivisions: int = 3, bend: float = 0.6, *,
         X = np.column_stack([U[:, 0], U[:, 1], ratio * U[:, 2] + bend * (U[:, 0] ** 2 + U[:, 1] ** 2)])
         return Mesh(X, ico.simplices, "cup")
 
-    def g(t: float) -> float:
+    def v_of(t: float) -> float:
         M = shaped(float(np.exp(t)))
-        return reduced_volume(measure(M), enclosed_volume(M)) - v
+        return reduced_volume(measure(M), enclosed_volume(M))
 
-    if not 0 < v < g(0.0) + v:
-        raise MeshError(f"cup_of_reduced_volume: v must be in (0, {g(0.0) + v:.6f}) for bend={bend} at "
+    v_max = v_of(0.0)  # the bent sphere
+    if not 0 < v < v_max:
+        raise MeshError(f"cup_of_reduced_volume: v must be in (0, {v_max:.6f}) for bend={bend} at "
                         f"subdivisions={subdivisions}, got {v}")
-    ratio = float(np.exp(brentq(g, -12.0, 0.0, xtol=1e-14)))
+    ratio = float(np.exp(brentq(lambda t: v_of(t) - v, -12.0, 0.0, xtol=1e-14)))
     M = shaped(ratio)
     s = np.sqrt((4 * np.pi if area is None else area) / measure(M))
     return Mesh(s * M.vertices, ico.simplices,
