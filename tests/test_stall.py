@@ -1,5 +1,7 @@
 """Iteration budget and stall test of IPOPT solves, flows at rest, and the relax (equilibrium) mode."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -185,6 +187,41 @@ def test_relax_stops_by_its_criterion_at_the_sphere(mesh_control: str) -> None:
     long = WillmoreFlow(mesh, tau, tt, mesh_control=mesh_control).run(steps=20)[-1].willmore
     assert abs(W[-1] / long - 1) < 2e-3
     assert W[-1] < 0.85 * W[0]
+
+
+def test_relax_ends_when_steps_are_held_below_the_nominal_tau() -> None:
+    """A relaxation whose solver fails every attempt above tau/4 (as on stiff constrained meshes) still ends by
+    its rule, each step counting as tau_i/tau nominal steps, and backs off after failed doublings: the
+    doublings tried hold 2, 4, 8 ... steps apart, so failed attempts grow like log2 of the steps, not one per
+    two steps."""
+    mesh = _ellipsoid()
+    tau, tt = mesh.h, 0.01 * mesh.h**2
+    flow = WillmoreFlow(mesh, tau, tt, relax=True, mesh_control="off")
+    limit = tau / 4
+    state = {"tau": 0.0}
+    params, solve = flow.params, flow.solver.solve
+
+    def tracked(X, t):
+        state["tau"] = t
+        return params(X, t)
+
+    def refusing(*args, **kw):
+        if state["tau"] > limit * (1 + 1e-12):
+            raise RuntimeError("refused above tau/4 (test)")
+        return solve(*args, **kw)
+
+    flow.params, flow.solver.solve = tracked, refusing
+    out = flow.run(steps=60)
+    assert flow.relaxed and out[-1].relaxed and len(out) < 60
+    assert all(r.tau <= limit * (1 + 1e-12) for r in out)
+    W = [geometry.willmore_energy(mesh)] + [r.willmore for r in out]
+    n = RELAX_WINDOW
+    steps = [min(1.0, r.tau / tau) for r in out]
+    def ends(k: int) -> bool:  # the rule with the nominal-step weights (no flips: mesh control off)
+        return abs(W[k - n] - W[k]) <= sum(steps[k - n:k]) * 1e-4 * W[k] or W[k] > W[k - n]
+    assert ends(len(W) - 1) and not any(ends(k) for k in range(n, len(W) - 1))
+    failed = [k for k, r in enumerate(out) if r.retries]
+    assert len(failed) <= 2 + np.log2(len(out)) and all(b - a >= 2 for a, b in itertools.pairwise(failed))
 
 
 def test_options_are_validated() -> None:
