@@ -1,5 +1,7 @@
 """Iteration budget and stall test of IPOPT solves, flows at rest, and the relax (equilibrium) mode."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -185,6 +187,54 @@ def test_relax_stops_by_its_criterion_at_the_sphere(mesh_control: str) -> None:
     long = WillmoreFlow(mesh, tau, tt, mesh_control=mesh_control).run(steps=20)[-1].willmore
     assert abs(W[-1] / long - 1) < 2e-3
     assert W[-1] < 0.85 * W[0]
+
+
+def _held_flow(mesh: Mesh, limit: float) -> WillmoreFlow:
+    """A relaxing flow (tau = h, paper's scheme) whose solver fails every attempt with tau > ``limit``."""
+    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, relax=True, mesh_control="off")
+    state = {"tau": 0.0}
+    params, solve = flow.params, flow.solver.solve
+
+    def tracked(X, t):
+        state["tau"] = t
+        return params(X, t)
+
+    def refusing(*args, **kw):
+        if state["tau"] > limit * (1 + 1e-12):
+            raise RuntimeError("refused above the limit (test)")
+        return solve(*args, **kw)
+
+    flow.params, flow.solver.solve = tracked, refusing
+    return flow
+
+
+def test_relax_ends_when_steps_are_held_below_the_nominal_tau() -> None:
+    """A relaxation whose solver fails every attempt above tau/4 (as on stiff constrained meshes) still ends by
+    its rule, each step counting as tau_i/tau nominal steps, and backs off after failed doublings: the
+    doublings tried hold 2, 4, 8 ... steps apart, so failed attempts grow like log2 of the steps, not one per
+    two steps. Cut and restarted from its history (as `--resume` does), it takes the same steps."""
+    mesh = _ellipsoid()
+    tau, limit = mesh.h, mesh.h / 4
+    flow = _held_flow(mesh, limit)
+    out = flow.run(steps=60)
+    assert flow.relaxed and out[-1].relaxed and len(out) < 60
+    assert all(r.tau <= limit * (1 + 1e-12) for r in out)
+    W = [geometry.willmore_energy(mesh)] + [r.willmore for r in out]
+    n = RELAX_WINDOW
+    steps = [min(1.0, r.tau / tau) for r in out]
+    def ends(k: int) -> bool:  # the rule with the nominal-step weights (no flips: mesh control off)
+        return abs(W[k - n] - W[k]) <= sum(steps[k - n:k]) * 1e-4 * W[k] or W[k] > W[k - n]
+    assert ends(len(W) - 1) and not any(ends(k) for k in range(n, len(W) - 1))
+    failed = [k for k, r in enumerate(out) if r.retries]
+    assert len(failed) <= 2 + np.log2(len(out)) and all(b - a >= 2 for a, b in itertools.pairwise(failed))
+    cut = failed[1] + 1  # after the second failed doubling: the hold is part of the state
+    resumed = _held_flow(mesh, limit)
+    rows = [{"step": 0, "willmore_energy": W[0]}] + [r.row() for r in out[:cut]]
+    last = out[cut - 1]  # (no multipliers in a StepResult: the warm start differs, the steps agree to 1e-8)
+    resumed.restart(last.vertices, last.Y, last.t, cut, last_tau=last.tau, last_retries=last.retries, history=rows)
+    rest = resumed.run(steps=60)
+    assert [(r.tau, r.retries) for r in rest] == [(r.tau, r.retries) for r in out[cut:]]
+    assert resumed.relaxed and abs(rest[-1].willmore / out[-1].willmore - 1) < 1e-8
 
 
 def test_options_are_validated() -> None:

@@ -317,7 +317,7 @@ class WillmoreFlow:
             raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
-        self._relax_window = [(geometry.willmore_energy(self.mesh, self.energy_nodes), False)]  # (relax test)
+        self._relax_start(geometry.willmore_energy(self.mesh, self.energy_nodes))
         self._X_prev = self.X
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
@@ -517,7 +517,7 @@ class WillmoreFlow:
             if reason is None:
                 self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
                 self.lam_g = res.lam_g
-                self._tau_adapt = 2 * tau if attempt == 0 else tau
+                self._grow_tau(tau, attempt)
                 self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
                 action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
                 result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
@@ -526,10 +526,9 @@ class WillmoreFlow:
                 result.stats["rejected_iterations"] = spent - res.iterations
                 result.remeshed = action
                 if self.settings.relax:
-                    # the relax test: over the last RELAX_WINDOW steps, all taken at their first attempt with
-                    # tau >= the nominal tau and no smoothing or remeshing, the Willmore energy changed by less than
-                    # relax_tol relative per step, or rose without a flip (see _relax_test)
-                    result.relaxed = self.relaxed = self._relax_test(result.willmore, attempt, tau, action)
+                    # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
+                    # energy changed by less than relax_tol relative per nominal step, or rose without a flip
+                    result.relaxed = self.relaxed = self._relax_test(result.willmore, tau, action)
                 return result
             if self.stop_requested():  # the solve was cut short (or failed): do not retry
                 raise StepInterrupted(self.k + 1)
@@ -657,24 +656,52 @@ class WillmoreFlow:
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before}
 
-    def _relax_test(self, willmore: float, retries: int, tau: float, action: str) -> bool:
+    def _relax_start(self, willmore: float) -> None:
+        """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""
+        self._relax_window: list[tuple[float, bool, float]] = [(willmore, False, 0.0)]
+        self._relax_backoff, self._relax_hold, self._relax_last_tau = 1, 0, 0.0
+
+    def _grow_tau(self, tau: float, attempt: int) -> None:
+        """Set the step size the next step starts from (``adaptive`` and ``relax``), after a step accepted at tau.
+
+        A step accepted at its first attempt doubles tau, one accepted after retries keeps it. A relaxation
+        backs off after a failed doubling: it holds tau for 2, 4, 8, ... first-attempt steps (doubling the
+        hold at each failure, back to none when a doubled step succeeds), so a flow whose steps cannot reach
+        twice their size does not waste every other attempt on it.
+        """
+        if not self.settings.relax:
+            self._tau_adapt = 2 * tau if attempt == 0 else tau
+            return
+        if attempt:
+            self._relax_backoff *= 2
+            self._relax_hold = self._relax_backoff
+        elif tau > self._relax_last_tau:  # a grown step succeeded
+            self._relax_backoff, self._relax_hold = 1, 0
+        else:
+            self._relax_hold = max(0, self._relax_hold - 1)
+        self._tau_adapt = tau if attempt or self._relax_hold else 2 * tau
+        self._relax_last_tau = tau
+
+    def _relax_test(self, willmore: float, tau: float, action: str) -> bool:
         """Record an accepted state in the relax window and say whether the relaxation has ended.
 
-        A state counts when its step was taken at the first attempt with tau >= the nominal tau and was
-        followed by no smoothing or remeshing (``action``; the light repair follows every step); any other
-        state restarts the window from itself. The relaxation ends when over the window the Willmore energy
-        changed by less than ``relax_tol`` relative per step, or rose with no Delaunay flip in the window
-        (the scheme's own drift at rest; a flip alone moves the energy by ~1e-3 on 642 vertices).
+        A state counts unless its step was followed by smoothing or remeshing (``action``; the light repair
+        follows every step and counts); such a state restarts the window from itself. The relaxation ends when
+        over the window the Willmore energy changed by less than ``relax_tol`` relative per nominal step (a
+        step of tau_i < tau counts as tau_i / tau steps: a flow held at small steps by retries still ends), or
+        rose with no Delaunay flip in the window (the scheme's own drift at rest; a flip alone moves the energy
+        by ~1e-3 on 642 vertices).
         """
         parts = set(action.split("+"))
-        ok = retries == 0 and tau >= self.tau and not {"smooth", "remesh"} & parts
-        entry = (willmore, "flips" in parts)
+        entry = (willmore, "flips" in parts, min(1.0, tau / self.tau))
+        ok = not {"smooth", "remesh"} & parts
         w = self._relax_window = [*self._relax_window, entry][-RELAX_WINDOW - 1:] if ok else [entry]
         if len(w) <= RELAX_WINDOW:
             return False
         change = w[0][0] - w[-1][0]
-        small = abs(change) <= RELAX_WINDOW * self.settings.relax_tol * abs(w[-1][0])
-        return small or (change < 0 and not any(f for _, f in w[1:]))
+        steps = sum(s for _, _, s in w[1:])
+        small = abs(change) <= steps * self.settings.relax_tol * abs(w[-1][0])
+        return small or (change < 0 and not any(f for _, f, _ in w[1:]))
 
     def restart(self, X: np.ndarray, Y: np.ndarray, t: float, k: int,
                 lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0,
@@ -722,17 +749,20 @@ class WillmoreFlow:
         self._X_prev = self.X
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
-        self._relax_window = [(geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes), False)]
+        self._relax_start(geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes))
+        replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
         for r in history or []:
+            replayed = "willmore_energy" in r and int(float(r["step"])) == self.k
             if "willmore_energy" not in r:  # a checkpoint without its history row: the window starts after it
                 self._relax_window = []
             elif int(float(r["step"])) == 0:
-                self._relax_window = [(float(r["willmore_energy"]), False)]
+                self._relax_start(float(r["willmore_energy"]))
             else:
-                self._relax_test(float(r["willmore_energy"]), int(float(r["retries"])), float(r["tau"]),
-                                 str(r.get("remesh_action") or ""))
-        self._tau_adapt = (float("inf") if last_tau is None
-                           else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
+                self._grow_tau(float(r["tau"]), int(float(r["retries"])))
+                self._relax_test(float(r["willmore_energy"]), float(r["tau"]), str(r.get("remesh_action") or ""))
+        if not replayed:
+            self._tau_adapt = (float("inf") if last_tau is None
+                               else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
 
     def run(
         self,

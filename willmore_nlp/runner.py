@@ -181,7 +181,7 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
             flow.run(t_end=t_end, steps=remaining, callback=on_step)
         if guard.signum is None:
             relaxed = (f"relaxed: step {flow.k} ended {RELAX_WINDOW} steps that changed the Willmore energy by less "
-                       f"than relax_tol = {flow.settings.relax_tol:g} per step") if flow.relaxed else ""
+                       f"than relax_tol = {flow.settings.relax_tol:g} per nominal step") if flow.relaxed else ""
             writer.set_status("completed", **({"message": relaxed} if relaxed else {}))
             if not quiet:
                 bar.close()

@@ -326,13 +326,14 @@ class FlowSettings(Settings):
         Fig. 11 bunny that wander for 90 iterations and then converge). IPOPT only.
     relax : bool
         Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
-        every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``, and
-        :meth:`run` stops early, with ``relaxed`` set, after the first state whose last 3 steps
-        (``RELAX_WINDOW``), each taken at its first attempt with tau >= the nominal tau, lowered the
+        every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``; after a
+        failed doubling it is held for 2, 4, 8, ... steps before the next try. :meth:`run` stops early,
+        with ``relaxed`` set, after the first state whose last 3 steps (``RELAX_WINDOW``) lowered the
         Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than
-        ``relax_tol`` relative per step, or raised it with no Delaunay flip (not counting steps after which the mesh was
-        smoothed or remeshed; the light repair, ``remesh_repair``, follows every step and counts; one
-        step is too noisy a measure: a Delaunay flip alone moves the energy by ~1e-3 on 642 vertices). Near the
+        ``relax_tol`` relative per nominal step (a step of tau_i < tau counts as tau_i / tau steps),
+        or raised it with no Delaunay flip (not counting steps after which the mesh was smoothed or remeshed;
+        the light repair, ``remesh_repair``, follows every step and counts; one step is too noisy a measure: a
+        Delaunay flip alone moves the energy by ~1e-3 on 642 vertices). Near the
         equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
         rises by ~1e-3 on a 162-vertex sphere) and by an O(tau_tilde) drift that shrinks closed
         surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere, docs/theory/pitfalls.md), which ends in
@@ -340,7 +341,8 @@ class FlowSettings(Settings):
         docs/guide/solver_studies.md). The discrete energy e falls all along it, so it cannot serve
         as the stopping test.
     relax_tol : float
-        Relative decrease of the Willmore energy per step below which a relaxation ends (default 1e-4).
+        Relative decrease of the Willmore energy per nominal step (of size tau) below which a relaxation
+        ends (default 1e-4).
     relax_max_tau : float, optional
         Largest step size of a relaxation (default 100 tau).
     mesh_control : {"auto", "off"}
