@@ -8,6 +8,13 @@ from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import Problem, register
 
 STARTS = ("prolate", "oblate", "cup")
+CUP_TAU = 2e-3
+"""Step size from the cup (area 4 pi; ``adaptive`` halves it when a step fails). Measured at 642 vertices,
+v = 0.55, with the relaxation's growing steps: steps of 4e-3 and 8e-3 once the neck forms made the Willmore
+energy jump by 5-10 %, the invagination tipped over and step 41 failed at every tau down to tau / 8."""
+CUP_T_END = 0.3
+"""End time of the flow from the cup (the relaxation's stopping test ends it early: with the mean-ratio
+tangential control the Willmore energy rises by ~1e-4 per step while the neck still forms)."""
 
 
 @register("vesicle")
@@ -23,7 +30,10 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     cup breaks the up-down symmetry that the flow keeps from the oblate start (which therefore stays
     on the discocyte branch below v = 0.59, where the stomatocyte is lower); ``bend`` is used by the
     cup only. Measured at v = 0.55, 642 vertices: bend = 1.2 (default) reaches the stomatocyte,
-    bend = 0.6 relaxes into an open bowl (w / 8 pi = 2.045, above the stomatocyte).
+    bend = 0.6 stops in an open bowl (w / 8 pi = 2.045, above the stomatocyte; Evolver from it reaches
+    the discocyte). The cup's flow differs from the spheroids' relaxation: it runs to t = ``CUP_T_END``
+    with ``tau`` = ``CUP_TAU`` (halved by ``adaptive`` where needed) and the mean-ratio tangential
+    control (the default light repair alone let the energy jump by 2-5 % at the neck from step to step).
     Flow options: ``volume="initial"``, ``area="initial"``, ``c0`` (spontaneous curvature,
     h = k1 + k2 convention) and the equilibrium mode ``relax=True`` with ``relax_max_tau = 8 tau``
     and ``relax_tol = 1e-5``. Defaults tau = h^2 / 25, tau_tilde = h^2 / 100. Measured on 642 vertices:
@@ -48,9 +58,15 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     else:
         mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
     h = mesh.h
-    tau_ = h * h / 25 if tau is None else float(tau)
     tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)
-    return Problem(mesh, tau_, tt_, 0.0, steps=steps,
-                   flow_options={"volume": "initial", "area": "initial", "c0": float(c0), "relax": True,
-                                 "relax_max_tau": 8 * tau_, "relax_tol": 1e-5},
+    options: dict[str, object] = {"volume": "initial", "area": "initial", "c0": float(c0)}
+    if start == "cup":
+        tau_ = CUP_TAU if tau is None else float(tau)
+        options.update(adaptive=True, tangential_control="meanratio")
+        t_end: float | None = CUP_T_END
+    else:
+        tau_ = h * h / 25 if tau is None else float(tau)
+        options.update(relax=True, relax_max_tau=8 * tau_, relax_tol=1e-5)
+        t_end = None
+    return Problem(mesh, tau_, tt_, 0.0, steps=steps, t_end=t_end, flow_options=options,
                    description=f"{start} vesicle of reduced volume {reduced_volume} relaxing at fixed V and A")

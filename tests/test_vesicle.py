@@ -212,6 +212,8 @@ def test_cup_start_has_the_requested_reduced_volume(v: float, bend: float) -> No
         np.testing.assert_allclose(flat.vertices, oblate.vertices, atol=1e-10)
     pb, _ = build_cup(v, bend)
     np.testing.assert_array_equal(pb.mesh.vertices, shapes.cup_of_reduced_volume(v, 2, bend).vertices)
+    assert pb.flow_options == {"volume": "initial", "area": "initial", "c0": 0.0, "adaptive": True,
+                               "tangential_control": "meanratio"} and pb.t_end is not None
 
 
 def build_cup(v: float, bend: float, subdivisions: int = 2) -> tuple[Problem, dict[str, Any]]:
