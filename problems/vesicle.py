@@ -35,8 +35,9 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     with ``tau`` = ``CUP_TAU`` (halved by ``adaptive`` where needed) and the mean-ratio tangential
     control (the default light repair alone let the energy jump by 2-5 % at the neck from step to step).
     Flow options: ``volume="initial"``, ``area="initial"``, ``c0`` (spontaneous curvature,
-    h = k1 + k2 convention) and the equilibrium mode ``relax=True`` with ``relax_max_tau = 8 tau``
-    and ``relax_tol = 1e-5``. Defaults tau = h^2 / 25, tau_tilde = h^2 / 100. Measured on 642 vertices:
+    h = k1 + k2 convention) and, for the spheroids, the equilibrium mode ``relax=True`` with
+    ``relax_max_tau = 8 tau`` and ``relax_tol = 1e-5``. Defaults tau = h^2 / 25 (the cup: ``CUP_TAU``),
+    tau_tilde = h^2 / 100. Measured on 642 vertices:
     the oblate v = 0.65 start's first step fails to converge in 200 IPOPT iterations at every tau from
     h = 0.16 down to 0.01 and converges in 4 iterations at 1e-3; steps above ~16 tau make the Willmore
     energy oscillate by 2e-4 and cost 3x the iterations, and with the generic ``relax_tol = 1e-4``
