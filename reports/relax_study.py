@@ -10,7 +10,8 @@ Ellipsoid 1:1:2 (an icosphere stretched along x3; 642 and 2,562 vertices, as in
 * ``flow``: the ordinary flow with the defaults (budget 2 x median, floor 30, none before the first
   accepted step; stall test 15);
 * ``relax``: ``relax=true`` with the defaults (tau doubles while steps are accepted, stop after the
-  first step that lowers the Willmore energy by less than 1e-4 relative);
+  first state whose last 3 steps lowered the Willmore energy by less than 1e-4 relative per nominal
+  step, or raised it without a Delaunay flip: ``FlowSettings.relax``);
 * ``evolver``: Surface Evolver 2.70 on the same mesh (zero tension, ``star_perp_sq_mean_curvature``
   as the only energy, :mod:`willmore_nlp.evolver`), ``hessian_seek`` repeated 40 times.
 
