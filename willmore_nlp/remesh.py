@@ -131,7 +131,7 @@ def delaunay_flips(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None,
     limit = 20 * len(stack) if max_flips is None else int(max_flips)
     # an edge none of whose two triangles has changed keeps its angle sum: test those all at once
     edges, sums = opposite_angle_sums(V, F)
-    delaunay = {(int(a), int(b)) for (a, b), s in zip(edges, sums, strict=True) if s <= np.pi + tol}
+    delaunay = set(map(tuple, edges[sums <= np.pi + tol].tolist()))
     n = 0
     while stack and n < limit:
         a, b = stack.pop()
