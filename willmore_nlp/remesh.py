@@ -24,6 +24,7 @@ to the new connectivity (:func:`carry_boundary`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -49,10 +50,22 @@ def _normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
 
 
-def _angle(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    """Angle at p of the triangle (p, a, b), radians."""
-    u, v = a - p, b - p
-    return float(np.arctan2(np.linalg.norm(np.cross(u, v)), np.dot(u, v)))
+def _cross(P: list[list[float]], i: int, j: int, k: int) -> tuple[float, float, float]:
+    """(P_j - P_i) x (P_k - P_i) for points held as Python lists (the flip loop's scalar arithmetic)."""
+    (x, y, z), (a0, a1, a2), (b0, b1, b2) = P[i], P[j], P[k]
+    u0, u1, u2, v0, v1, v2 = a0 - x, a1 - y, a2 - z, b0 - x, b1 - y, b2 - z
+    return u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+
+
+def _angle(P: list[list[float]], i: int, j: int, k: int) -> float:
+    """Angle at P_i of the triangle (P_i, P_j, P_k), radians."""
+    (x, y, z), (a0, a1, a2), (b0, b1, b2) = P[i], P[j], P[k]
+    dot = (a0 - x) * (b0 - x) + (a1 - y) * (b1 - y) + (a2 - z) * (b2 - z)
+    return math.atan2(math.hypot(*_cross(P, i, j, k)), dot)
+
+
+def _dot(u: tuple[float, ...], v: tuple[float, ...]) -> float:
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
 def opposite_angle_sums(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -109,32 +122,35 @@ def delaunay_flips(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None,
     F = np.array(F, dtype=np.int64, copy=True)
     free = np.ones(V.shape[0], bool) if free is None else np.asarray(free, bool)
     cos_max = np.cos(np.radians(max_dihedral))
+    P = V.tolist()
     # directed half-edge (a, b) -> face containing a -> b
     owner: dict[tuple[int, int], int] = {}
     for f, (i, j, k) in enumerate(F.tolist()):
         owner[(i, j)], owner[(j, k)], owner[(k, i)] = f, f, f
     stack = sorted({(min(a, b), max(a, b)) for (a, b) in owner})
     limit = 20 * len(stack) if max_flips is None else int(max_flips)
+    # an edge none of whose two triangles has changed keeps its angle sum: test those all at once
+    edges, sums = opposite_angle_sums(V, F)
+    delaunay = set(map(tuple, edges[sums <= np.pi + tol].tolist()))
     n = 0
     while stack and n < limit:
         a, b = stack.pop()
         f1, f2 = owner.get((a, b)), owner.get((b, a))
-        if f1 is None or f2 is None:
+        if f1 is None or f2 is None or (a, b) in delaunay:
             continue
         t1, t2 = F[f1].tolist(), F[f2].tolist()
         c = t1[(t1.index(a) + 2) % 3]  # t1 = (a, b, c) up to rotation
         d = t2[(t2.index(b) + 2) % 3]  # t2 = (b, a, d)
         if c == d or (c, d) in owner or (d, c) in owner:
             continue
-        if _angle(V[c], V[a], V[b]) + _angle(V[d], V[a], V[b]) <= np.pi + tol:
+        if _angle(P, c, a, b) + _angle(P, d, a, b) <= np.pi + tol:
             continue
-        n1, n2 = _normals(V, np.array([t1, t2]))
-        if np.dot(n1, n2) < cos_max * np.linalg.norm(n1) * np.linalg.norm(n2):
+        n1, n2 = _cross(P, *t1), _cross(P, *t2)
+        if _dot(n1, n2) < cos_max * math.hypot(*n1) * math.hypot(*n2):
             continue
         new1, new2 = (c, a, d), (d, b, c)
-        m = n1 + n2
-        nn = _normals(V, np.array([new1, new2]))
-        if np.any(nn @ m <= 0):
+        m = (n1[0] + n2[0], n1[1] + n2[1], n1[2] + n2[2])
+        if _dot(_cross(P, *new1), m) <= 0 or _dot(_cross(P, *new2), m) <= 0:
             continue
         if not _patch_ok(free, tuple(t1), tuple(t2), new1, new2):
             continue
@@ -147,8 +163,9 @@ def delaunay_flips(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None,
             i, j, k = t
             owner[(i, j)], owner[(j, k)], owner[(k, i)] = f, f, f
         n += 1
-        stack.extend([(min(a, c), max(a, c)), (min(c, b), max(c, b)), (min(b, d), max(b, d)),
-                      (min(d, a), max(d, a))])
+        quad = [(min(a, c), max(a, c)), (min(c, b), max(c, b)), (min(b, d), max(b, d)), (min(d, a), max(d, a))]
+        delaunay.difference_update(quad)  # their triangles changed
+        stack.extend(quad)
     return F, n
 
 
