@@ -111,3 +111,18 @@ def test_reference_table_matches_a_fresh_solve() -> None:
             continue
         s = solve_axisymmetric(v, "prolate" if name == "prolate" else "oblate", 100)
         assert classify(s) == name and abs(s.energy - e) < 2e-4, (v, name, s.energy, e)
+
+
+def test_mesh_shape_names_the_branches() -> None:
+    """The mesh classifier on surfaces whose shape is known by construction: the revolved stomatocyte and
+    discocyte contours of v = 0.55 (icosphere connectivity, 642 vertices), the cup start (an open bowl: no
+    pocket) and a spheroid."""
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.vesicle_reference import has_pocket, mesh_shape, revolve_contour, solve_axisymmetric
+
+    stomatocyte = revolve_contour(solve_axisymmetric(0.55, "stomatocyte", 100), 3)
+    discocyte = revolve_contour(solve_axisymmetric(0.55, "oblate", 100), 3)
+    assert has_pocket(stomatocyte) and mesh_shape(stomatocyte) == "stomatocyte"
+    assert not has_pocket(discocyte) and mesh_shape(discocyte) == "discocyte"
+    assert mesh_shape(shapes.cup_of_reduced_volume(0.55, 3, 1.2)) == "cup"
+    assert mesh_shape(shapes.ellipsoid_of_reduced_volume(0.85, "prolate", 3)) == "convex"

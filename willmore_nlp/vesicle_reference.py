@@ -260,12 +260,9 @@ where n = 200 and 400 differ by at most 1.5e-4). The lowest shape: prolate above
 down to 0.5912, stomatocyte below (Seifert, Berndl & Lipowsky 1991 quote 0.652 and 0.591)."""
 
 
-def axis_profile(M: Mesh) -> tuple[float, float]:
-    """Where the symmetry axis (through the vertex mean, along x3) pierces the surface: (distance of the
-    lowest and highest piercing / height, their centre's offset from mid-height / height). A convex shape
-    gives (1, 0), a discocyte (< 1, 0), a stomatocyte an offset (both poles on one side)."""
-    X = M.vertices - M.vertices.mean(axis=0)
-    T = X[M.simplices]  # (F, 3, 3)
+def _piercings(X: np.ndarray, F: np.ndarray, x: float, y: float) -> np.ndarray:
+    """Heights where the vertical line through (x, y) pierces the triangles F of the vertices X ((N, 3))."""
+    T = X[F] - [x, y, 0.0]  # (F, 3, 3)
     a, b, c = T[:, 0, :2], T[:, 1, :2], T[:, 2, :2]
     det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
     ok = np.abs(det) > 1e-300  # triangles seen edge-on along the axis cannot be pierced
@@ -274,10 +271,31 @@ def axis_profile(M: Mesh) -> tuple[float, float]:
     l2 = np.where(ok, (-(b[:, 0] - a[:, 0]) * a[:, 1] + a[:, 0] * (b[:, 1] - a[:, 1])) / d, -1.0)
     eps = 1e-9  # the axis through a vertex (an icosphere's poles, kept there to 1e-10 by a flow): hit all its triangles
     hit = ok & (l1 >= -eps) & (l2 >= -eps) & (l1 + l2 <= 1 + eps)
-    z = ((1 - l1 - l2) * T[:, 0, 2] + l1 * T[:, 1, 2] + l2 * T[:, 2, 2])[hit]
+    return ((1 - l1 - l2) * T[:, 0, 2] + l1 * T[:, 1, 2] + l2 * T[:, 2, 2])[hit]
+
+
+def axis_profile(M: Mesh) -> tuple[float, float]:
+    """Where the symmetry axis (through the vertex mean, along x3) pierces the surface: (distance of the
+    lowest and highest piercing / height, their centre's offset from mid-height / height). A convex shape
+    gives (1, 0), a discocyte (< 1, 0), a stomatocyte an offset (both poles on one side)."""
+    X = M.vertices - M.vertices.mean(axis=0)
+    z = _piercings(X, M.simplices, 0.0, 0.0)
     height = np.ptp(X[:, 2])
     mid = 0.5 * (X[:, 2].max() + X[:, 2].min())
     return float(np.ptp(z) / height), float((0.5 * (z.max() + z.min()) - mid) / height)
+
+
+def has_pocket(M: Mesh, radius: float = 0.25, n: int = 9) -> bool:
+    """Whether the surface has an inner pocket (a stomatocyte): some vertical line through a point within
+    ``radius`` x (the surface's half-width) of the vertex mean pierces it 4 or more times (outer wall, pocket
+    floor, pocket wall near the neck, outer wall). Unlike :func:`axis_profile` it does not need the neck's
+    opening on the axis (a stomatocyte whose neck moved sideways); a discocyte, however deep its dimples,
+    and a convex shape give 2 on every such line. ``n`` x ``n`` lines on a square grid."""
+    X = M.vertices - M.vertices.mean(axis=0)
+    r = radius * 0.5 * np.ptp(X[:, 0])
+    g = np.linspace(-r, r, n)
+    counts = [len(np.unique(np.round(_piercings(X, M.simplices, x, y), 9))) for x in g for y in g]
+    return max(counts) >= 4
 
 
 def invagination_depth(M: Mesh) -> float:
@@ -290,8 +308,13 @@ def invagination_depth(M: Mesh) -> float:
     return 0.5 - offset - 0.5 * thick
 
 
-def mesh_shape(thick: float, offset: float) -> str:
-    """Shape name from :func:`axis_profile`: an invagination on one side, a dimple on both, or convex."""
-    if abs(offset) >= 0.1:
+def mesh_shape(M: Mesh) -> str:
+    """Shape name of a mesh: "stomatocyte" (an inner pocket, :func:`has_pocket`), "cup" (an open invagination
+    on one side: :func:`axis_profile`'s offset >= 0.1 without a pocket), "discocyte" (dimples on both sides:
+    axis thickness < 0.95) or "convex"."""
+    if has_pocket(M):
         return "stomatocyte"
+    thick, offset = axis_profile(M)
+    if abs(offset) >= 0.1:
+        return "cup"
     return "discocyte" if thick < 0.95 else "convex"
