@@ -417,7 +417,7 @@ def cup_findings(ref: dict[tuple[float, str], dict[str, Any]], rows: list[dict[s
             "does not close the cup: at 642 vertices it stays an open bowl with degenerate triangles (min angle "
             "0.0 deg; its energy and ours of its mesh are not meaningful), at 2,562 the rim curls over the "
             "opening (an overhang: `has_pocket`) but the neck is not formed and its energy is 2.6% above the "
-            "reference. At 642 vertices the neck spans 2-3 triangles: these energies are O(h^2) estimates; the "
+            "reference. At 642 vertices the neck is a few triangles wide: these energies are O(h^2) estimates; the "
             "2,562-vertex flow from the cup (about 150 steps of 20-40 s on this shared machine) was not run to "
             "the end in this session."]
 
