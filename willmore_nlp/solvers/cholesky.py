@@ -14,9 +14,12 @@ Backends
     (30,726 x 30,726, 1.75e6 nonzeros; one thread, quiet machine): 1.12 s against 2.01 s for
     ``cholespy`` (CHOLMOD simplicial with AMD only) and 0.99 s for MKL PARDISO (``pypardiso``,
     whose ``mkl`` wheels weigh 270 MB to download and 0.9 GB installed); at 2,562 vertices
-    0.48 s / 0.65 s / 0.15 s. Its solves use the reference BLAS and are 1.4x slower than
-    cholespy's (0.021 s / 0.015 s for B above). ``cholespy`` itself cannot be loaded in the same
-    process (both register the same nanobind type).
+    0.48 s / 0.65 s / 0.15 s. Solves with the supernodal factor run in the bundled reference BLAS
+    and were slower than cholespy's (B above: 0.021 s / 0.015 s; M + tt L with three right-hand
+    sides at 10,242 vertices: 2.3 ms / 0.6 ms), so the factor is converted to its simplicial form
+    after each factorisation (``change_factor``, the cost of one or two solves): solves then took
+    5.5 ms instead of 8.7 ms (B, 2,562 vertices) and 0.11 ms instead of 1.1 ms (M + tt L, 2,562).
+    ``cholespy`` itself cannot be loaded in the same process (both register the same nanobind type).
 ``scipy``
     SuperLU (``scipy.sparse.linalg.splu``) with COLAMD ordering: used when ``sksparse-minimal`` is
     not installed, or when asked for.
@@ -80,6 +83,9 @@ class SymmetricFactor:
             A.sort_indices()
             self._solver = _Cholmod(self._n, A.indptr.astype(np.int32), A.indices.astype(np.int32),
                                     np.ascontiguousarray(A.data, dtype=float))
+            # supernodal factorisation, simplicial LL' solves (module docstring): the conversion costs
+            # about two solves and makes each 1.2x (B) to 3-10x (M + tt L, three right-hand sides) faster
+            self._solver.change_factor(True, False)
         self.n_numeric += 1
         return self
 
