@@ -371,7 +371,7 @@ class NewtonKrylovSolver(ReducedSolver):
             if new is not None and np.isfinite(new.f):
                 if new.f <= pt.f + self.armijo * alpha * gd:
                     return new
-                if -alpha * gd <= rounding and new.f <= pt.f + rounding and np.abs(new.pgrad).max() < gmax:
+                if -alpha * gd <= rounding and np.abs(new.pgrad).max() < gmax:  # f is rounding noise there
                     return new
             alpha *= 0.5
         return None
