@@ -11,8 +11,10 @@ differs is the linear algebra and the globalisation:
   inner energy, factorised as a whole (also SPD) inside the damped inner Newton of
   :meth:`StepEvaluator.solve_y`.
 * Newton step. The reduced Newton system (Hess W^ + delta D) d = -grad W^ is solved by conjugate
-  gradients (forcing term eta = min(0.5, sqrt(|grad|/|grad_0|))), preconditioned with the
-  Gauss-Newton matrix
+  gradients to the relative residual eta = min(cg_forcing, sqrt(|grad|/|grad_0|)) (0.5 instead of
+  cg_forcing for a shifted system, a safeguard only; the step expected to be the last one to
+  0.1 gtol / |grad|, so that the result is accurate to the tolerance and not just below it),
+  preconditioned with the Gauss-Newton matrix
 
       B = D + 2 tau K^T Ml^-1 K,   K = (J_X + J_Y S) / tt,
 
@@ -20,10 +22,11 @@ differs is the linear algebra and the globalisation:
   tangential weight or control the corresponding quadratic form), Ml the lumped mass on the Y
   nodes and S the injection of the free X dofs into the Y dofs. B is the Gauss-Newton Hessian of
   W^ with J_Y^-T M J_Y^-1 replaced by Ml^-1. Its factorisation costs as much as some 50 (2,562
-  vertices) to 150 (10,242) CG iterations, so it is kept (also for the next solve with the same tau)
-  and rebuilt only after ``cg_rebuild`` CG iterations with it, or when X has moved more than
-  ``precond_move`` h (h the mean edge length of Xk) since it was built. (A rule on measured times
-  would make the iterates depend on the machine's load.)
+  vertices) to 60 (10,242) CG iterations, so it is kept (also for the next solve with the same tau)
+  and rebuilt after ``cg_rebuild`` CG iterations with it, when X has moved more than
+  ``precond_move`` h (h the mean edge length of Xk) since it was built, or when a CG solve with a B
+  built at another point reaches ``cg_stale`` iterations (then CG restarts with the new B). (A rule
+  on measured times would make the iterates depend on the machine's load.)
 * Indefiniteness. When CG meets a direction of non-positive curvature the shift delta D is raised
   (delta = 1 first, then 10 delta) and CG restarts; the next Newton iteration starts from delta / 10
   (0 below 1e-3), so the final iterations are pure Newton.
@@ -77,13 +80,18 @@ class NewtonKrylovSettings(ReducedSettings):
     armijo : float
         Sufficient-decrease constant of the line search.
     cholesky : str
-        Sparse Cholesky backend: "auto", "cholespy" or "scipy" (:mod:`willmore_nlp.solvers.cholesky`).
+        Sparse Cholesky backend: "auto", "cholmod" or "scipy" (:mod:`willmore_nlp.solvers.cholesky`).
     cg_max_iter : int
         CG iterations per Newton system.
     precond_move : float
         Rebuild the preconditioner B when X moved more than this times the mean edge length.
     cg_rebuild : int
         Rebuild B after this many CG iterations with it.
+    cg_stale : int
+        A CG solve with a B built at another point that reaches this many iterations is restarted with B
+        rebuilt at the current point.
+    cg_forcing : float
+        Largest CG forcing term (relative residual of a Newton system).
     """
 
     solver = "newton-krylov"
@@ -93,6 +101,8 @@ class NewtonKrylovSettings(ReducedSettings):
     cg_max_iter: int = option(300, integer(1))
     precond_move: float = option(0.5, real(0, lo_open=True))
     cg_rebuild: int = option(60, integer(1))
+    cg_stale: int = option(25, integer(1))
+    cg_forcing: float = option(0.1, real(0, 1, lo_open=True))
 
 
 @register_solver("newton-krylov", NewtonKrylovSettings)
@@ -110,6 +120,8 @@ class NewtonKrylovSolver(ReducedSolver):
         self.cg_max_iter = settings.cg_max_iter
         self.precond_move = settings.precond_move
         self.cg_rebuild = settings.cg_rebuild
+        self.cg_stale = settings.cg_stale
+        self.cg_forcing = settings.cg_forcing
         self._jy = SymmetricFactor(settings.cholesky)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
@@ -125,6 +137,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._pre_tau = float("nan")
         self._cg_since_build = 0  # CG iterations with the current B
         self._g0 = 1.0  # size of the first (reduced) gradient of a solve: CG forcing term
+        self._gtol = 0.0  # the solve's stopping tolerance on |grad W^|_inf
         self._delta = self._delta_max = 0.0  # shift of the Newton systems
         self.should_stop = lambda: False
 
@@ -192,9 +205,14 @@ class NewtonKrylovSolver(ReducedSolver):
             self._pre.factor(B.tocsc())
         self._count("n_precond_builds")
 
+    def _rebuild(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
+        """Build B at ``pt`` and remember where (and for which tau)."""
+        self._build_preconditioner(pt, p, D)
+        self._pre_x, self._pre_tau, self._cg_since_build = pt.x.copy(), self.P.params.scalar(p, "tau"), 0
+
     # -- Newton-CG --------------------------------------------------------------------
-    def _pcg(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, delta: float,
-             eta: float) -> tuple[np.ndarray, int, bool]:
+    def _pcg(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, delta: float, eta: float,
+             max_iter: int) -> tuple[np.ndarray, int, str]:
         """Preconditioned CG on (Hess W^ + delta D) d = -grad; stops at non-positive curvature. With outer
         constraints projected CG in the null space of their reduced Jacobian C (:meth:`_precondition`),
         on the Hessian of the reduced Lagrangian W^ + mu . h^, stopped on the projected residual.
@@ -203,7 +221,8 @@ class NewtonKrylovSolver(ReducedSolver):
         -------
         d : (nX m,) the last iterate
         its : CG iterations
-        negative : True when a direction of non-positive curvature was met
+        state : "converged", "negative" (a direction of non-positive curvature was met) or "limit"
+            (``max_iter`` reached)
         """
         g = pt.pgrad
         x = np.zeros_like(g)
@@ -212,25 +231,25 @@ class NewtonKrylovSolver(ReducedSolver):
         d = s.copy()
         rs = float(r @ s)
         gnorm = float(np.linalg.norm(g)) if pt.C is None else np.sqrt(rs)
-        for k in range(self.cg_max_iter):
+        for k in range(max_iter):
             Ad = self._hessp(pt, p, d)
             if delta:
                 Ad = Ad + delta * (D @ d)
             dAd = float(d @ Ad)
             if not dAd > 0:
-                return x, k + 1, True
+                return x, k + 1, "negative"
             alpha = rs / dAd
             x += alpha * d
             r -= alpha * Ad
             if pt.C is None and np.linalg.norm(r) <= eta * gnorm:
-                return x, k + 1, False
+                return x, k + 1, "converged"
             s = self._precondition(pt, r)
             rs_new = float(r @ s)
             if pt.C is not None and np.sqrt(max(rs_new, 0.0)) <= eta * gnorm:  # projected residual
                 return x, k + 1, False
             d = s + (rs_new / rs) * d
             rs = rs_new
-        return x, self.cg_max_iter, False
+        return x, max_iter, "limit"
 
     def _precondition(self, pt: _Point, r: np.ndarray) -> np.ndarray:
         """B^-1 r; with outer constraints projected onto the null space of C in the B inner product,
@@ -252,19 +271,26 @@ class NewtonKrylovSolver(ReducedSolver):
         tau = self.P.params.scalar(p, "tau")
         if (self._pre_x is None or self._pre_tau != tau or self._cg_since_build >= self.cg_rebuild
                 or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
-            self._build_preconditioner(pt, p, D)
-            self._pre_x, self._pre_tau, self._cg_since_build = pt.x.copy(), tau, 0
+            self._rebuild(pt, p, D)
         gmax = float(np.abs(pt.pgrad).max())
-        eta = min(0.5, float(np.sqrt(gmax / self._g0)))
         delta = self._delta / 10 if self._delta >= 1e-3 else 0.0
-        with self._timed("cg"):
-            for _ in range(12):
-                d, k, negative = self._pcg(pt, p, D, delta, eta)
-                self._count("n_cg", k)
-                self._cg_since_build += k
-                if not negative:
-                    break
-                delta = max(1.0, 10 * delta)
+        rel = float(np.sqrt(gmax / self._g0))  # superlinear forcing
+        if rel * gmax <= 10 * self._gtol:  # the step expected to be the last: to 0.1 gtol (the result's accuracy)
+            rel = min(rel, 0.1 * self._gtol / gmax)
+        for _ in range(12):
+            fresh = np.array_equal(pt.x, self._pre_x)
+            eta = min(0.5 if delta else self.cg_forcing, rel)  # a shifted system is only a safeguard
+            limit = self.cg_max_iter if fresh else self.cg_stale
+            with self._timed("cg"):
+                d, k, state = self._pcg(pt, p, D, delta, eta, limit)
+            self._count("n_cg", k)
+            self._cg_since_build += k
+            if limit < self.cg_max_iter and state == "limit":  # B built elsewhere no longer preconditions
+                self._rebuild(pt, p, D)
+                continue
+            if state != "negative":
+                break
+            delta = max(1.0, 10 * delta)
         self._delta = delta
         self._delta_max = max(self._delta_max, delta)
         return d
@@ -279,7 +305,7 @@ class NewtonKrylovSolver(ReducedSolver):
         with self._timed("eval"):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
-        gtol = self.tol * scale
+        gtol = self._gtol = self.tol * scale
         pt = self._feasible(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
         D = self._distance_hessian(pt.z, p)
         self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
@@ -345,7 +371,7 @@ class NewtonKrylovSolver(ReducedSolver):
             if new is not None and np.isfinite(new.f):
                 if new.f <= pt.f + self.armijo * alpha * gd:
                     return new
-                if -alpha * gd <= rounding and new.f <= pt.f + rounding and np.abs(new.pgrad).max() < gmax:
+                if -alpha * gd <= rounding and np.abs(new.pgrad).max() < gmax:  # f is rounding noise there
                     return new
             alpha *= 0.5
         return None
