@@ -152,6 +152,36 @@ def test_volume_is_exact_across_mesh_repairs() -> None:
     assert repaired
 
 
+def test_remeshing_keeps_volume_unless_the_restore_would_build_a_spike() -> None:
+    """A forced isotropic remesh of a volume-constrained ellipsoid is moved back onto V0 by an O(h^2)
+    correction and kept; a restore that would move a vertex by more than RESTORE_LIMIT h (as a least-norm
+    correction of a coarse remeshed vesicle did, building a spike) drops the repair with a warning instead."""
+    from willmore_nlp.flow import RESTORE_LIMIT
+
+    mesh = _ellipsoid(2, 2.0)
+    V0 = geometry.enclosed_volume(mesh)
+    opts = {"volume": "initial", "remesh_min_angle": 59.0, "remesh_target": 1.2 * mesh.h}
+    flow = WillmoreFlow(mesh, 5e-3, mesh.h**2 / 100, **opts)
+    r = flow.step()
+    assert "remesh" in r.remeshed and flow.mesh.n_vertices != mesh.n_vertices
+    assert abs(r.volume - V0) / V0 < 1e-10
+    spiky = WillmoreFlow(mesh, 5e-3, mesh.h**2 / 100, **opts)
+    restore = spiky._restore
+
+    def spike(X):
+        Xr = restore(X)
+        if X.shape != mesh.vertices.shape:  # the repaired (remeshed) mesh
+            Xr = Xr.copy()
+            Xr[0] += 2 * RESTORE_LIMIT * spiky.mesh.h
+        return Xr
+
+    spiky._restore = spike
+    with pytest.warns(UserWarning, match="moved a vertex"):
+        r = spiky.step()
+    assert "remesh" not in r.remeshed and spiky.mesh.n_vertices == mesh.n_vertices
+    assert abs(r.volume - V0) / V0 < 1e-10
+
+
 def test_volume_target_other_than_initial_moves_the_start_onto_it() -> None:
     mesh = _ellipsoid(1)
     flow = WillmoreFlow(mesh, 2e-3, mesh.h**2 / 100, volume=4.0, mesh_control="off")

@@ -81,6 +81,10 @@ BUDGET_WINDOW = 20
 RELAX_WINDOW = 3
 """The relax test looks at the Willmore energy over this many last steps (:meth:`WillmoreFlow.step`)."""
 
+RESTORE_LIMIT = 0.25
+"""A mesh repair is dropped when moving the repaired mesh back onto the volume/area targets would move a vertex
+by more than this many mean edge lengths (a least-norm correction of a coarse remeshed vesicle built a spike)."""
+
 CONSTRAINT_RTOL_SOLVER = 1e-6
 """Largest relative residual of an outer constraint (volume, area) that a solve may leave: the state is
 then moved onto the constraints (:meth:`WillmoreFlow._restore`, to 1e-13); more rejects the step."""
@@ -641,12 +645,16 @@ class WillmoreFlow:
         if F1.shape != F.shape or not np.array_equal(F1, F):
             self._build(Mesh(X1, F1, self.mesh.source), boundary)
         try:
-            X1 = self._restore(X1)
+            Xr = self._restore(X1)
+            shift = float(np.abs(Xr - X1).max())
+            if shift > RESTORE_LIMIT * self.mesh.h:  # a least-norm correction this large builds spikes
+                raise ArithmeticError(f"restoring volume/area moved a vertex by {shift / self.mesh.h:.3g} h")
+            X1 = Xr
             Y1 = self._solve_y(X1, tau)
             if not np.all(np.isfinite(Y1)):
-                raise ArithmeticError("non-finite values")
+                raise ArithmeticError("Y[X] has non-finite values")
         except (RuntimeError, ValueError, ArithmeticError) as exc:
-            warnings.warn(f"step {self.k}: mesh repair dropped, Y[X] failed on the new mesh ({exc})", stacklevel=3)
+            warnings.warn(f"step {self.k}: mesh repair dropped on the new mesh ({exc})", stacklevel=3)
             if self.mesh is not old[0]:
                 self._build(*old)
             return "", {}
