@@ -13,6 +13,7 @@ from scipy.spatial import ConvexHull
 
 from willmore_nlp import FlowError, WillmoreFlow, geometry, load_run, registry
 from willmore_nlp import remesh as rm
+from willmore_nlp.analysis import torus_grid_asymmetry
 from willmore_nlp.boundary import boundary_data
 from willmore_nlp.export import export_run
 from willmore_nlp.mesh import shapes
@@ -287,26 +288,20 @@ def test_restart_is_bit_identical_with_the_light_repair() -> None:
         assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.simplices, b.simplices)
 
 
-def _asymmetry(X: np.ndarray, n: int) -> float:
-    """Largest spread over the n rotated copies of each vertex of an n x n/2 torus grid (shapes.torus numbering)
-    of (rho, z, rho dphi) about the centroid: zero for a state with the grid's n-fold rotational symmetry."""
-    Y = X - X.mean(axis=0)
-    rho, phi = np.hypot(Y[:, 0], Y[:, 1]), np.arctan2(Y[:, 1], Y[:, 0])
-    dphi = np.angle(np.exp(1j * (phi - 2 * np.pi * (np.arange(len(X)) // (n // 2)) / n)))
-    return float(np.stack([rho, Y[:, 2], rho * dphi], -1).reshape(n, n // 2, 3).std(axis=0).max())
-
-
 def test_light_repair_keeps_the_rotational_symmetry() -> None:
     """The 32x16 torus's flow keeps its 32-fold symmetry to round-off under the light repair. The repair alone,
     12 times on the state after 6 steps of the paper's scheme, leaves it symmetric to 1e-10 (one-piece mean-ratio
     steps amplified a short-wave mode of the inner equator 25-fold per call, from 1e-12 to 2e-3); 10 steps of
     the default flow (flips and repair after each) stay symmetric to 1e-10 (it was 3.6e-3 at step 10)."""
     m = shapes.torus(1.0, 0.5, 32, 16)
+    bumped = np.array(m.vertices)
+    bumped[5, 2] += 1e-3
+    assert torus_grid_asymmetry(m.vertices, 32, 16) < 1e-14 < 1e-4 < torus_grid_asymmetry(bumped, 32, 16)
     X = WillmoreFlow(m, 1e-3, 0.01 * m.h**2, mesh_control="off").run(steps=6)[-1].vertices
-    assert _asymmetry(X, 32) < 1e-13
+    assert torus_grid_asymmetry(X, 32, 16) < 1e-13
     for _ in range(12):
         X = rm.tangential_relax(X, m.simplices, iterations=2, cap=np.full(len(X), 2e-3))
-    assert _asymmetry(X, 32) < 1e-10
+    assert torus_grid_asymmetry(X, 32, 16) < 1e-10
     out = WillmoreFlow(m, 1e-3, 0.01 * m.h**2).run(steps=10)
     assert all("repair" in r.remeshed and r.vertices.shape[0] == m.n_vertices for r in out)
-    assert max(_asymmetry(r.vertices, 32) for r in out) < 1e-10
+    assert max(torus_grid_asymmetry(r.vertices, 32, 16) for r in out) < 1e-10
