@@ -378,11 +378,11 @@ class FlowSettings(Settings):
         tau_tilde at rest, as a fraction of the initial one (default 0.01; 1: off). A closed surface at rest
         is not still under the scheme: its O(tau_tilde) drift shrinks it (a sphere: R^6 = R0^6 -
         96 tau_tilde t, a collapse in finite time; the smoothed box of the mesh-quality study, R = 0.62,
-        h^2/100: at t = 3.8, step 30 at tau = h). After every ``RELAX_WINDOW`` (3) consecutive steps taken
-        at their first attempt with tau >= the nominal tau in which the Willmore energy changed by less than
-        ``rest_tol`` relative per step, tau_tilde is halved (down to this fraction) and Y[X] solved again:
-        the drift slows down by the same factor while the flow it approximates is at rest. The history
-        column ``tau_tilde`` records it (docs/guide/mesh_quality.md).
+        h^2/100, tau = h: t = 3.77, step 33 failed at every tau). After every ``RELAX_WINDOW`` (3) consecutive
+        steps taken at their first attempt with tau >= the nominal tau in which the Willmore energy changed by
+        less than ``rest_tol`` relative per step, tau_tilde is halved (down to this fraction) and Y[X] solved
+        again: the drift slows down by the same factor while the flow it approximates is at rest. The history
+        columns ``tau_tilde`` and ``rest_steps`` record it (docs/guide/mesh_quality.md).
     rest_tol : float
         Relative change of the Willmore energy per step below which a step counts as at rest for
         ``rest_tau_tilde`` (default 1e-5).
