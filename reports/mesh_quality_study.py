@@ -443,10 +443,10 @@ def main() -> None:
               "with the switch to tau = 4e-3 at t = 0.1 was stopped at t = 0.2 (IPOPT > 200 iterations per step); "
               "`torus48_fixed_tau` keeps tau = 1e-3 to t = 1. The tori 24x12, 32x16 and 64x32 ran with `--scale 0.2` "
               "(to t = 0.2). The noisy capsule is `noisy_capsule()` (seed 0). Run with `rest_tau_tilde` and the "
-              "light repair in quarter steps (`remesh.RELAX_SUBSTEPS`): smoothed box and ellipsoid 2,562 v (--scale "
-              "0.4: 80 steps); the other rows are cached from before those two changes (tau_tilde end / start NaN). "
-              "`torus32_fixed_tau` and `torus48_substeps` (the tori with the current code) did not finish on the "
-              "shared machine; the 32x16 run's printed series is in docs/guide/mesh_quality.md."]
+              "light repair in quarter steps (`remesh.RELAX_SUBSTEPS`): the smoothed box; the ellipsoid 2,562 v "
+              "(--scale 0.4: 80 steps) and `torus32_fixed_tau` ran with the first version of the rest test (rest_tol "
+              "1e-5 per step, not per unit time L^4), which lowered the torus's tau_tilde to 1/100; the other rows "
+              "are cached from before those changes (tau_tilde end / start NaN); `torus48_substeps` was not run."]
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print("\n".join(lines))
 
