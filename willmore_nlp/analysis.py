@@ -145,3 +145,20 @@ def wulff_widths(anisotropy: Any) -> np.ndarray:
     from willmore_nlp.anisotropy import get_anisotropy
 
     return 2.0 * get_anisotropy(anisotropy, 2)(WIDTH_DIRECTIONS)
+
+
+def torus_grid_asymmetry(X: np.ndarray, n_major: int, n_minor: int) -> float:
+    """Departure of a torus grid's state from the grid's n_major-fold rotational symmetry about x3.
+
+    For the vertices numbered as :func:`willmore_nlp.mesh.shapes.torus` does (index = i n_minor + j, i around
+    the axis), the largest standard deviation over the n_major rotated copies i of (rho, z, rho dphi) about the
+    centroid, with dphi the angle from the copy's own meridian plane: 0 (round-off) for a state with that
+    symmetry, whatever the connectivity. NaN when X has another vertex count (after a remeshing).
+    """
+    X = np.asarray(X, float)
+    if X.shape[0] != n_major * n_minor:
+        return float("nan")
+    Y = X - X.mean(axis=0)
+    rho, phi = np.hypot(Y[:, 0], Y[:, 1]), np.arctan2(Y[:, 1], Y[:, 0])
+    dphi = np.angle(np.exp(1j * (phi - 2 * np.pi * (np.arange(X.shape[0]) // n_minor) / n_major)))
+    return float(np.stack([rho, Y[:, 2], rho * dphi], -1).reshape(n_major, n_minor, 3).std(axis=0).max())

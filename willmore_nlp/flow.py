@@ -133,6 +133,8 @@ class StepResult:
         joined by "+"); ``stats`` then holds ``energy_before_remesh`` and ``energy_after_remesh``
     relaxed : True on the step that ended a relaxation (``relax=True``: the step lowered the
         Willmore energy by less than ``relax_tol`` relative)
+    tau_tilde : inner step size of the state (lowered at rest by ``rest_tau_tilde``; Y is Y[X] for it)
+    rest_steps : consecutive steps at rest counted toward the next halving of tau_tilde (``rest_tau_tilde``)
     """
 
     step: int
@@ -158,6 +160,8 @@ class StepResult:
     free: np.ndarray | None = None
     remeshed: str = ""
     relaxed: bool = False
+    tau_tilde: float = float("nan")
+    rest_steps: int = 0
 
     def row(self) -> dict[str, Any]:
         """Flat dict for history.csv."""
@@ -184,6 +188,8 @@ class StepResult:
             "energy_after_remesh": self.stats.get("energy_after_remesh", float("nan")),
             "min_angle_before_remesh": self.stats.get("min_angle_before_remesh", float("nan")),
             "relaxed": int(self.relaxed),
+            "tau_tilde": self.tau_tilde,
+            "rest_steps": self.rest_steps,
         }
         r.update({f"q_{k}": v for k, v in self.quality.items()})
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "n_eval_hess", "energy_before_redistribution",
@@ -323,6 +329,12 @@ class WillmoreFlow:
         self.lam_g: np.ndarray | None = None
         self._relax_start(geometry.willmore_energy(self.mesh, self.energy_nodes))
         self._X_prev = self.X
+        # rest_tau_tilde: the scheme's drift of closed surfaces at rest (see _rest_tau_tilde)
+        self.tau_tilde_initial = tau_tilde
+        self._rest = (self.remesh and boundary is None and mesh.is_closed and not s.relax and not self.problem.nh
+                      and s.rest_tau_tilde < 1)
+        self._rest_steps = 0
+        self._rest_w = self._relax_window[0][0]
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.
@@ -428,6 +440,8 @@ class WillmoreFlow:
                             else anisotropic_willmore_energy(mesh, self.setup.anisotropy)),
             simplices=self.mesh.simplices,
             free=self.free,
+            tau_tilde=self.tau_tilde,
+            rest_steps=self._rest_steps,
         )
 
     def _reject_reason(self, res: Any, f0: float, X: np.ndarray) -> str | None:
@@ -524,6 +538,8 @@ class WillmoreFlow:
                 self._grow_tau(tau, attempt)
                 self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
                 action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
+                if self._rest:
+                    self._rest_tau_tilde(attempt, tau)
                 result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
                 result.stats.update(moved)
                 result.stats.update(mstats)
@@ -690,6 +706,31 @@ class WillmoreFlow:
         self._tau_adapt = tau if attempt or self._relax_hold else 2 * tau
         self._relax_last_tau = tau
 
+    def _rest_tau_tilde(self, retries: int, tau: float) -> None:
+        """Halve tau_tilde (``rest_tau_tilde``) after ``RELAX_WINDOW`` consecutive steps at rest.
+
+        A step is at rest when it was taken at its first attempt with tau >= the nominal tau and the Willmore
+        energy (scale invariant) of the accepted, repaired state differs from the previous one by less than
+        ``rest_tol`` relative per unit of the surface's own time scale L^4 (L^2 = area / 4 pi), i.e. by less
+        than ``rest_tol tau / L^4`` in the step (per step alone, a torus flowing slowly at tau = 1e-3 counted
+        as at rest). At rest the scheme still moves a closed surface: its O(tau_tilde) drift shrinks
+        it (a sphere: dR/dt = -16 tau_tilde / R^5, a collapse at t = R^6 / (96 tau_tilde)), which the
+        smaller tau_tilde slows down by the same factor. Y[X] is solved again for the new tau_tilde.
+        """
+        M = self.mesh.with_vertices(self.X)
+        w = geometry.willmore_energy(M, self.energy_nodes)
+        L4 = (geometry.measure(M) / (4 * np.pi)) ** 2
+        still = (retries == 0 and tau >= self.tau
+                 and abs(w - self._rest_w) <= self.settings.rest_tol * tau / L4 * abs(w))
+        self._rest_w = w
+        self._rest_steps = self._rest_steps + 1 if still else 0
+        floor = self.settings.rest_tau_tilde * self.tau_tilde_initial
+        if self._rest_steps >= RELAX_WINDOW and self.tau_tilde > floor:
+            self.tau_tilde = max(floor, self.tau_tilde / 2)
+            self.Y = self._solve_y(self.X, tau)
+            self.lam_g = None
+            self._rest_steps = 0
+
     def _relax_test(self, willmore: float, tau: float, action: str) -> bool:
         """Record an accepted state in the relax window and say whether the relaxation has ended.
 
@@ -714,7 +755,8 @@ class WillmoreFlow:
     def restart(self, X: np.ndarray, Y: np.ndarray, t: float, k: int,
                 lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0,
                 simplices: np.ndarray | None = None, free: np.ndarray | None = None,
-                iterations: list[int] | None = None, history: list[dict[str, Any]] | None = None) -> None:
+                iterations: list[int] | None = None, history: list[dict[str, Any]] | None = None,
+                tau_tilde: float | None = None, rest_steps: int = 0) -> None:
         """Continue from a saved state (X^k, Y[X^k], t, k), e.g. a run directory's checkpoint.
 
         With the ``Y`` and multipliers ``lam_g`` that the flow held at that state (both are in
@@ -736,6 +778,8 @@ class WillmoreFlow:
             is a multiple of their median over the last ``BUDGET_WINDOW``); None: an empty history
         history : rows (:meth:`StepResult.row`, e.g. read from history.csv) of the states up to this one, from
             the initial state on: the relax test continues from its window over them; None: from this state
+        tau_tilde, rest_steps : the state's tau_tilde and count of steps at rest (``rest_tau_tilde``; columns of
+            its row); None: the flow's tau_tilde is kept
         """
         X = np.array(X, dtype=float)
         Y = np.array(Y, dtype=float)
@@ -771,6 +815,10 @@ class WillmoreFlow:
         if not replayed:
             self._tau_adapt = (float("inf") if last_tau is None
                                else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
+        if tau_tilde is not None and np.isfinite(float(tau_tilde)):
+            self.tau_tilde = float(tau_tilde)
+        self._rest_steps = int(rest_steps)
+        self._rest_w = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
 
     def run(
         self,

@@ -375,6 +375,21 @@ class FlowSettings(Settings):
         vertex count never changes;
         the shape changes by O(h^3) per move (the cubic terms). Keeps the mesh from degrading between the repairs
         (docs/guide/mesh_quality.md).
+    rest_tau_tilde : float
+        Closed surfaces with mesh control (not with ``relax``, outer constraints or a boundary): smallest
+        tau_tilde at rest, as a fraction of the initial one (default 0.01; 1: off). A closed surface at rest
+        is not still under the scheme: its O(tau_tilde) drift shrinks it (a sphere: R^6 = R0^6 -
+        96 tau_tilde t, a collapse in finite time; the smoothed box of the mesh-quality study, R = 0.62,
+        h^2/100, tau = h: t = 3.77, step 33 failed at every tau). After every ``RELAX_WINDOW`` (3) consecutive
+        steps taken at their first attempt with tau >= the nominal tau in which the Willmore energy changed by
+        less than ``rest_tol`` relative per unit of the surface's time scale L^4 (L^2 = area / 4 pi), tau_tilde
+        is halved (down to this fraction) and Y[X] solved
+        again: the drift slows down by the same factor while the flow it approximates is at rest. The history
+        columns ``tau_tilde`` and ``rest_steps`` record it (docs/guide/mesh_quality.md).
+    rest_tol : float
+        Relative change of the Willmore energy per unit time, in the surface's own time scale L^4 (L^2 = area /
+        4 pi), below which a step counts as at rest for ``rest_tau_tilde`` (default 3e-5; per step: below
+        ``rest_tol tau / L^4``, so that a slow flow at a small tau, e.g. a torus at tau = 1e-3, is not at rest).
     """
 
     solver: str = option("ipopt", Kind("a solver name", lambda v: isinstance(v, str), parse=str))
@@ -409,5 +424,7 @@ class FlowSettings(Settings):
     remesh_max_edge_ratio: float = option(10.0, real(1, finite=False))
     remesh_target: float | None = option(None, real(0, lo_open=True, unset="the initial mean edge"))
     remesh_repair: int = option(2, integer(0))
+    rest_tau_tilde: float = option(0.01, real(0, 1, lo_open=True, hi_open=False, note="1: off"))
+    rest_tol: float = option(3e-5, real(0))
 
     renamed: ClassVar[dict[str, str]] = {"remesh_relax": "remesh_repair"}  # its history action: "relax" then

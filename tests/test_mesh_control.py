@@ -1,0 +1,100 @@
+"""``rest_tau_tilde``: a closed surface at rest stops shrinking under the scheme's O(tau_tilde) drift."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from willmore_nlp import WillmoreFlow
+from willmore_nlp.analysis import sphere_step_radius
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.mesh import shapes
+
+
+def _radius(X: np.ndarray) -> float:
+    return float(np.linalg.norm(X - X.mean(axis=0), axis=1).mean())
+
+
+def test_rest_halves_tau_tilde_and_the_drift_follows_the_sphere_equation() -> None:
+    """A 162-vertex sphere (at rest from the start) with tau_tilde = h^2/25 and tau = h, 16 steps: tau_tilde
+    halves after every 3 steps at rest (recorded in the rows, Y = Y[X] for it) down to the floor; each step's
+    shrinkage R_k - R_{k+1} is the same multiple of the time-discrete, space-continuous prediction
+    (analysis.sphere_step_radius from R_k with that step's tau_tilde) to 1% before and after every halving,
+    so the drift falls by the factor of tau_tilde: R ends above 0.7 where tau_tilde fixed predicts < 0.5."""
+    mesh = shapes.icosphere(2)
+    tt0 = 0.04 * mesh.h**2
+    flow = WillmoreFlow(mesh, mesh.h, tt0, rest_tau_tilde=1 / 16)
+    out = flow.run(steps=16)
+    tts = [tt0] + [r.tau_tilde for r in out]
+    assert [r.rest_steps for r in out[:6]] == [0, 0, 1, 2, 0, 1]  # steps 1-2 relax the icosphere's mesh
+    assert tts[4] == tt0 and tts[5] == tt0 / 2 and tts[14] == tts[16] == tt0 / 16 and min(tts) == tt0 / 16
+    assert all(b in (a, a / 2) for a, b in itertools.pairwise(tts))
+    Rs = [_radius(mesh.vertices)] + [_radius(r.vertices) for r in out]
+    ratio = [(Rs[k] - Rs[k + 1]) / (Rs[k] - sphere_step_radius(Rs[k], r.tau, tts[k])) for k, r in enumerate(out)]
+    assert max(ratio[1:]) / min(ratio[1:]) < 1.01  # step 1 also relaxes the icosphere's own mesh
+    assert 1.0 < ratio[-1] < 1.15  # the discrete drift is that of the smooth sphere to 15% on 162 vertices
+    assert all(r.retries == 0 for r in out)
+    last = out[-1]
+    np.testing.assert_allclose(last.Y, flow._solve_y(last.vertices, mesh.h), rtol=0, atol=1e-14)
+    fixed = Rs[0]  # tau_tilde fixed (rest_tau_tilde = 1): the same flow fails at step 14 (the collapse)
+    for r in out:
+        fixed = sphere_step_radius(fixed, r.tau, tt0)
+    assert Rs[-1] > 0.7 and fixed < 0.5
+
+
+def test_rest_rule_resumes_bit_identically() -> None:
+    """8 steps, a new flow restarted at step 4 (its row's tau_tilde and rest_steps), 4 more steps: the same
+    states, Y and tau_tilde bit for bit as 8 uninterrupted steps (a halving happens in between)."""
+    mesh = shapes.icosphere(2)
+    tt0 = 0.04 * mesh.h**2
+    full = WillmoreFlow(mesh, mesh.h, tt0).run(steps=8)
+    assert len({r.tau_tilde for r in full}) > 1
+    s = full[3]
+    row = s.row()
+    again = WillmoreFlow(mesh, mesh.h, tt0)
+    again.restart(s.vertices, s.Y, s.t, s.step, None, s.tau, s.retries, simplices=s.simplices,
+                  tau_tilde=row["tau_tilde"], rest_steps=row["rest_steps"])
+    for a, b in zip(full[4:], again.run(steps=4), strict=True):
+        assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.Y, b.Y) and a.tau_tilde == b.tau_tilde
+
+
+@pytest.mark.parametrize("options", [{"rest_tau_tilde": 1.0}, {"mesh_control": "off"}, {"relax": True},
+                                     {"volume": "initial"}])
+def test_rest_rule_only_for_closed_surfaces_with_mesh_control(options: dict) -> None:
+    """Off with rest_tau_tilde = 1, without mesh control (the paper's scheme), in relax mode (which stops at
+    rest) and with an outer constraint (no free scale to drift along)."""
+    mesh = shapes.icosphere(1)
+    flow = WillmoreFlow(mesh, mesh.h, 0.04 * mesh.h**2, **options)
+    assert {r.tau_tilde for r in flow.run(steps=5)} == {0.04 * mesh.h**2}
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, 2.0, "half"])
+def test_rest_tau_tilde_must_be_a_fraction(bad) -> None:
+    mesh = shapes.icosphere(1)
+    with pytest.raises(UserInputError, match="rest_tau_tilde"):
+        WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, rest_tau_tilde=bad)
+
+
+def test_resume_continues_the_lowered_tau_tilde(tmp_path) -> None:
+    """willmore-nlp run --resume from a state two steps into a rest window (history columns tau_tilde and
+    rest_steps) halves tau_tilde at the same step and gives the states of an uninterrupted run bit for bit."""
+    import subprocess
+    import sys
+
+    from willmore_nlp import load_run
+
+    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", "sphere", "--set", "subdivisions=2", "--set",
+           "tau_tilde=0.006", "--quiet"]
+    full, part = tmp_path / "full", tmp_path / "part"
+    for out, steps in ((full, "6"), (part, "4")):
+        r = subprocess.run([*cli, "--steps", steps, "--out", str(out)], capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "--resume", str(part), "--steps", "6",
+                        "--quiet"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    a, b = load_run(full), load_run(part)
+    tts = [float(h["tau_tilde"]) for h in a.history]
+    assert int(b.history[4]["rest_steps"]) == 2 and tts[5] == tts[4] / 2  # halved by the resumed run's first step
+    assert [float(h["tau_tilde"]) for h in b.history] == tts
+    for ya, yb, sa, sb in zip(a.Y, b.Y, a.states, b.states, strict=True):
+        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(ya, yb)
