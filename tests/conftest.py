@@ -28,3 +28,44 @@ def _check_step_derivatives(ev, z: np.ndarray, p: np.ndarray, rng: np.random.Gen
 def check_step_derivatives() -> Callable[..., None]:
     """:func:`_check_step_derivatives` (assert-style finite-difference check of a StepEvaluator)."""
     return _check_step_derivatives
+
+
+@pytest.fixture
+def octagon_evaluator():
+    """(mesh, StepEvaluator) of a regular 8-gon's step problem: the registry's and solvers' option tests."""
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.model.build import build_step
+    from willmore_nlp.model.evaluator import StepEvaluator
+
+    mesh = shapes.regular_polygon(8)
+    setup = build_step(mesh)
+    return mesh, StepEvaluator(setup.problem, setup.problem.functions())
+
+
+def _curves_agree_before_nodes(a: dict, b: dict) -> None:
+    """Willmore flow of the ellipse 1 : 0.5 (n = 32, 64, 128; tau = h/8, tau_tilde = h^2/10, to t = 0.04) with
+    flow options ``a`` and ``b``: the two curves converge to each other at order > 1.6 in h and faster (by 0.3)
+    than their nodes do, while the curves move more than 7 times their distance."""
+    from willmore_nlp import WillmoreFlow
+    from willmore_nlp.analysis import fit_order, polygon_distance
+    from willmore_nlp.mesh import shapes
+
+    hs, curve, nodes = [], [], []
+    for n in (32, 64, 128):
+        mesh = shapes.ellipse(n, 1.0, 0.5)
+        h = mesh.h
+        A, B = (WillmoreFlow(mesh, tau=h / 8, tau_tilde=0.1 * h * h, **o) for o in (a, b))
+        A.run(t_end=0.04)
+        B.run(t_end=0.04)
+        hs.append(h)
+        curve.append(polygon_distance(A.X, B.X))
+        nodes.append(float(np.abs(A.X - B.X).max()))
+        assert np.abs(A.X - mesh.vertices).max() > 7 * curve[-1]
+    assert fit_order(hs, curve) > 1.6
+    assert fit_order(hs, curve) > fit_order(hs, nodes) + 0.3
+
+
+@pytest.fixture
+def curves_agree_before_nodes() -> Callable[[dict, dict], None]:
+    """:func:`_curves_agree_before_nodes` (two tangential treatments give the same curve, not the same nodes)."""
+    return _curves_agree_before_nodes

@@ -134,10 +134,8 @@ def test_short_surface_flow_matches_ipopt() -> None:
     assert np.all(np.diff(energy) < 0)
 
 
-def test_bad_options_are_one_line_user_errors() -> None:
-    mesh = shapes.regular_polygon(8)
-    setup = build_step(mesh)
-    ev = StepEvaluator(setup.problem, setup.problem.functions())
+def test_bad_options_are_one_line_user_errors(octagon_evaluator) -> None:
+    mesh, ev = octagon_evaluator
     with pytest.raises(UserInputError, match="newton-krylov: unknown option\\(s\\) foo"):
         make_solver("newton-krylov", ev, {"foo": 1})
     with pytest.raises(UserInputError, match="option cholesky must be one of"):

@@ -87,11 +87,9 @@ def test_gradient_descent_error_follows_its_tolerance() -> None:
     assert fit_order(tols, err) == pytest.approx(1.0, abs=0.15)
 
 
-def test_solver_registry_and_options() -> None:
+def test_solver_registry_and_options(octagon_evaluator) -> None:
     assert {"ipopt", "sqp", "gd", "lbfgs", "newton", "semi-implicit"} <= set(solver_names())
-    mesh = shapes.regular_polygon(8)
-    setup = build_step(mesh)
-    ev = StepEvaluator(setup.problem, setup.problem.functions())
+    _, ev = octagon_evaluator
     with pytest.raises(ValueError, match="unknown option\\(s\\) foo"):
         make_solver("lbfgs", ev, {"foo": 1})
     with pytest.raises(ValueError, match="unknown solver 'bfgs'"):
