@@ -538,9 +538,12 @@ class WillmoreFlow:
                 self._grow_tau(tau, attempt)
                 self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
                 action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
-                if self._rest:
-                    self._rest_tau_tilde(attempt, tau)
                 result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
+                if self._rest and self._rest_tau_tilde(attempt, tau, result.willmore, result.measure):
+                    # Y, the discrete energy and tau_tilde of the state are those of the halved tau_tilde
+                    result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt,
+                                          rejected)
+                result.rest_steps = self._rest_steps
                 result.stats.update(moved)
                 result.stats.update(mstats)
                 result.stats["rejected_iterations"] = spent - res.iterations
@@ -706,8 +709,9 @@ class WillmoreFlow:
         self._tau_adapt = tau if attempt or self._relax_hold else 2 * tau
         self._relax_last_tau = tau
 
-    def _rest_tau_tilde(self, retries: int, tau: float) -> None:
-        """Halve tau_tilde (``rest_tau_tilde``) after ``RELAX_WINDOW`` consecutive steps at rest.
+    def _rest_tau_tilde(self, retries: int, tau: float, w: float, area: float) -> bool:
+        """Count the accepted state (Willmore energy ``w``, area ``area``) toward rest and halve tau_tilde
+        (``rest_tau_tilde``) after ``RELAX_WINDOW`` consecutive steps at rest; True when it halved.
 
         A step is at rest when it was taken at its first attempt with tau >= the nominal tau and the Willmore
         energy (scale invariant) of the accepted, repaired state differs from the previous one by less than
@@ -717,19 +721,19 @@ class WillmoreFlow:
         it (a sphere: dR/dt = -16 tau_tilde / R^5, a collapse at t = R^6 / (96 tau_tilde)), which the
         smaller tau_tilde slows down by the same factor. Y[X] is solved again for the new tau_tilde.
         """
-        M = self.mesh.with_vertices(self.X)
-        w = geometry.willmore_energy(M, self.energy_nodes)
-        L4 = (geometry.measure(M) / (4 * np.pi)) ** 2
+        L4 = (area / (4 * np.pi)) ** 2
         still = (retries == 0 and tau >= self.tau
                  and abs(w - self._rest_w) <= self.settings.rest_tol * tau / L4 * abs(w))
         self._rest_w = w
         self._rest_steps = self._rest_steps + 1 if still else 0
         floor = self.settings.rest_tau_tilde * self.tau_tilde_initial
-        if self._rest_steps >= RELAX_WINDOW and self.tau_tilde > floor:
-            self.tau_tilde = max(floor, self.tau_tilde / 2)
-            self.Y = self._solve_y(self.X, tau)
-            self.lam_g = None
-            self._rest_steps = 0
+        if self._rest_steps < RELAX_WINDOW or self.tau_tilde <= floor:
+            return False
+        self.tau_tilde = max(floor, self.tau_tilde / 2)
+        self.Y = self._solve_y(self.X, tau)
+        self.lam_g = None
+        self._rest_steps = 0
+        return True
 
     def _relax_test(self, willmore: float, tau: float, action: str) -> bool:
         """Record an accepted state in the relax window and say whether the relaxation has ended.
@@ -801,7 +805,8 @@ class WillmoreFlow:
         self._X_prev = self.X
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
-        self._relax_start(geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes))
+        w0 = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
+        self._relax_start(w0)
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
         for r in history or []:
             replayed = "willmore_energy" in r and int(float(r["step"])) == self.k
@@ -818,7 +823,7 @@ class WillmoreFlow:
         if tau_tilde is not None and np.isfinite(float(tau_tilde)):
             self.tau_tilde = float(tau_tilde)
         self._rest_steps = int(rest_steps)
-        self._rest_w = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
+        self._rest_w = w0
 
     def run(
         self,
