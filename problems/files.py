@@ -2,24 +2,38 @@
 
 from __future__ import annotations
 
+from willmore_nlp.boundary import VARIANTS, Boundary
 from willmore_nlp.mesh.io import load_mesh
 from willmore_nlp.registry import Problem, ProblemError, register
 
 
 @register("file")
 def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None = None,
-              lam: float = 0.0, steps: int = 10) -> Problem:
-    """A closed curve or surface read from ``path``; defaults tau = h, tau_tilde = h^2 / 4 (curves) or h^2 / 100.
+              lam: float = 0.0, steps: int = 10, clamp: str = "") -> Problem:
+    """A curve or surface read from ``path`` (open ones with clamp=conormal|ring); tau = h, tau_tilde h^2/4 or h^2/100.
 
     Surfaces get the surface defaults of the other surface problems: tau_tilde = h^2 / 100 (the
     scheme shrinks spheres at rate 16 tau_tilde / R^5, see README) and the mesh control of
     :class:`~willmore_nlp.WillmoreFlow` (``remesh = "auto"``, the flow's default for surfaces; set
-    ``remesh=off`` or ``mesh_control=off`` for the paper's scheme).
+    ``remesh=off`` or ``mesh_control=off`` for the paper's scheme). Curves: tau_tilde = h^2 / 4.
+
+    A mesh with a boundary needs ``clamp``: its outermost strip of simplices (every simplex with a
+    vertex on the mesh boundary) is held fixed and clamps the rest, position and tangent plane
+    (:meth:`~willmore_nlp.boundary.Boundary.outer_strip`), by the paper's prescribed co-normal
+    (``clamp=conormal``) or fixed-ring (``clamp=ring``) variant.
     """
     if not path:
         raise ProblemError("problem 'file' needs path=... (a mesh file)")
+    if clamp and clamp not in VARIANTS:
+        raise ProblemError(f"problem 'file': clamp must be one of {', '.join(VARIANTS)} (or empty), got {clamp!r}")
     mesh = load_mesh(path)
+    options = {}
+    if clamp:
+        options["boundary"] = Boundary.outer_strip(mesh, clamp)
+    elif not mesh.is_closed:
+        raise ProblemError(f"the mesh has a boundary ({len(mesh.boundary_facets)} boundary facets): set "
+                           "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     h = mesh.h
     tt_factor = 0.25 if mesh.d == 1 else 0.01
     return Problem(mesh, h if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
-                   lam, steps=steps, description=f"mesh from {path}")
+                   lam, steps=steps, flow_options=options, description=f"mesh from {path}")

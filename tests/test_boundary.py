@@ -299,3 +299,41 @@ def test_cli_runs_and_resumes_a_clamped_problem(tmp_path) -> None:
                           "--set", "variant=dirichlet"], capture_output=True, text=True, timeout=600)
     assert bad.returncode != 0 and "boundary variant must be one of conormal, ring" in bad.stderr
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("variant", ["conormal", "ring"])
+def test_open_mesh_file_is_clamped_by_its_outer_strip(tmp_path, variant) -> None:
+    """`run disk.obj --set clamp=...`: the outermost strip holds a bumped planar disk, which flattens (W = 0 is
+    the minimum: the plane) while the strip stays bitwise fixed."""
+    from willmore_nlp import registry
+    from willmore_nlp.mesh.io import save_mesh
+
+    mesh = shapes.disk(6)
+    r = np.linalg.norm(mesh.vertices[:, :2], axis=1)
+    V = mesh.vertices.copy()
+    V[:, 2] = 0.15 * np.clip(1 - (r / 0.7) ** 2, 0, None) ** 2  # zero on the outer two rings (r >= 5/6)
+    save_mesh(mesh.with_vertices(V), tmp_path / "disk.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "disk.obj"), clamp=variant)
+    free = pb.flow_options["boundary"].free
+    np.testing.assert_array_equal(free, r * 6 < 4.5)  # the rings 5 and 6 (the outer strip) are fixed
+    flow = pb.make_flow()
+    W0 = flow.discrete_energy(flow.X)
+    res = flow.run(t_end=0.5)
+    X = res[-1].vertices
+    np.testing.assert_array_equal(X[~free], V[~free])
+    assert np.abs(X[:, 2]).max() < 1e-5  # measured 9e-7 after 4 steps (from 0.15)
+    assert res[-1].energy < 1e-8 * W0
+    with pytest.raises(BoundaryError, match="the mesh is closed: there is no boundary to clamp"):
+        Boundary.outer_strip(shapes.icosphere(1))
+
+
+def test_open_mesh_file_without_clamp_names_the_option(tmp_path) -> None:
+    from willmore_nlp import registry
+    from willmore_nlp.errors import UserInputError
+    from willmore_nlp.mesh.io import save_mesh
+
+    save_mesh(shapes.disk(3), tmp_path / "disk.obj")
+    with pytest.raises(UserInputError, match=r"the mesh has a boundary \(18 boundary facets\): set clamp=conormal"):
+        registry.build("file", path=str(tmp_path / "disk.obj"))
+    with pytest.raises(UserInputError, match="clamp must be one of conormal, ring"):
+        registry.build("file", path=str(tmp_path / "disk.obj"), clamp="dirichlet")

@@ -25,8 +25,9 @@ Terminology, for a mesh and a boolean mask ``free`` of its vertices:
 
 Constructors: :meth:`Boundary.from_indices`, :meth:`Boundary.from_predicate`,
 :meth:`Boundary.from_region` (a ball), :meth:`Boundary.complement` (every vertex free except a
-fixed set) and :func:`boundary_data`, which checks a selection and returns the index sets used by
-the step problem, with errors that name the offending vertex or facet.
+fixed set), :meth:`Boundary.outer_strip` (an open mesh held by its outermost strip of simplices)
+and :func:`boundary_data`, which checks a selection and returns the index sets used by the step
+problem, with errors that name the offending vertex or facet.
 """
 
 from __future__ import annotations
@@ -111,6 +112,23 @@ class Boundary:
         """Free vertices strictly inside the ball ``|x - center| < radius``."""
         c = np.asarray(center, float).reshape(1, -1)
         return cls.from_predicate(mesh, lambda V: np.linalg.norm(V - c, axis=1) < radius, variant, **kw)
+
+    @classmethod
+    def outer_strip(cls, mesh: Mesh, variant: str = "conormal") -> Boundary:
+        """An open mesh clamped by its outermost strip: every simplex with a vertex on the mesh boundary
+        is held fixed (it is the outer ring and gives the co-normal), every other vertex is free.
+
+        For a surface patch this prescribes the boundary curve and the tangent plane along it (the
+        strip's triangles); for an open curve, the end points and the end tangents (the end segments).
+        """
+        if mesh.is_closed:
+            raise BoundaryError(f"{mesh.source}: the mesh is closed: there is no boundary to clamp")
+        S = np.asarray(mesh.simplices)
+        on_bd = np.zeros(mesh.n_vertices, bool)
+        on_bd[mesh.boundary_vertices] = True
+        fixed = np.zeros(mesh.n_vertices, bool)
+        fixed[S[on_bd[S].any(axis=1)].ravel()] = True
+        return cls(~fixed, variant)
 
     @classmethod
     def complement(cls, mesh: Mesh, fixed: np.ndarray | list[int], variant: str = "conormal",

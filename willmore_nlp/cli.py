@@ -153,8 +153,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = ap.add_subparsers(dest="command", required=True)
 
-    r = sub.add_parser("run", help="run a problem (registry name or TOML config) into a run directory")
-    r.add_argument("target", nargs="?", help="problem name (see 'willmore-nlp problems') or a .toml config")
+    r = sub.add_parser("run", help="run a problem (registry name, TOML config or mesh file) into a run directory")
+    r.add_argument("target", nargs="?",
+                   help="problem name (see 'willmore-nlp problems'), a .toml config, or a mesh file (.obj .off .ply "
+                   ".stl .npz, or a curve .txt/.xy/.xyz; open meshes need --set clamp=conormal|ring)")
     r.add_argument("--out", help="run directory to write (must be new or empty)")
     r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its last checkpoint "
                    "(after an interruption, a crash or a failure)")

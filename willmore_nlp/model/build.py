@@ -90,7 +90,8 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None, tang
         if not mesh.is_closed:
             raise MeshError(
                 f"{mesh.source}: the mesh has a boundary ({len(mesh.boundary_facets)} boundary "
-                "facets) but closed-surface flow needs a closed mesh; pass boundary=... for a clamped flow")
+                "facets) but closed-surface flow needs a closed mesh; pass boundary=Boundary.outer_strip(mesh) "
+                "(or another Boundary) for a clamped flow")
         for t in terms:
             t.check(mesh, None)
         return StepSetup(StepProblem(mesh.simplices, mesh.n_vertices, mesh.m, terms, name=_name(mesh, terms)),
