@@ -130,7 +130,8 @@ class StepResult:
     simplices : (K, d + 1) connectivity of the state (changes when the mesh control remeshes)
     free : (N,) bool free-vertex mask of a clamped problem on that connectivity (None without boundary)
     remeshed : the mesh-control action taken after this step ("" none; "flips", "smooth", "remesh"
-        joined by "+"); ``stats`` then holds ``energy_before_remesh`` and ``energy_after_remesh``
+        joined by "+"); ``stats`` then holds ``energy_before_remesh`` and ``energy_after_remesh`` (the
+        discrete energy) and ``willmore_before_remesh`` (the Willmore energy of the state the step reached)
     relaxed : True on the step that ended a relaxation (``relax=True``: the step lowered the
         Willmore energy by less than ``relax_tol`` relative)
     tau_tilde : inner step size of the state (lowered at rest by ``rest_tau_tilde``; Y is Y[X] for it)
@@ -187,6 +188,7 @@ class StepResult:
             "energy_before_remesh": self.stats.get("energy_before_remesh", float("nan")),
             "energy_after_remesh": self.stats.get("energy_after_remesh", float("nan")),
             "min_angle_before_remesh": self.stats.get("min_angle_before_remesh", float("nan")),
+            "willmore_before_remesh": self.stats.get("willmore_before_remesh", float("nan")),
             "relaxed": int(self.relaxed),
             "tau_tilde": self.tau_tilde,
             "rest_steps": self.rest_steps,
@@ -659,6 +661,7 @@ class WillmoreFlow:
         if not light and q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]:
             return "", {}  # no improvement: keep the flow's own mesh rather than churn
         e_before = self.discrete_energy(X, self.Y)
+        w_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
         angle_before = geometry.triangle_quality(X, F)["min_angle"]
         old = (self.mesh, self.boundary)
         if F1.shape != F.shape or not np.array_equal(F1, F):
@@ -681,7 +684,7 @@ class WillmoreFlow:
         self._X_prev = X1
         return "+".join(actions), {"energy_before_remesh": e_before,
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
-                                   "min_angle_before_remesh": angle_before}
+                                   "min_angle_before_remesh": angle_before, "willmore_before_remesh": w_before}
 
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""
