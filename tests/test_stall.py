@@ -189,9 +189,10 @@ def test_relax_stops_by_its_criterion_at_the_sphere(mesh_control: str) -> None:
     assert W[-1] < 0.85 * W[0]
 
 
-def _held_flow(mesh: Mesh, limit: float) -> WillmoreFlow:
-    """A relaxing flow (tau = h, paper's scheme) whose solver fails every attempt with tau > ``limit``."""
-    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, relax=True, mesh_control="off")
+def _held_flow(mesh: Mesh, limit: float, control: str = "relax") -> WillmoreFlow:
+    """A relaxing (or ``control="adaptive"``) flow (tau = h, paper's scheme) whose solver fails every attempt
+    with tau > ``limit``."""
+    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, mesh_control="off", **{control: True})
     state = {"tau": 0.0}
     params, solve = flow.params, flow.solver.solve
 
@@ -235,6 +236,24 @@ def test_relax_ends_when_steps_are_held_below_the_nominal_tau() -> None:
     rest = resumed.run(steps=60)
     assert [(r.tau, r.retries) for r in rest] == [(r.tau, r.retries) for r in out[cut:]]
     assert resumed.relaxed and abs(rest[-1].willmore / out[-1].willmore - 1) < 1e-8
+
+
+def test_adaptive_steps_back_off_after_failed_doublings() -> None:
+    """Adaptive steps held below tau/4 try to double after 2, 4, 8 ... steps, not after every accepted step (one
+    failed attempt per two steps before); resumed from the history (as `--resume` does), the same steps."""
+    mesh = _ellipsoid()
+    limit = mesh.h / 4
+    flow = _held_flow(mesh, limit, "adaptive")
+    out = flow.run(steps=24)
+    assert all(r.tau <= limit * (1 + 1e-12) for r in out) and out[-1].tau == limit
+    failed = [k for k, r in enumerate(out) if r.retries]
+    assert failed[:4] == [0, 3, 8, 17]  # the first step (tau = h, h/2 fail), then after holds of 2, 4, 8 steps
+    cut = failed[2] + 1
+    rows = [{"step": 0, "willmore_energy": geometry.willmore_energy(mesh)}] + [r.row() for r in out[:cut]]
+    last = out[cut - 1]
+    resumed = _held_flow(mesh, limit, "adaptive")
+    resumed.restart(last.vertices, last.Y, last.t, cut, last_tau=last.tau, last_retries=last.retries, history=rows)
+    assert [(r.tau, r.retries) for r in resumed.run(steps=24 - cut)] == [(r.tau, r.retries) for r in out[cut:]]
 
 
 def test_options_are_validated() -> None:

@@ -689,28 +689,25 @@ class WillmoreFlow:
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""
         self._relax_window: list[tuple[float, bool, float]] = [(willmore, False, 0.0)]
-        self._relax_backoff, self._relax_hold, self._relax_last_tau = 1, 0, 0.0
+        self._backoff, self._hold, self._last_tau = 1, 0, 0.0
 
     def _grow_tau(self, tau: float, attempt: int) -> None:
         """Set the step size the next step starts from (``adaptive`` and ``relax``), after a step accepted at tau.
 
-        A step accepted at its first attempt doubles tau, one accepted after retries keeps it. A relaxation
+        A step accepted at its first attempt doubles tau, one accepted after retries keeps it, and the control
         backs off after a failed doubling: it holds tau for 2, 4, 8, ... first-attempt steps (doubling the
         hold at each failure, back to none when a doubled step succeeds), so a flow whose steps cannot reach
         twice their size does not waste every other attempt on it.
         """
-        if not self.settings.relax:
-            self._tau_adapt = 2 * tau if attempt == 0 else tau
-            return
         if attempt:
-            self._relax_backoff *= 2
-            self._relax_hold = self._relax_backoff
-        elif tau > self._relax_last_tau:  # a grown step succeeded
-            self._relax_backoff, self._relax_hold = 1, 0
+            self._backoff *= 2
+            self._hold = self._backoff
+        elif tau > self._last_tau:  # a grown step succeeded
+            self._backoff, self._hold = 1, 0
         else:
-            self._relax_hold = max(0, self._relax_hold - 1)
-        self._tau_adapt = tau if attempt or self._relax_hold else 2 * tau
-        self._relax_last_tau = tau
+            self._hold = max(0, self._hold - 1)
+        self._tau_adapt = tau if attempt or self._hold else 2 * tau
+        self._last_tau = tau
 
     def _rest_tau_tilde(self, retries: int, tau: float, w: float, area: float) -> bool:
         """Count the accepted state (Willmore energy ``w``, area ``area``) toward rest and halve tau_tilde

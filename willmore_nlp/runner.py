@@ -352,7 +352,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                              simplices=ck.simplices, free=ck.free,
                              iterations=[int(float(r["iterations"])) for r in writer.rows
                                          if int(float(r["step"])) > 0 and "iterations" in r],
-                             history=writer.rows if flow.settings.relax else None,
+                             history=writer.rows,
                              tau_tilde=last.get("tau_tilde"), rest_steps=int(float(last.get("rest_steps") or 0)))
                 writer.set_status("running")
             if not quiet:

@@ -292,7 +292,10 @@ class FlowSettings(Settings):
     adaptive : bool
         Step-size control for stiff starts: a step first tries twice the previous accepted step
         (the same step if that one needed retries), never more than ``tau``; failures halve it as
-        usual (``max_retries`` per step). Off, every step first tries ``tau``.
+        usual (``max_retries`` per step). After a step that needed retries the doubling waits 2, 4,
+        8, ... steps (the wait doubles with each such step and ends when a doubled step succeeds), so
+        a flow whose steps cannot grow does not spend every other attempt trying. Off, every step
+        first tries ``tau``. Default for surfaces read by the ``file`` problem.
     min_tau : float, optional
         Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
         fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
