@@ -217,7 +217,7 @@ def genus2(h: float = 0.1, c: float = 0.035, grid: int = 80) -> Mesh:
 
 
 def double_torus_function(P: np.ndarray, R: float = 1.0, r: float = 0.5, d: float = 1.25,
-                          blend: float = 0.1) -> np.ndarray:
+                          blend: float = 0.25) -> np.ndarray:
     """(n,) implicit function of :func:`double_torus` at the points ``P`` (n, 3): negative inside.
 
     The smooth minimum -blend log(exp(-s1/blend) + exp(-s2/blend)) of the signed distances
@@ -229,7 +229,7 @@ def double_torus_function(P: np.ndarray, R: float = 1.0, r: float = 0.5, d: floa
     return m - blend * np.log(np.exp(-(s[0] - m) / blend) + np.exp(-(s[1] - m) / blend))
 
 
-def double_torus(R: float = 1.0, r: float = 0.5, d: float = 1.25, h: float = 0.2, blend: float = 0.1,
+def double_torus(R: float = 1.0, r: float = 0.5, d: float = 1.25, h: float = 0.2, blend: float = 0.25,
                  grid: int = 96) -> Mesh:
     """Closed genus-2 surface: two tori (R, r) about x3 centred at (+-d, 0, 0), joined smoothly.
 
