@@ -57,3 +57,26 @@ def test_genus2_blending_keeps_the_ring_fixed_and_lowers_the_energy() -> None:
     assert all(b.energy <= a.energy for a, b in zip(out, out[1:], strict=False) if not b.remeshed.endswith("remesh"))
     with pytest.raises(MeshError, match="fill"):
         registry.build("genus2_blending", h=0.3, fill="smooth")
+
+
+def test_a_remeshing_that_lowers_the_smallest_angle_is_dropped(monkeypatch) -> None:
+    """The isotropic remeshing (forced by a 35-degree threshold on the 24x12 torus) is applied when it improves
+    the mesh and dropped when its result has a smaller angle than the repaired mesh (a sliver planted in it)."""
+    from willmore_nlp import WillmoreFlow
+    from willmore_nlp import remesh as rm
+
+    m = shapes.torus(1.0, 0.5, 24, 12)
+    out = WillmoreFlow(m, 1e-3, 0.01 * m.h**2, remesh_min_angle=35).run(steps=1)
+    assert out[0].remeshed.endswith("remesh") and out[0].quality["min_angle"] > 30
+    real = rm.isotropic_remesh
+
+    def sliver(V, F, target, free=None, **kw):
+        r = real(V, F, target, free, **kw)
+        a, b = r.simplices[0, :2]
+        r.vertices[a] = r.vertices[b] + 1e-3 * (r.vertices[a] - r.vertices[b])
+        return r
+
+    monkeypatch.setattr(rm, "isotropic_remesh", sliver)
+    out = WillmoreFlow(m, 1e-3, 0.01 * m.h**2, remesh_min_angle=35).run(steps=1)
+    assert "remesh" not in out[0].remeshed and out[0].vertices.shape == m.vertices.shape
+    assert out[0].quality["min_angle"] > 20
