@@ -687,8 +687,8 @@ def fig9_10(fig_dir: Path) -> str:
         states = ((pb.mesh.vertices, pb.mesh.simplices, pb.flow_options["boundary"].free, f"{fill} fill, t = 0"),
                   (res[-1].vertices, res[-1].simplices, res[-1].free, f"{fill}, t = {res[-1].t:.3g}"))
         for k, (V, S, free, title) in enumerate(states):
-            keep = ((np.abs(V[:, 0]) < 1.3) & (V[:, 1] > 0))[S].all(axis=1)  # around the junction's saddle
-            _surface_panel(fig, 4, 2 * j + k, V, S[keep], title, _patch_colors(S[keep], free), view=(15.0, 75.0))
+            keep = ((np.abs(V[:, 0]) < 1.6) & (V[:, 1] > -0.3))[S].all(axis=1)  # around the junction's saddle
+            _surface_panel(fig, 4, 2 * j + k, V, S[keep], title, _patch_colors(S[keep], free), view=(35.0, 60.0))
         finals.append(res[-1].vertices[res[-1].free])
         energies.append(o["W"])
     img10 = _save(fig, fig_dir / "fig10_genus2_blending.png")
