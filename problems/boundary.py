@@ -212,10 +212,10 @@ def genus2_blending(h: float = 0.2, hole: float = 0.6, fill: str = "noisy", amp:
 
     ``tangential_weight`` (default 100; 1 is the paper's scheme) charges the tangential part of the step's
     distance term that many times (the normal motion, and so the flow as h -> 0, is unchanged). Measured on
-    the noisy default (41 free vertices): with 1 the patch's triangles fold within the steps, tau falls to
-    h/64 and the patch energy oscillates by 1 % per step; with 100 every step after the first converges at
-    tau = h in 5-6 iterations and the relative energy change falls below 1e-8 at step 141
-    (docs/guide/mesh_quality.md, "Genus 2").
+    the noisy default (40 free vertices, adaptive steps): with 1 the attempts at larger steps fail, tau stays
+    at h/32-h/16 and the patch energy jumps by up to 1.9 % per step over 15 steps (between 2.563 and 2.644);
+    with 100 the steps converge at tau = h in 5-6 iterations and the relative energy change falls below 1e-8
+    at step 51 (reports/REPRODUCTION.md, Fig. 10; docs/guide/mesh_quality.md, "Genus 2").
     """
     from scipy.optimize import brentq
 

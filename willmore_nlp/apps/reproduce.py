@@ -724,12 +724,13 @@ def fig9_10(fig_dir: Path) -> str:
         "handles meet cut out and refilled noisy (normal noise 0.3 h) or flat (pressed toward its mean plane "
         "by 0.7), restored with the ring variant, tau = h, tt = h^2/100, 200 steps with the library defaults "
         "(mesh control on, **not** the paper's scheme) and the problem's tangential weight 100 (the step's "
-        "distance charges tangential motion 100 times; with the paper's 1 the patch folds within the steps: "
-        "docs/guide/mesh_quality.md, 'Genus 2'). W over the patch; 'undisturbed': the same mesh before the "
-        "cut (a competitor with the same fixed ring); normal jump: the largest angle between the normals of "
-        "two triangles across Gamma, against the undisturbed surface's across Gamma and the fixed surface's "
-        "next to Gamma (`analysis.normal_jumps`); distance: the largest |implicit function| of the final patch "
-        "(about the distance to the undisturbed surface) / h:", "",
+        "distance charges tangential motion 100 times; with the paper's 1 the steps stay at h/32-h/16 and "
+        "the patch energy jumps by up to 2 % per step: docs/guide/boundaries.md). W over the patch; "
+        "'undisturbed': the same mesh before the cut (a competitor with the same fixed ring); normal jump: "
+        "the largest angle between the normals of two triangles across Gamma, against the undisturbed "
+        "surface's across Gamma and the fixed surface's next to Gamma (`analysis.normal_jumps`); distance: "
+        "the largest |implicit function| of the final patch (about the distance to the undisturbed surface) "
+        "/ h:", "",
         "| fill | N | free | steps | t | W | W undisturbed | rel. change last step (first step < 1e-8) | "
         "min angle (all / final) | normal jump across Gamma (start -> end) | undisturbed / fixed | distance / h "
         "| note |",
