@@ -650,8 +650,8 @@ class WillmoreFlow:
                 F2, _ = rm.delaunay_flips(r.vertices, r.simplices, r.free if boundary is not None else None)
                 qa = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
                 qb = self._patch_quality(r.vertices, F2, r.free if boundary is not None else None)
-                # only a remeshing that keeps the smallest angle and improves it or the edge ratio: on a
-                # coarse genus-2 flow, remeshing a thin bar gave 0.6 deg where the step left 17.1 (W 45 -> 84)
+                # only a remeshing that keeps the smallest angle and improves it or the edge ratio (with the
+                # light repair on, any result was taken: 0.6 deg on a coarse genus-2 flow, mesh_quality.md)
                 if qb["min_angle"] >= qa["min_angle"] and (qb["min_angle"] > qa["min_angle"]
                                                            or qb["edge_ratio"] < qa["edge_ratio"]):
                     X1, F1 = r.vertices, F2
