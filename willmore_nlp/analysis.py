@@ -162,3 +162,48 @@ def torus_grid_asymmetry(X: np.ndarray, n_major: int, n_minor: int) -> float:
     rho, phi = np.hypot(Y[:, 0], Y[:, 1]), np.arctan2(Y[:, 1], Y[:, 0])
     dphi = np.angle(np.exp(1j * (phi - 2 * np.pi * (np.arange(X.shape[0]) // n_minor) / n_major)))
     return float(np.stack([rho, Y[:, 2], rho * dphi], -1).reshape(n_major, n_minor, 3).std(axis=0).max())
+
+
+def normal_jumps(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> dict[str, float]:
+    """Largest angles (degrees) between the normals of adjacent triangles, by where their edge lies.
+
+    The C^1 match of a clamped patch across its boundary Gamma: the ``gamma`` value (edges with two
+    fixed end points between a patch triangle, one with a free vertex, and a fixed one) is O(h) times
+    the curvature for a smooth match, like the ``patch`` (edges with a free end point) and ``fixed``
+    (the edges of the fixed surface with an end point on Gamma, which the flow never changes) values;
+    a kink keeps ``gamma`` above them as h -> 0.
+
+    Parameters
+    ----------
+    V : (N, 3) vertices
+    F : (K, 3) triangles, consistently oriented (edges with one or more than two triangles are ignored)
+    free : (N,) bool, the patch's free vertices
+    """
+    from willmore_nlp.mesh.topology import simplex_facets
+
+    E, owner = simplex_facets(F)
+    key = np.sort(E, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    order = np.argsort(inv, kind="stable")
+    pairs = order.reshape(-1, 2) if np.all(counts == 2) else None
+    if pairs is None:
+        keep = counts[inv[order]] == 2
+        pairs = order[keep].reshape(-1, 2)
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    t1, t2 = owner[pairs[:, 0]], owner[pairs[:, 1]]
+    ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", n[t1], n[t2]), -1.0, 1.0)))
+    ends = key[pairs[:, 0]]
+    patch_tri = free[F].any(axis=1)
+    gamma_node = np.zeros(len(V), bool)
+    gamma_node[F[patch_tri].ravel()] = True
+    gamma_node &= ~free
+    on_free = free[ends].any(axis=1)
+    gamma = ~on_free & (patch_tri[t1] != patch_tri[t2])
+    fixed = ~on_free & ~patch_tri[t1] & ~patch_tri[t2] & gamma_node[ends].any(axis=1)
+
+    def top(mask: np.ndarray) -> float:
+        return float(ang[mask].max()) if mask.any() else float("nan")
+
+    return {"gamma": top(gamma), "patch": top(on_free), "fixed": top(fixed)}
