@@ -23,7 +23,9 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     A mesh with a boundary needs ``clamp``: its outermost strip of simplices (every simplex with a
     vertex on the mesh boundary) is held fixed and clamps the rest, position and tangent plane
     (:meth:`~willmore_nlp.boundary.Boundary.outer_strip`), by the paper's prescribed co-normal
-    (``clamp=conormal``) or fixed-ring (``clamp=ring``) variant.
+    (``clamp=conormal``) or fixed-ring (``clamp=ring``) variant. A clamped surface gets
+    ``tangential_weight = 100`` (as ``genus2_blending``): with the paper's 1 the first free row slides
+    toward the clamp (docs/guide/boundaries.md).
     """
     if not path:
         raise ProblemError("problem 'file' needs path=... (a mesh file)")
@@ -33,6 +35,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     options: dict[str, object] = {"adaptive": True} if mesh.d == 2 else {}
     if clamp:
         options["boundary"] = Boundary.outer_strip(mesh, clamp)
+        if mesh.d == 2:
+            options["tangential_weight"] = 100.0
     elif not mesh.is_closed:
         raise ProblemError(f"the mesh has a boundary ({len(mesh.boundary_facets)} boundary facets): set "
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
