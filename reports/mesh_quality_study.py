@@ -171,7 +171,8 @@ def grid_table() -> list[str]:
 
 
 def resolution_table(tor: list[dict[str, Any]], times: tuple[float, ...] = (0.1, 0.2, 0.5, 1.0)) -> list[str]:
-    """R/r, sector spread and W/W_ref - 1 of the torus cases' series at ``times`` (within 1% + 1e-3)."""
+    """R/r, sector spread, conformal R/r, W/W_ref - 1, min angles, asymmetry and (where recorded) mean IPOPT
+    iterations per step, retries and wall time so far of the torus cases' series at ``times`` (within 1% + 1e-3)."""
     out = ["| case | " + " | ".join(f"t = {t:g}" for t in times) + " |", "|---" * (len(times) + 1) + "|"]
     for r in tor:
         ser = [x for x in r.get("series", []) if len(x) > 7]
@@ -184,7 +185,8 @@ def resolution_table(tor: list[dict[str, Any]], times: tuple[float, ...] = (0.1,
                          f"{x[1]:.3f} ({x[6]:.2f}-{x[7]:.2f}"
                          + (f"; conformal {x[8]:.3f}-{x[9]:.3f}" if len(x) > 9 else "")
                          + f"), {x[2] / x[5] - 1:+.2%}, {x[3]:.3g} / {x[4]:.3g} deg"
-                         + (f", asym {x[10]:.1e}" if len(x) > 10 and np.isfinite(x[10]) else ""))
+                         + (f", asym {x[10]:.1e}" if len(x) > 10 and np.isfinite(x[10]) else "")
+                         + (f", {x[12]:.1f} it/step, {x[13]:.0f} retries, {x[11]:.0f} s" if len(x) > 13 else ""))
         out.append(f"| {r['name']} | " + " | ".join(cells) + " |")
     return out
 
@@ -514,7 +516,10 @@ def main() -> None:
               "light repair in quarter steps (`remesh.RELAX_SUBSTEPS`): the smoothed box; the ellipsoid 2,562 v "
               "(--scale 0.4: 80 steps) and `torus32_fixed_tau` ran with the first version of the rest test (rest_tol "
               "1e-5 per step, not per unit time L^4), which lowered the torus's tau_tilde to 1/100; the other rows "
-              "are cached from before those changes (tau_tilde end / start NaN); `torus48_substeps` was not run."]
+              "are cached from before those changes (tau_tilde end / start NaN). `torus48_substeps` (today's defaults) "
+              "and the `tangential_weight 10` tori ran with the current rest test (never at rest at tau = 1e-3); their "
+              "series also hold the wall time, mean IPOPT iterations and retries so far (`--save-states DIR` keeps "
+              "the states)."]
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print("\n".join(lines))
 
