@@ -40,6 +40,7 @@ from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 
 CACHE = Path("reports/studies/mesh_quality")
+STATES: Path | None = None  # --save-states DIR: the torus states at the series' times (npz), for later analysis
 
 
 def ellipsoid(subdivisions: int) -> Mesh:
@@ -170,7 +171,8 @@ def grid_table() -> list[str]:
 
 
 def resolution_table(tor: list[dict[str, Any]], times: tuple[float, ...] = (0.1, 0.2, 0.5, 1.0)) -> list[str]:
-    """R/r, sector spread and W/W_ref - 1 of the torus cases' series at ``times`` (within 1% + 1e-3)."""
+    """R/r, sector spread, conformal R/r, W/W_ref - 1, min angles, asymmetry and (where recorded) mean IPOPT
+    iterations per step, retries and wall time so far of the torus cases' series at ``times`` (within 1% + 1e-3)."""
     out = ["| case | " + " | ".join(f"t = {t:g}" for t in times) + " |", "|---" * (len(times) + 1) + "|"]
     for r in tor:
         ser = [x for x in r.get("series", []) if len(x) > 7]
@@ -183,7 +185,8 @@ def resolution_table(tor: list[dict[str, Any]], times: tuple[float, ...] = (0.1,
                          f"{x[1]:.3f} ({x[6]:.2f}-{x[7]:.2f}"
                          + (f"; conformal {x[8]:.3f}-{x[9]:.3f}" if len(x) > 9 else "")
                          + f"), {x[2] / x[5] - 1:+.2%}, {x[3]:.3g} / {x[4]:.3g} deg"
-                         + (f", asym {x[10]:.1e}" if len(x) > 10 and np.isfinite(x[10]) else ""))
+                         + (f", asym {x[10]:.1e}" if len(x) > 10 and np.isfinite(x[10]) else "")
+                         + (f", {x[12]:.1f} it/step, {x[13]:.0f} retries, {x[11]:.0f} s" if len(x) > 13 else ""))
         out.append(f"| {r['name']} | " + " | ".join(cells) + " |")
     return out
 
@@ -235,7 +238,13 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
             n = int(np.rint(np.sqrt(2 * mesh.n_vertices)))
             series.append([r.t, R / rr, r.willmore, float(min(before)), float(min(x["q_min_angle"] for x in rows)),
                            float(reference(m, flow)), float(sec.min()), float(sec.max()), float(conf.min()),
-                           float(conf.max()), torus_grid_asymmetry(r.vertices, n, n // 2) / rr])
+                           float(conf.max()), torus_grid_asymmetry(r.vertices, n, n // 2) / rr,
+                           time.perf_counter() - t0, float(np.mean([x["iterations"] for x in rows[1:]])),
+                           float(sum(x["retries"] for x in rows[1:]))])
+            if STATES is not None:
+                STATES.mkdir(parents=True, exist_ok=True)
+                np.savez(STATES / f"{name.replace(' ', '_')}_t{r.t:.4f}.npz", vertices=r.vertices,
+                         simplices=flow.mesh.simplices)
             print(f"  {name}: series {series[-1]} N = {r.vertices.shape[0]}", flush=True)
         if len(rows) % 50 == 0:
             print(f"  {name}: step {r.step} t = {r.t:.4g} W = {r.willmore:.5g} min angle "
@@ -273,7 +282,8 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
         out.update({"R_over_r": R / r, "sector_R_over_r": sector_ratios(flow.X).tolist(),
                     "conformal_R_over_r": conformal_ratios(flow.X).tolist(),
                     "clifford_grid": geometry.willmore_energy(shapes.torus(np.sqrt(2), 1.0, n, n // 2)),
-                    "W_min": float(W.min()), "series": series})
+                    "W_min": float(W.min()), "series": series,
+                    "iterations": [int(x["iterations"]) for x in rows[1:]]})
     return out
 
 
@@ -294,7 +304,8 @@ def cases(scale: float) -> dict[str, Any]:
         """R = 1, r = 0.5 on n x n/2 to t = scale, tau = 1e-3 (4e-3 after t = 0.1 when ``switch`` and scale = 1)."""
         mesh = shapes.torus(1.0, 0.5, n, n // 2)
         label = {(): "", ("mesh_control",): " (mesh control off)", ("remesh_repair",): " (threshold repair only)",
-                 ("remesh",): " (no repair between steps)"}[tuple(kw)] + ("" if switch else ", tau = 1e-3") + note
+                 ("remesh",): " (no repair between steps)",
+                 ("tangential_weight",): ""}[tuple(kw)] + ("" if switch else ", tau = 1e-3") + note
         return lambda: run_case(f"torus {n}x{n // 2}" + label, mesh, 1e-3,
                                 0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford,
                                 switch=(0.1, 4e-3) if scale == 1.0 and switch else None, **kw)
@@ -354,6 +365,10 @@ def cases(scale: float) -> dict[str, Any]:
         "torus24_fixed_tau": torus(24, switch=False),
         "torus32_fixed_tau": torus(32, switch=False),
         "torus48_substeps": torus(48, switch=False, note=" (light repair in quarter steps)"),
+        "torus24_beta10": torus(24, switch=False, note=", tangential_weight 10", tangential_weight=10.0),
+        "torus32_beta10": torus(32, switch=False, note=", tangential_weight 10", tangential_weight=10.0),
+        "torus48_beta10": torus(48, switch=False, note=", tangential_weight 10", tangential_weight=10.0),
+        "torus64_beta10": torus(64, switch=False, note=", tangential_weight 10", tangential_weight=10.0),
         "torus24_off": torus(24, mesh_control="off"),
         "torus64_off": torus(64, mesh_control="off"),
         "torus32_threshold": torus(32, remesh_repair=0),
@@ -390,6 +405,54 @@ def diagnose(steps: int = 10) -> None:
         print(f"grid 24x12 on the exact torus R/r = {q:.4g}: min angle {geometry.quality(g)['min_angle']:.2f}")
 
 
+def conformal_torus(q: float, n: int, m: int, r: float = 1.0) -> Mesh:
+    """The torus R/r = q (tube radius r) on the n x m grid of :func:`shapes.torus`, its meridian nodes at equal steps
+    of the conformal coordinate w = int dv / (q + cos v) instead of the angle v (the grid's quads then all have the
+    same aspect ratio, 2:1 for n = 2m on the Clifford torus, whose conformal modulus is 1)."""
+    from scipy.integrate import cumulative_trapezoid
+
+    v = np.linspace(-np.pi, np.pi, 20001)
+    w = cumulative_trapezoid(1 / (q + np.cos(v)), v, initial=0)
+    w -= np.interp(0.0, v, w)
+    period = w[-1] - w[0]
+    target = np.arange(m) / m * period
+    target = np.where(target > period / 2, target - period, target)
+    vv = np.interp(target, w, v)
+    U, W = np.meshgrid(2 * np.pi * np.arange(n) / n, vv, indexing="ij")
+    P = r * np.stack([(q + np.cos(W)) * np.cos(U), (q + np.cos(W)) * np.sin(U), np.sin(W)], -1).reshape(-1, 3)
+    return Mesh(P, shapes.torus(q, 1.0, n, m).simplices, f"conformal torus R/r={q:.4g} {n}x{m}")
+
+
+def symmetry(steps: int = 3) -> None:
+    """Print why the torus flows leave the rotational symmetry (docs/guide/mesh_quality.md): the paper's scheme
+    (mesh control off) from grids on the exact tori R/r = 1.6 and sqrt 2, uniform and conformal node spacing, with
+    tangential_weight 1 and 10: asymmetry (`torus_grid_asymmetry` / r) after each step and its wavenumber; then
+    the light repair alone on the uniform grid of R/r = 1.571 against the min angle of the conformal spacing."""
+    from willmore_nlp import remesh
+    from willmore_nlp.analysis import torus_grid_asymmetry_wavenumber
+
+    n, m = 24, 12
+    for q in (1.6, np.sqrt(2)):
+        for kind in ("uniform", "conformal"):
+            g = shapes.torus(q, 1.0, n, m) if kind == "uniform" else conformal_torus(q, n, m)
+            mesh = g.with_vertices(g.vertices / 2)
+            for beta in (1.0, 10.0):
+                out = WillmoreFlow(mesh, 1e-3, 0.01 * mesh.h**2, mesh_control="off",
+                                   tangential_weight=beta).run(steps=steps)
+                print(f"{n}x{m} R/r = {q:.4g}, {kind} spacing (min angle {geometry.quality(mesh)['min_angle']:.1f}), "
+                      f"tangential_weight {beta:g}: asymmetry/r "
+                      + ", ".join(f"{torus_grid_asymmetry(r.vertices, n, m) / 0.5:.1e}" for r in out)
+                      + f"; wavenumber {torus_grid_asymmetry_wavenumber(out[-1].vertices, n, m)}; IPOPT iterations "
+                      f"{[r.iterations for r in out]}", flush=True)
+    for n in (24, 48):
+        g = shapes.torus(1.571, 1.0, n, n // 2)
+        X = remesh.tangential_relax(g.vertices, g.simplices, iterations=40)
+        print(f"{n}x{n // 2} on R/r = 1.571: min angle {geometry.quality(g)['min_angle']:.2f} uniform, "
+              f"{geometry.triangle_quality(X, g.simplices)['min_angle']:.2f} after 40 light-repair passes, "
+              f"{geometry.quality(conformal_torus(1.571, n, n // 2))['min_angle']:.2f} with conformal spacing",
+              flush=True)
+
+
 def table(results: list[dict[str, Any]]) -> list[str]:
     lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | "
              "min angle of the stepped states | failed | "
@@ -415,9 +478,16 @@ def main() -> None:
     ap.add_argument("--out", default="reports/mesh_quality_study.md")
     ap.add_argument("--table-only", action="store_true", help="only write the table of the cached cases")
     ap.add_argument("--diagnose", action="store_true", help="only print the single-step diagnosis (torus 24x12)")
+    ap.add_argument("--symmetry", action="store_true", help="only print why the torus flows leave the symmetry")
+    ap.add_argument("--save-states", type=Path, help="write the torus states of the series to this directory")
     args = ap.parse_args()
+    global STATES
+    STATES = args.save_states
     if args.diagnose:
         diagnose()
+        return
+    if args.symmetry:
+        symmetry()
         return
     CACHE.mkdir(parents=True, exist_ok=True)
     todo = cases(args.scale)
@@ -490,7 +560,10 @@ def main() -> None:
               "light repair in quarter steps (`remesh.RELAX_SUBSTEPS`): the smoothed box; the ellipsoid 2,562 v "
               "(--scale 0.4: 80 steps) and `torus32_fixed_tau` ran with the first version of the rest test (rest_tol "
               "1e-5 per step, not per unit time L^4), which lowered the torus's tau_tilde to 1/100; the other rows "
-              "are cached from before those changes (tau_tilde end / start NaN); `torus48_substeps` was not run."]
+              "are cached from before those changes (tau_tilde end / start NaN). `torus48_substeps` (today's defaults) "
+              "and the `tangential_weight 10` tori ran with the current rest test (never at rest at tau = 1e-3); their "
+              "series also hold the wall time, mean IPOPT iterations and retries so far (`--save-states DIR` keeps "
+              "the states)."]
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print("\n".join(lines))
 

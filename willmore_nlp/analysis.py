@@ -147,6 +147,19 @@ def wulff_widths(anisotropy: Any) -> np.ndarray:
     return 2.0 * get_anisotropy(anisotropy, 2)(WIDTH_DIRECTIONS)
 
 
+def _torus_grid_departure(X: np.ndarray, n_major: int, n_minor: int) -> np.ndarray | None:
+    """(n_major, n_minor, 3) cylindrical coordinates (rho, z, rho dphi) of a torus grid's vertices about the
+    centroid, dphi the angle from each copy's own meridian plane (see :func:`torus_grid_asymmetry`); None when X
+    has another vertex count."""
+    X = np.asarray(X, float)
+    if X.shape[0] != n_major * n_minor:
+        return None
+    Y = X - X.mean(axis=0)
+    rho, phi = np.hypot(Y[:, 0], Y[:, 1]), np.arctan2(Y[:, 1], Y[:, 0])
+    dphi = np.angle(np.exp(1j * (phi - 2 * np.pi * (np.arange(X.shape[0]) // n_minor) / n_major)))
+    return np.stack([rho, Y[:, 2], rho * dphi], -1).reshape(n_major, n_minor, 3)
+
+
 def torus_grid_asymmetry(X: np.ndarray, n_major: int, n_minor: int) -> float:
     """Departure of a torus grid's state from the grid's n_major-fold rotational symmetry about x3.
 
@@ -155,13 +168,23 @@ def torus_grid_asymmetry(X: np.ndarray, n_major: int, n_minor: int) -> float:
     centroid, with dphi the angle from the copy's own meridian plane: 0 (round-off) for a state with that
     symmetry, whatever the connectivity. NaN when X has another vertex count (after a remeshing).
     """
-    X = np.asarray(X, float)
-    if X.shape[0] != n_major * n_minor:
-        return float("nan")
-    Y = X - X.mean(axis=0)
-    rho, phi = np.hypot(Y[:, 0], Y[:, 1]), np.arctan2(Y[:, 1], Y[:, 0])
-    dphi = np.angle(np.exp(1j * (phi - 2 * np.pi * (np.arange(X.shape[0]) // n_minor) / n_major)))
-    return float(np.stack([rho, Y[:, 2], rho * dphi], -1).reshape(n_major, n_minor, 3).std(axis=0).max())
+    C = _torus_grid_departure(X, n_major, n_minor)
+    return float("nan") if C is None else float(C.std(axis=0).max())
+
+
+def torus_grid_asymmetry_wavenumber(X: np.ndarray, n_major: int, n_minor: int) -> int:
+    """Azimuthal wavenumber (1 ... n_major/2) that carries most of the departure of :func:`torus_grid_asymmetry`.
+
+    The copies' (rho, z, rho dphi) are Fourier transformed over i; the wavenumber with the largest summed
+    amplitude is returned (n_major/2: neighbouring meridians move in opposite directions, a mesh-scale mode;
+    1: the tilt or shift of a cyclide, the direction along which the smooth energy is Moebius invariant).
+    -1 when X has another vertex count.
+    """
+    C = _torus_grid_departure(X, n_major, n_minor)
+    if C is None:
+        return -1
+    amp = np.abs(np.fft.rfft(C, axis=0)).sum(axis=(1, 2))
+    return int(np.argmax(amp[1:]) + 1)
 
 
 def normal_jumps(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> dict[str, float]:
