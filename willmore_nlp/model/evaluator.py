@@ -92,24 +92,26 @@ class StepEvaluator:
         return out.reshape(self.problem.K, -1)
 
     def _sum(self, name: str, i: int, values: np.ndarray, emap: np.ndarray, n: int) -> np.ndarray:
-        """(n,) sums of the element entries (nonzeros ``values`` of output ``i`` of kernel ``name``) into their
-        global slots ``emap`` ((K, width); n = dropped): the scatter-add of the assembly."""
+        """(n,) sums of the element entries of a vector (nonzeros ``values`` of output ``i`` of kernel ``name``,
+        whose entries go to ``emap`` ((K, width); n = dropped)): the scatter-add of the assembly."""
         key = f"{name}:{i}"
         if key not in self._emaps:
             pos = self._buffers[name][4][i]
             self._emaps[key] = emap.ravel() if pos is None else emap.ravel()[pos]
         return np.bincount(self._emaps[key], weights=values, minlength=n + 1)[:n]
 
+    @staticmethod
+    def _matrix(values: np.ndarray, pattern: Pattern) -> sp.csc_matrix:
+        """Sparse matrix of ``pattern`` assembled from the nonzeros ``values`` of a kernel output (the
+        pattern's element entries are those nonzeros)."""
+        data = np.bincount(pattern.emap.ravel(), weights=values, minlength=pattern.nnz + 1)[: pattern.nnz]
+        return sp.csc_matrix((data, pattern.row, pattern.colind), shape=pattern.shape)
+
     def _elements(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
         """(K, nin) element inputs [X_T, Y_T, Xk_T, Q_T, c_T] gathered from [z; p; consts]."""
         P = self.problem
         v = np.concatenate([np.asarray(z, float).ravel(), np.asarray(p, float).ravel(), P.const_values.ravel()])
         return v[P.gather]
-
-    def _matrix(self, name: str, i: int, values: np.ndarray, pattern: Pattern) -> sp.csc_matrix:
-        """Sparse matrix of ``pattern`` assembled from output ``i`` of kernel ``name`` (:meth:`_sum`)."""
-        data = self._sum(name, i, values, pattern.emap, pattern.nnz)
-        return sp.csc_matrix((data, pattern.row, pattern.colind), shape=pattern.shape)
 
     def _vectors(self, g: np.ndarray, p: np.ndarray) -> np.ndarray:
         """g - tt b on the free-Y rows for every nodal vector b of the terms."""
@@ -145,7 +147,7 @@ class StepEvaluator:
         if not P.nh:
             return gv, J
         hv, hl = self._kernel("k_hjac", self._elements(z, p), p)
-        Jh = self._matrix("k_hjac", 1, hl, P.hjac_pattern)
+        Jh = self._matrix(hl, P.hjac_pattern)
         hv = self._dense("k_hjac", 0, hv).sum(axis=0) - self._targets(p)
         return np.concatenate([gv, hv]), sp.vstack([J, Jh], format="csc")
 
@@ -163,7 +165,7 @@ class StepEvaluator:
         """(ng,) constraint residual and (ng, nx) Jacobian from one evaluation."""
         P = self.problem
         gl, jl = self._kernel("k_jac", self._elements(z, p), p)
-        return self._vectors(self._sum("k_jac", 0, gl, P.g_map, P.ng), p), self._matrix("k_jac", 1, jl, P.jac_pattern)
+        return self._vectors(self._sum("k_jac", 0, gl, P.g_map, P.ng), p), self._matrix(jl, P.jac_pattern)
 
     def jac_g(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
         """(ng, nx) constraint Jacobian."""
@@ -176,7 +178,7 @@ class StepEvaluator:
         LG = np.append(lam[: P.ng], 0.0)[P.g_map]  # 0 on dropped rows
         rest = [float(lam_f), LG] + ([lam[P.ng :]] if P.nh else [])
         hl = self._kernel("k_hess", self._elements(z, p), p, *rest)[0]
-        return self._sum("k_hess", 0, hl, P.hess_pattern.emap, P.hess_pattern.nnz)
+        return self._matrix(hl, P.hess_pattern).data
 
     def hess_lag_upper(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> sp.csc_matrix:
         """(nx, nx) upper triangle of the Hessian of lam_f W + lam_c . c; ``lam_c`` is (nc,) = [lam_g; lam_h]."""
@@ -198,6 +200,20 @@ class StepEvaluator:
         indices, indptr, src = self._sym
         n = self.problem.nx
         return sp.csc_matrix((self._hess_data(z, p, lam_f, lam_g)[src], indices, indptr), shape=(n, n))
+
+    def hess_lag_operator(self, z: np.ndarray, p: np.ndarray, lam_f: float,
+                          lam_g: np.ndarray) -> spla.LinearOperator:
+        """The (nx, nx) Hessian of :meth:`hess_lag` as an operator on its upper triangle U:
+        ``H v = U v + U^T v - diag(U) v``: the same products (the same flops) with about half the nonzeros
+        in memory and without the mirrored pattern that :meth:`hess_lag` keeps."""
+        U = self.hess_lag_upper(z, p, lam_f, lam_g)
+        Ut, d = U.T, U.diagonal()
+
+        def matvec(v: np.ndarray) -> np.ndarray:
+            v = np.ravel(v)
+            return U @ v + Ut @ v - d * v
+
+        return spla.LinearOperator(U.shape, matvec=matvec, rmatvec=matvec, dtype=float)
 
     def linear_solve(self, Jy: sp.csc_matrix, r: np.ndarray) -> np.ndarray:
         """J_Y^-1 r for the inner Jacobian J_Y ((ng, ng)).

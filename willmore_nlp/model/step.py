@@ -135,7 +135,8 @@ class Pattern:
     shape : (nrow, ncol)
     row : (nnz,) row of each nonzero, column-major order (CasADi's and scipy CSC's)
     colind : (ncol + 1,) start of each column in ``row``
-    emap : (K, entries per element) nonzero of each element entry, ``nnz`` for dropped entries
+    emap : (K, entries per element) nonzero of each element entry (the element kernel's structural
+        nonzeros, in its order), ``nnz`` for dropped entries (fixed nodes)
     """
 
     shape: tuple[int, int]
@@ -157,7 +158,7 @@ class Pattern:
 _CHUNK = 4096  # elements per block of the pattern computation (bounds its temporary memory)
 
 
-def _pattern(entries: Callable[[slice], tuple[np.ndarray, np.ndarray]], K: int, width: int,
+def _pattern(entries: Callable[[slice], tuple[np.ndarray, np.ndarray]], width: int, K: int,
              shape: tuple[int, int]) -> Pattern:
     """Compressed-column pattern of the element entries and their map into it.
 
@@ -200,8 +201,9 @@ def _scatter_add(values: ca.MX, emap: np.ndarray, n: int) -> ca.MX:
 
 
 def _assembled(local: ca.MX, pattern: Pattern) -> ca.MX:
-    """The sparse MX matrix of ``pattern`` whose nonzeros are the sums of the element entries ``local``."""
-    return ca.sparsity_cast(_scatter_add(ca.vec(local), pattern.emap, pattern.nnz), pattern.casadi())
+    """The sparse MX matrix of ``pattern`` whose nonzeros are the sums of the element entries ``local`` (the
+    nonzeros of the mapped kernel output, element by element)."""
+    return ca.sparsity_cast(_scatter_add(ca.vec(local).nz[:], pattern.emap, pattern.nnz), pattern.casadi())
 
 
 def _unique(names: Sequence[str]) -> tuple[str, ...]:
@@ -329,24 +331,22 @@ class StepProblem:
             return np.where(c >= 0, np.minimum(a, c), -1), np.where(a >= 0, np.maximum(a, c), -1)
 
         def nonzero(kernel: str, entries: Callable[[slice], tuple[np.ndarray, np.ndarray]]
-                    ) -> Callable[[slice], tuple[np.ndarray, np.ndarray]]:
-            """``entries`` without the structural zeros of the kernel's output: they never enter the global
-            pattern (the coordinate couplings of the isotropic J_Y = (M + tt L) (x) I_m, 54 of the 162
-            entries of a triangle in R^3: J has a third fewer nonzeros)."""
-            spy = self.kernels[kernel].sparsity_out(1 if kernel in ("k_jac", "k_hjac") else 0)
-            zero = np.ones(spy.numel(), bool)
-            zero[np.asarray(spy.find(), np.int64)] = False
+                    ) -> tuple[Callable[[slice], tuple[np.ndarray, np.ndarray]], int]:
+            """``entries`` restricted to the structural nonzeros of the kernel's output, in its nonzero order
+            (the structural zeros, e.g. the coordinate couplings of the isotropic J_Y = (M + tt L) (x) I_m,
+            54 of the 162 entries of a triangle in R^3, never enter the pattern: J has a third fewer
+            nonzeros), and their number."""
+            nz = np.asarray(self.kernels[kernel].sparsity_out(1 if kernel in ("k_jac", "k_hjac") else 0).find(),
+                            np.int64)
 
             def kept(b: slice) -> tuple[np.ndarray, np.ndarray]:
                 rows, cols = entries(b)
-                rows = np.array(rows)  # (a writable copy of a broadcast view)
-                rows[:, zero] = -1
-                return rows, cols
-            return kept
+                return rows[:, nz], cols[:, nz]
+            return kept, nz.size
 
-        self.jac_pattern = _pattern(nonzero("k_jac", jac), K, 2 * nl * nl, (self.ng, self.nx))
-        self.hjac_pattern = _pattern(nonzero("k_hjac", hjac) if nh else hjac, K, 2 * nl * nh, (self.nh, self.nx))
-        self.hess_pattern = _pattern(nonzero("k_hess", hess), K, iu.size, (self.nx, self.nx))
+        self.jac_pattern = _pattern(*nonzero("k_jac", jac), K, (self.ng, self.nx))
+        self.hjac_pattern = _pattern(*(nonzero("k_hjac", hjac) if nh else (hjac, 0)), K, (self.nh, self.nx))
+        self.hess_pattern = _pattern(*nonzero("k_hess", hess), K, (self.nx, self.nx))
 
     # -- global functions ------------------------------------------------------------------
     def functions(self, kernels: dict[str, ca.Function] | None = None) -> GlobalFunctions:

@@ -190,9 +190,9 @@ class NewtonKrylovSolver(ReducedSolver):
         """D: the Hessian in X of the distance (and control) part of W, i.e. of W with tau = 0 (constant in X)."""
         p0 = self.P.params.replace(p, tau=0.0)
         with self._timed("eval"):
-            H = self.ev.hess_lag(z, p0, 1.0, np.zeros(self.P.nc))
+            U = sp.csc_matrix(self.ev.hess_lag_upper(z, p0, 1.0, np.zeros(self.P.nc))[: self.nxm, : self.nxm])
         self._count("n_eval_hess")
-        return sp.csc_matrix(H[: self.nxm, : self.nxm])
+        return (U + sp.triu(U, 1).T).tocsc()
 
     def _build_preconditioner(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
         """Factorise B = D + 2 tau K^T Ml^-1 K at ``pt`` (module docstring)."""
@@ -343,7 +343,7 @@ class NewtonKrylovSolver(ReducedSolver):
                 status = "stopped"
                 break
             with self._timed("eval"):
-                pt.H = self.ev.hess_lag(pt.z, p, 1.0, pt.lam)
+                pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)  # (half the memory of the mirrored matrix)
             self._count("n_eval_hess")
             d = self._direction(pt, p, D, h)
             new = self._line_search(pt, p, d)
