@@ -45,6 +45,7 @@ class StepEvaluator:
         self.fn = functions
         self.kernels = functions.kernels
         self._buffers: dict[str, tuple[Any, ...]] = {}
+        self.cholesky: str | None = None  # backend of the inner solves' Cholesky (:meth:`linear_solve`); None: LU
         self._emaps: dict[str, np.ndarray] = {}
         self._sym: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # full pattern, source in the upper
 
@@ -216,20 +217,22 @@ class StepEvaluator:
         return spla.LinearOperator(U.shape, matvec=matvec, rmatvec=matvec, dtype=float)
 
     def linear_solve(self, Jy: sp.csc_matrix, r: np.ndarray) -> np.ndarray:
-        """J_Y^-1 r for the inner Jacobian J_Y ((ng, ng)).
+        """J_Y^-1 r for the inner Jacobian J_Y ((ng, ng)): the default solver of :meth:`inner_solve`.
 
-        Linear inner equation (isotropic): J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one
-        sparse Cholesky (:mod:`willmore_nlp.solvers.cholesky`, CHOLMOD or SuperLU) of the N x N block
-        serves the m coordinates (at 10,242 vertices Y[X] took 0.11-0.14 s instead of 1.24 s with a sparse LU
-        of the whole 3N x 3N J_Y, and the flow's construction peaked at 0.39 GB instead of 0.49 GB).
-        Anisotropic: scipy's sparse LU of J_Y.
+        With :attr:`cholesky` set (``newton-krylov`` sets it to its backend) and a linear inner equation,
+        J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one sparse Cholesky
+        (:mod:`willmore_nlp.solvers.cholesky`) of the N x N block serves the m coordinates: at 10,242
+        vertices Y[X] took 0.11-0.14 s instead of 1.24 s, and the flow's construction peaked at 0.39 GB
+        instead of 0.49 GB. Otherwise scipy's sparse LU of the whole J_Y, as before: the first IPOPT step
+        of a curve with a free tangential motion (the 64-gon ellipse of ``tests/test_tangential.py``) went
+        from 44 to 75 iterations and to a clustered local minimum with the rounding of the Cholesky Y.
         """
-        if self.problem.nonlinear_inner:
+        if self.cholesky is None or self.problem.nonlinear_inner:
             return spla.spsolve(Jy, r)
         from willmore_nlp.solvers.cholesky import KronFactor, SymmetricFactor  # (the solvers import this module)
 
         m = self.problem.m
-        return KronFactor(SymmetricFactor("auto").factor(Jy[0::m, 0::m]), m).solve(r)
+        return KronFactor(SymmetricFactor(self.cholesky).factor(Jy[0::m, 0::m]), m).solve(r)
 
     def solve_y(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None, tol: float = 1e-12,
                 max_iter: int = 100, linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None

@@ -135,6 +135,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._jy = SymmetricFactor(settings.cholesky)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
+        evaluator.cholesky = self.backend  # the flow's own Y[X] solves: Cholesky of the N x N block as well
         P = self.P
         m = P.m
         if not np.all(P.y_free[P.x_free]):
