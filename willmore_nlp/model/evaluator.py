@@ -223,9 +223,10 @@ class StepEvaluator:
         J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one sparse Cholesky
         (:mod:`willmore_nlp.solvers.cholesky`) of the N x N block serves the m coordinates: at 10,242
         vertices Y[X] took 0.11-0.14 s instead of 1.24 s, and the flow's construction peaked at 0.39 GB
-        instead of 0.49 GB. Otherwise scipy's sparse LU of the whole J_Y, as before: the first IPOPT step
-        of a curve with a free tangential motion (the 64-gon ellipse of ``tests/test_tangential.py``) went
-        from 44 to 75 iterations and to a clustered local minimum with the rounding of the Cholesky Y.
+        instead of 0.49 GB. Otherwise scipy's sparse LU of the whole J_Y, as before: IPOPT's iterates depend
+        on the rounding of Y (the first step of the 64-gon ellipse of ``tests/test_tangential.py``, with a
+        free tangential motion, took 75 iterations instead of 44 and ended in a clustered local minimum
+        with the Cholesky Y and without the structural zeros in IPOPT's patterns).
         """
         if self.cholesky is None or self.problem.nonlinear_inner:
             return spla.spsolve(Jy, r)
