@@ -6,6 +6,7 @@ import pytest
 from willmore_nlp import WillmoreFlow, registry
 from willmore_nlp.analysis import circle_step_radius, fit_order
 from willmore_nlp.errors import UserInputError
+from willmore_nlp.flow import FlowError
 from willmore_nlp.mesh import shapes
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
@@ -220,3 +221,19 @@ def test_cli_runs_newton_krylov(tmp_path) -> None:
     R = [np.linalg.norm(s.vertices, axis=1).mean() for s in run.states]
     assert len(R) == 4 and np.all(np.diff(R) > 0)
     np.testing.assert_allclose(R[-1], (2.0**4 + 2 * 0.03) ** 0.25, rtol=1e-3)
+
+
+def test_shift_cap_ends_an_indefinite_solve_and_the_flow_retries() -> None:
+    """The first step of the ellipsoid needs a shift delta = 1 (its reduced Hessian is indefinite at X^k): with
+    max_shift = 0.5 the solve stops at once, unconverged, with the reason, and the flow retries with tau/2 (where
+    it then also stops: the cap is the only thing that fails); with the default cap (1e3) the step converges
+    with its largest shift in (0, max_shift]."""
+    mesh = _ellipsoid()
+    args = (mesh, 0.2 * mesh.h, mesh.h**2 / 100)
+    capped = WillmoreFlow(*args, solver="newton-krylov", mesh_control="off", max_retries=1, max_shift=0.5)
+    with pytest.raises(FlowError) as info:
+        capped.step()
+    assert len(info.value.rejected) == 2
+    assert all("reduced Hessian too indefinite" in r for r in info.value.rejected)
+    r = WillmoreFlow(*args, solver="newton-krylov", mesh_control="off", max_retries=0).step()
+    assert r.converged and 0.5 < r.stats["delta_max"] <= 1e3

@@ -120,7 +120,7 @@ def run_case(case: str, codegen: bool, solver: str = "ipopt", save: str | None =
     if solver != "ipopt":
         row.update(step_s=r.wall_time, iterations=r.iterations, retries=r.retries, eval_s=st.get("t_wall_eval"),
                    factor_s=st.get("t_wall_factor"), cg_s=st.get("t_wall_cg"), n_cg=st.get("n_cg"),
-                   n_fact=st.get("n_factorizations"), n_precond=st.get("n_precond_builds"),
+                   n_fact=st.get("n_factorizations"), n_precond=st.get("n_precond_builds"), shift=st.get("delta_max"),
                    peak_rss_gb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)
         return row
     row.update(
@@ -165,7 +165,8 @@ COLUMNS = [
 SOLVER_COLUMNS = [
     ("case", "case"), ("N", "N"), ("solver", "solver"), ("ipopt_step_s", "IPOPT step [s]"), ("step_s", "step [s]"),
     ("speedup", "speed-up"), ("iterations", "Newton it"), ("n_cg", "CG it"), ("n_fact", "J_Y fact"),
-    ("n_precond", "B fact"), ("eval_s", "eval [s]"), ("factor_s", "fact [s]"), ("cg_s", "CG [s]"),
+    ("n_precond", "B fact"), ("shift", "max shift"), ("eval_s", "eval [s]"), ("factor_s", "fact [s]"),
+    ("cg_s", "CG [s]"),
     ("ipopt_rss_gb", "IPOPT peak RSS [GB]"), ("peak_rss_gb", "peak RSS [GB]"), ("dx_h", "max abs dX / h"),
     ("ipopt_step2_s", "IPOPT step 2 [s]"), ("step2_s", "step 2 [s]"), ("speedup2", "speed-up 2"),
     ("ipopt_iterations2", "IPOPT it 2"), ("iterations2", "Newton it 2"),
@@ -240,7 +241,8 @@ def _solver_table(rows: list[dict[str, Any]]) -> list[str]:
         return []
     lines = ["", "Other step solvers on the same step (generated C, own subprocess each): speed-up = IPOPT step / "
              "step; 'max abs dX / h' = largest difference of X^{k+1} from IPOPT's (tol 1e-9 both) in mean edge "
-             "lengths; 'J_Y fact' and 'B fact' = factorisations of M + tt L and of the preconditioner. "
+             "lengths; 'J_Y fact' and 'B fact' = factorisations of M + tt L and of the preconditioner; 'max shift' = "
+             "largest shift delta of the Newton systems of step 1 (in units of D). "
              "'step 2': the next step of the same flow (from X^1, as in a running flow; the first step "
              "starts from the initial mesh); peak RSS covers both steps.", "",
              "| " + " | ".join(t for _, t in SOLVER_COLUMNS) + " |", "|" + "---|" * len(SOLVER_COLUMNS)]

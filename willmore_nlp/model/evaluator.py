@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from willmore_nlp.model.step import StepProblem
+from willmore_nlp.model.step import GlobalFunctions, Pattern, StepProblem
 
 
 def to_scipy(M: ca.DM) -> sp.csc_matrix:
@@ -25,77 +25,138 @@ def to_scipy(M: ca.DM) -> sp.csc_matrix:
 class StepEvaluator:
     """Numpy-facing evaluation of the global functions of a :class:`StepProblem`.
 
+    Values and derivatives are assembled in numpy from the element kernels: the element inputs are
+    gathered with the problem's index maps, the kernel mapped over the K elements runs once (compiled
+    C or CasADi's virtual machine), and its element outputs are summed into the global vector or the
+    nonzeros of the global sparse matrix by ``np.bincount`` over the element-entry map (the same sums,
+    in the same order, as the scatter-add of the MX functions). The MX functions of ``functions``
+    (for ``nlpsol``) are built only when a solver asks for them: the reduced solvers never do.
+
     Parameters
     ----------
     problem : StepProblem
-    functions : dict
-        The output of :meth:`StepProblem.functions` (symbolic or compiled kernels).
+    functions : GlobalFunctions
+        The output of :meth:`StepProblem.functions` (symbolic or compiled kernels); its kernels are the
+        ones evaluated here.
     """
 
-    def __init__(self, problem: StepProblem, functions: dict[str, ca.Function]) -> None:
+    def __init__(self, problem: StepProblem, functions: GlobalFunctions) -> None:
         self.problem = problem
         self.fn = functions
+        self.kernels = functions.kernels
         self._buffers: dict[str, tuple[Any, ...]] = {}
+        self.cholesky: str | None = None  # backend of the inner solves' Cholesky (:meth:`linear_solve`); None: LU
+        self._emaps: dict[str, np.ndarray] = {}
+        self._sym: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # full pattern, source in the upper
 
-    def _eval(self, name: str, *args: Any) -> list[np.ndarray]:
-        """Nonzeros of every output of ``fn[name]`` at dense ``args`` (copies, one array per output).
+    def _kernel(self, name: str, E: np.ndarray, p: np.ndarray, *rest: Any) -> list[np.ndarray]:
+        """Nonzeros of every output of kernel ``name`` mapped over the elements (element-major order).
 
-        Uses CasADi's function buffers (inputs and outputs bound once to numpy arrays), which skips
-        the conversion of inputs to DM and of outputs to Python lists: 5-10x less overhead than a
-        plain call on the sparse Jacobian and Hessian (measured at 2,562 vertices).
+        ``E`` (K, nin) are the element inputs and ``p`` the parameter vector, whose scalar block all
+        elements share (copied to each); ``rest`` are the Hessian kernel's multiplier inputs: ``lf``
+        (shared), ``lg`` ((K, nl), per element) and ``lh`` (shared). Uses CasADi's function buffers (inputs and outputs
+        bound once to numpy arrays): no conversion of inputs to DM nor of outputs to Python lists.
+        Structural zeros of an output (AD knows some entries vanish) are not stored: :meth:`_dense`,
+        :meth:`_sum` place the nonzeros.
         """
-        f = self.fn[name]
+        P = self.problem
         if name not in self._buffers:
-            if not hasattr(f, "buffer"):  # CasADi without function buffers
-                return [np.asarray(ca.DM(o).nonzeros(), float) for o in f.call(list(args))]
-            buf, run = f.buffer()
-            ins = [np.zeros(f.sparsity_in(i).nnz()) for i in range(f.n_in())]
-            outs = [np.zeros(f.sparsity_out(i).nnz()) for i in range(f.n_out())]
+            mapped = self.kernels[name].map(P.K)  # (with shared inputs declared, CasADi wraps the map in an MX
+            buf, run = mapped.buffer()            # function that buffers every output once more)
+            ins = [np.zeros(mapped.sparsity_in(i).nnz()) for i in range(mapped.n_in())]
+            outs = [np.zeros(mapped.sparsity_out(i).nnz()) for i in range(mapped.n_out())]
             for i, a in enumerate(ins):
                 buf.set_arg(i, memoryview(a))
             for i, a in enumerate(outs):
                 buf.set_res(i, memoryview(a))
-            self._buffers[name] = (buf, run, ins, outs)
-        _, run, ins, outs = self._buffers[name]
-        for a, v in zip(ins, args, strict=True):
-            a[:] = np.asarray(v, float).ravel()
+            pos = [None if mapped.sparsity_out(i).is_dense() else np.asarray(mapped.sparsity_out(i).find(), np.int64)
+                   for i in range(mapped.n_out())]  # dense element-major position of each nonzero
+            self._buffers[name] = (buf, run, ins, outs, pos)
+        _, run, ins, outs, _ = self._buffers[name]
+        for i, (a, v) in enumerate(zip(ins, (E, P.params.scalar_block(p), *rest), strict=True)):
+            v = np.asarray(v, float)
+            if i == 3:  # lg, per element
+                a[:] = v.ravel()
+            else:  # xe (per element) or an input all elements share
+                a.reshape(P.K, -1)[:] = v if i == 0 else v.ravel()
         if run():
-            raise RuntimeError(f"evaluation of {name} failed")
-        return [o.copy() for o in outs]
+            raise RuntimeError(f"evaluation of the element kernel {name} failed")
+        return list(outs)
 
-    def _sparse(self, name: str, i: int, data: np.ndarray) -> sp.csc_matrix:
-        """Output ``i`` of ``fn[name]`` as scipy CSC from its nonzeros (pattern cached per function)."""
+    def _dense(self, name: str, i: int, values: np.ndarray) -> np.ndarray:
+        """(K, width) output ``i`` of kernel ``name`` from its nonzeros ``values``."""
+        pos = self._buffers[name][4][i]
+        if pos is None:
+            return values.reshape(self.problem.K, -1)
+        out = np.zeros(self.kernels[name].sparsity_out(i).numel() * self.problem.K)
+        out[pos] = values
+        return out.reshape(self.problem.K, -1)
+
+    def _sum(self, name: str, i: int, values: np.ndarray, emap: np.ndarray, n: int) -> np.ndarray:
+        """(n,) sums of the element entries of a vector (nonzeros ``values`` of output ``i`` of kernel ``name``,
+        whose entries go to ``emap`` ((K, width); n = dropped)): the scatter-add of the assembly."""
         key = f"{name}:{i}"
-        if key not in self._buffers:
-            spy = self.fn[name].sparsity_out(i)
-            self._buffers[key] = (np.asarray(spy.row(), np.int64), np.asarray(spy.colind(), np.int64), spy.shape)
-        row, colind, shape = self._buffers[key]
-        return sp.csc_matrix((data, row, colind), shape=shape)
+        if key not in self._emaps:
+            pos = self._buffers[name][4][i]
+            self._emaps[key] = emap.ravel() if pos is None else emap.ravel()[pos]
+        return np.bincount(self._emaps[key], weights=values, minlength=n + 1)[:n]
+
+    @staticmethod
+    def _matrix(values: np.ndarray, pattern: Pattern) -> sp.csc_matrix:
+        """Sparse matrix of ``pattern`` assembled from the nonzeros ``values`` of a kernel output (the
+        pattern's element entries are those nonzeros)."""
+        data = np.bincount(pattern.emap.ravel(), weights=values, minlength=pattern.nnz + 1)[: pattern.nnz]
+        return sp.csc_matrix((data, pattern.row, pattern.colind), shape=pattern.shape)
+
+    def _elements(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """(K, nin) element inputs [X_T, Y_T, Xk_T, Q_T, c_T] gathered from [z; p; consts]."""
+        P = self.problem
+        v = np.concatenate([np.asarray(z, float).ravel(), np.asarray(p, float).ravel(), P.const_values.ravel()])
+        return v[P.gather]
+
+    def _vectors(self, g: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """g - tt b on the free-Y rows for every nodal vector b of the terms."""
+        P = self.problem
+        for name in P.params.vectors:
+            g = g - P.params.scalar(p, "tt") * np.asarray(P.params.vector(p, name))[P._free_y_rows()]
+        return g
+
+    def _targets(self, p: np.ndarray) -> np.ndarray:
+        P = self.problem
+        return np.array([P.params.scalar(p, t) for t in P.targets])
 
     def f(self, z: np.ndarray, p: np.ndarray) -> float:
         """Objective W."""
-        return float(self._eval("f", z, p)[0][0])
+        return float(self._kernel("k_f", self._elements(z, p), p)[0].sum())
 
     def g(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
         """(ng,) constraint residual g = 1/2 dE/dY."""
-        return self._eval("g", z, p)[0]
+        P = self.problem
+        return self._vectors(self._sum("k_g", 0, self._kernel("k_g", self._elements(z, p), p)[0], P.g_map, P.ng), p)
 
     def h(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
         """(nh,) outer constraint residual (empty without outer constraints)."""
         if not self.problem.nh:
             return np.zeros(0)
-        return self._eval("h", z, p)[0]
+        hv = self._dense("k_h", 0, self._kernel("k_h", self._elements(z, p), p)[0])
+        return hv.sum(axis=0) - self._targets(p)
 
     def c_jac(self, z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, sp.csc_matrix]:
         """(nc,) all constraints c = [g; h] and their (nc, nx) Jacobian (IPOPT's and SQP's view)."""
-        name = "jac_c" if self.problem.nh else "jac_g"
-        cv, J = self._eval(name, z, p)
-        return cv, self._sparse(name, 1, J)
+        gv, J = self.g_jac(z, p)
+        P = self.problem
+        if not P.nh:
+            return gv, J
+        hv, hl = self._kernel("k_hjac", self._elements(z, p), p)
+        Jh = self._matrix(hl, P.hjac_pattern)
+        hv = self._dense("k_hjac", 0, hv).sum(axis=0) - self._targets(p)
+        return np.concatenate([gv, hv]), sp.vstack([J, Jh], format="csc")
 
     def f_grad(self, z: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray]:
         """W and its (nx,) gradient from one evaluation."""
-        fv, gv = self._eval("grad_f", z, p)
-        return float(fv[0]), gv
+        P = self.problem
+        w, gl = self._kernel("k_grad", self._elements(z, p), p)
+        return float(w.sum()), self._sum("k_grad", 1, gl, P.grad_map, P.nx)
 
     def grad_f(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
         """(nx,) gradient of W."""
@@ -103,21 +164,76 @@ class StepEvaluator:
 
     def g_jac(self, z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, sp.csc_matrix]:
         """(ng,) constraint residual and (ng, nx) Jacobian from one evaluation."""
-        gv, J = self._eval("jac_g", z, p)
-        return gv, self._sparse("jac_g", 1, J)
+        P = self.problem
+        gl, jl = self._kernel("k_jac", self._elements(z, p), p)
+        return self._vectors(self._sum("k_jac", 0, gl, P.g_map, P.ng), p), self._matrix(jl, P.jac_pattern)
 
     def jac_g(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
         """(ng, nx) constraint Jacobian."""
         return self.g_jac(z, p)[1]
 
+    def _hess_data(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> np.ndarray:
+        """Nonzeros of the upper triangle of the Lagrangian Hessian (:meth:`hess_lag_upper`)."""
+        P = self.problem
+        lam = np.asarray(lam_g, float).ravel()
+        LG = np.append(lam[: P.ng], 0.0)[P.g_map]  # 0 on dropped rows
+        rest = [float(lam_f), LG] + ([lam[P.ng :]] if P.nh else [])
+        hl = self._kernel("k_hess", self._elements(z, p), p, *rest)[0]
+        return self._matrix(hl, P.hess_pattern).data
+
     def hess_lag_upper(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> sp.csc_matrix:
         """(nx, nx) upper triangle of the Hessian of lam_f W + lam_c . c; ``lam_c`` is (nc,) = [lam_g; lam_h]."""
-        return self._sparse("hess_lag", 0, self._eval("hess_lag", z, p, lam_f, lam_g)[0])
+        pat = self.problem.hess_pattern
+        return sp.csc_matrix((self._hess_data(z, p, lam_f, lam_g), pat.row, pat.colind), shape=pat.shape)
 
     def hess_lag(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> sp.csc_matrix:
-        """(nx, nx) full symmetric Hessian of lam_f W + lam_c . c (see :meth:`hess_lag_upper`)."""
+        """(nx, nx) full symmetric Hessian of lam_f W + lam_c . c (see :meth:`hess_lag_upper`).
+
+        Its pattern (the upper one mirrored) and the source of each of its nonzeros in the upper triangle
+        are computed once, so that each call is one gather of the upper nonzeros.
+        """
+        if self._sym is None:
+            pat = self.problem.hess_pattern
+            U = sp.csc_matrix((np.arange(1, pat.nnz + 1, dtype=float), pat.row, pat.colind), shape=pat.shape)
+            F = (U + sp.triu(U, 1).T).tocsc()
+            F.sort_indices()
+            self._sym = (F.indices, F.indptr, (F.data - 1).astype(np.int32 if pat.nnz < 2**31 else np.int64))
+        indices, indptr, src = self._sym
+        n = self.problem.nx
+        return sp.csc_matrix((self._hess_data(z, p, lam_f, lam_g)[src], indices, indptr), shape=(n, n))
+
+    def hess_lag_operator(self, z: np.ndarray, p: np.ndarray, lam_f: float,
+                          lam_g: np.ndarray) -> spla.LinearOperator:
+        """The (nx, nx) Hessian of :meth:`hess_lag` as an operator on its upper triangle U:
+        ``H v = U v + U^T v - diag(U) v``: the same products (the same flops) with about half the nonzeros
+        in memory and without the mirrored pattern that :meth:`hess_lag` keeps."""
         U = self.hess_lag_upper(z, p, lam_f, lam_g)
-        return (U + sp.triu(U, 1).T).tocsc()
+        Ut, d = U.T, U.diagonal()
+
+        def matvec(v: np.ndarray) -> np.ndarray:
+            v = np.ravel(v)
+            return U @ v + Ut @ v - d * v
+
+        return spla.LinearOperator(U.shape, matvec=matvec, rmatvec=matvec, dtype=float)
+
+    def linear_solve(self, Jy: sp.csc_matrix, r: np.ndarray) -> np.ndarray:
+        """J_Y^-1 r for the inner Jacobian J_Y ((ng, ng)): the default solver of :meth:`inner_solve`.
+
+        With :attr:`cholesky` set (``newton-krylov`` sets it to its backend) and a linear inner equation,
+        J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one sparse Cholesky
+        (:mod:`willmore_nlp.solvers.cholesky`) of the N x N block serves the m coordinates: at 10,242
+        vertices Y[X] took 0.11-0.14 s instead of 1.24 s, and the flow's construction peaked at 0.39 GB
+        instead of 0.49 GB. Otherwise scipy's sparse LU of the whole J_Y, as before: IPOPT's iterates depend
+        on the rounding of Y (the first step of the 64-gon ellipse of ``tests/test_tangential.py``, with a
+        free tangential motion, took 75 iterations instead of 44 and ended in a clustered local minimum
+        with the Cholesky Y and without the structural zeros in IPOPT's patterns).
+        """
+        if self.cholesky is None or self.problem.nonlinear_inner:
+            return spla.spsolve(Jy, r)
+        from willmore_nlp.solvers.cholesky import KronFactor, SymmetricFactor  # (the solvers import this module)
+
+        m = self.problem.m
+        return KronFactor(SymmetricFactor(self.cholesky).factor(Jy[0::m, 0::m]), m).solve(r)
 
     def solve_y(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None, tol: float = 1e-12,
                 max_iter: int = 100, linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None
@@ -142,8 +258,8 @@ class StepEvaluator:
         p : parameter vector (its Xk block supplies the fixed nodes)
         Y0 : (N, m) initial guess, default X
         linear_solve : callable (J_Y, r) -> J_Y^-1 r, optional
-            Solver of the Newton systems (default scipy's sparse LU); the ``newton-krylov`` step
-            solver passes its sparse Cholesky.
+            Solver of the Newton systems (default :meth:`linear_solve`); the ``newton-krylov`` step
+            solver passes its own (which keeps the factorisation for its adjoints).
 
         Returns
         -------
@@ -164,7 +280,7 @@ class StepEvaluator:
             scale = max(1.0, float(np.abs(Jy).max()) * float(np.abs(Y).max()))
             if np.linalg.norm(r, np.inf) <= tol * scale:
                 return Y, z, J
-            dy = (spla.spsolve(Jy.tocsc(), -r) if linear_solve is None else linear_solve(Jy.tocsc(), -r)).reshape(-1, m)
+            dy = (linear_solve or self.linear_solve)(Jy.tocsc(), -r).reshape(-1, m)
             rn = np.linalg.norm(r)
             alpha = 1.0
             for _ in range(40):

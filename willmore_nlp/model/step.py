@@ -9,10 +9,12 @@ Symbolic form -> element kernels -> assembled global functions:
   SX functions (value, gradient, constraint, constraint Jacobian, Lagrangian Hessian), two more
   with outer constraints. Their size does not depend on the mesh.
 * :class:`StepProblem` precomputes, with numpy, the gather indices of every element's inputs
-  and the global sparsity patterns with an element-entry -> global-nonzero map, and builds MX
-  functions ``nlp_f, nlp_g, grad_f, jac_g, hess_lag`` as: gather -> mapped kernel -> scatter-add.
-  The kernels can be replaced by compiled C (:mod:`willmore_nlp.codegen`) without touching
-  the assembly.
+  and the global sparsity patterns with an element-entry -> global-nonzero map (:class:`Pattern`).
+  :class:`~willmore_nlp.model.evaluator.StepEvaluator` evaluates with these maps in numpy
+  (gather -> mapped kernel -> ``bincount``); :class:`GlobalFunctions` builds, on first access,
+  the same assembly as MX functions ``nlp_f, nlp_g, grad_f, jac_g, hess_lag`` for ``nlpsol``
+  (IPOPT). The kernels can be replaced by compiled C (:mod:`willmore_nlp.codegen`) without
+  touching the assembly.
 
 Unknowns ``z = [X_free, Y_free]`` in node-major order (node a, coordinate c at ``a*m + c``).
 Parameters ``p``: :class:`willmore_nlp.model.params.StepParams` (Xk for all nodes, named scalars,
@@ -24,8 +26,9 @@ may add a few outer equality constraints ``h(X, Y) = sum_T h_T - target = 0``; s
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -123,20 +126,64 @@ def element_kernels(spec: KernelSpec, terms: Sequence[Term], name: str = "step")
     return k
 
 
-def _pattern(rows: np.ndarray, cols: np.ndarray, nrow: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Compressed-column pattern of the entries (rows, cols) (same shape, -1 = dropped).
+@dataclass(frozen=True)
+class Pattern:
+    """Compressed-column sparsity of an assembled matrix and where every element entry lands in it.
 
-    Returns
-    -------
-    r, c : (nnz,) row and column of each global nonzero, in CasADi's column-major order
-    emap : same shape as ``rows``: global nonzero of each entry, ``nnz`` for dropped entries
+    Attributes
+    ----------
+    shape : (nrow, ncol)
+    row : (nnz,) row of each nonzero, column-major order (CasADi's and scipy CSC's)
+    colind : (ncol + 1,) start of each column in ``row``
+    emap : (K, entries per element) nonzero of each element entry (the element kernel's structural
+        nonzeros, in its order), ``nnz`` for dropped entries (fixed nodes)
     """
-    keep = (rows >= 0) & (cols >= 0)
-    key = cols.astype(np.int64) * nrow + rows
-    uk, inv = np.unique(key[keep], return_inverse=True)
-    emap = np.full(rows.shape, uk.size, dtype=np.int64)
-    emap[keep] = inv
-    return uk % nrow, uk // nrow, emap
+
+    shape: tuple[int, int]
+    row: np.ndarray
+    colind: np.ndarray
+    emap: np.ndarray
+
+    @property
+    def nnz(self) -> int:
+        """Number of nonzeros."""
+        return int(self.row.size)
+
+    def casadi(self) -> ca.Sparsity:
+        """The same pattern as a CasADi sparsity (for the MX functions)."""
+        col = np.repeat(np.arange(self.shape[1]), np.diff(self.colind))
+        return ca.Sparsity.triplet(self.shape[0], self.shape[1], self.row.tolist(), col.tolist())
+
+
+_CHUNK = 4096  # elements per block of the pattern computation (bounds its temporary memory)
+
+
+def _pattern(entries: Callable[[slice], tuple[np.ndarray, np.ndarray]], width: int, K: int,
+             shape: tuple[int, int]) -> Pattern:
+    """Compressed-column pattern of the element entries and their map into it.
+
+    ``entries(block)`` returns (rows, cols) of the ``width`` entries of each element of ``block`` ((n, width)
+    each, -1 = dropped). Computed in blocks of elements, so that the temporaries stay at the size of one
+    block beside the result (whole-mesh (K, width) int64 arrays were 2-3 times the result at 10,242
+    vertices).
+    """
+    nrow = max(shape[0], 1)
+    blocks = [slice(i, min(i + _CHUNK, K)) for i in range(0, K, _CHUNK)]
+
+    def keys(block: slice) -> np.ndarray:
+        rows, cols = entries(block)
+        key = cols.astype(np.int64) * nrow + rows
+        key[(rows < 0) | (cols < 0)] = -1
+        return key
+
+    uk = np.unique(np.concatenate([np.unique(keys(b)) for b in blocks] or [np.zeros(0, np.int64)]))
+    uk = uk[uk >= 0]
+    emap = np.empty((K, width), np.int64)
+    for b in blocks:
+        key = keys(b)
+        emap[b] = np.where(key >= 0, np.searchsorted(uk, key), uk.size)
+    colind = np.searchsorted(uk // nrow, np.arange(shape[1] + 1))
+    return Pattern(shape, uk % nrow, colind, emap)
 
 
 def _scatter_add(values: ca.MX, emap: np.ndarray, n: int) -> ca.MX:
@@ -151,6 +198,12 @@ def _scatter_add(values: ca.MX, emap: np.ndarray, n: int) -> ca.MX:
     w = ca.MX.sym("w", n + 1)
     add = ca.Function("scatter_add", [v], [ca.gradient(ca.dot(w[emap.ravel().tolist()], v), w)[:n]])
     return add(values)
+
+
+def _assembled(local: ca.MX, pattern: Pattern) -> ca.MX:
+    """The sparse MX matrix of ``pattern`` (over every element entry, :meth:`StepProblem.mx_pattern`) whose
+    nonzeros are the sums of the element entries ``local`` (the mapped kernel output, densified)."""
+    return ca.sparsity_cast(_scatter_add(ca.densify(ca.vec(local)), pattern.emap, pattern.nnz), pattern.casadi())
 
 
 def _unique(names: Sequence[str]) -> tuple[str, ...]:
@@ -259,85 +312,70 @@ class StepProblem:
         self.grad_map = np.where(self.zmap >= 0, self.zmap, self.nx)
         self.g_map = np.where(self.gmap >= 0, self.gmap, self.ng)
         # Jacobians: vec(dg/dz) column-major, entry (a, b) at b * nl + a; likewise dh/dz (nh rows)
-        rows = np.repeat(self.gmap[:, None, :], 2 * nl, axis=1)  # K, 2nl(b), nl(a)
-        cols = np.repeat(self.zmap[:, :, None], nl, axis=2)
-        jr, jc, self.jac_map = _pattern(rows.reshape(K, -1), cols.reshape(K, -1), self.ng)
-        self.jac_sparsity = ca.Sparsity.triplet(self.ng, self.nx, jr.tolist(), jc.tolist())
-        hrows = np.broadcast_to(np.arange(self.nh), (K, 2 * nl, self.nh))
-        hcols = np.repeat(self.zmap[:, :, None], self.nh, axis=2)
-        hr, hc, self.hjac_map = _pattern(hrows.reshape(K, -1), hcols.reshape(K, -1), max(self.nh, 1))
-        self.hjac_sparsity = ca.Sparsity.triplet(self.nh, self.nx, hr.tolist(), hc.tolist())
-        # Hessian upper triangle: local (i <= j) -> global (min, max)
+        zmap, gmap, nh = self.zmap, self.gmap, self.nh
+
+        def jac(b: slice) -> tuple[np.ndarray, np.ndarray]:
+            n = len(range(K)[b])
+            return (np.repeat(gmap[b, None, :], 2 * nl, axis=1).reshape(n, 2 * nl * nl),  # n, 2nl(b), nl(a)
+                    np.repeat(zmap[b, :, None], nl, axis=2).reshape(n, 2 * nl * nl))
+
+        def hjac(b: slice) -> tuple[np.ndarray, np.ndarray]:
+            n = len(range(K)[b])
+            return (np.broadcast_to(np.arange(nh), (n, 2 * nl, nh)).reshape(n, 2 * nl * nh),
+                    np.repeat(zmap[b, :, None], nh, axis=2).reshape(n, 2 * nl * nh))
+
         iu, ju = np.triu_indices(2 * nl)
-        a, b = self.zmap[:, iu], self.zmap[:, ju]
-        hr = np.where((a >= 0) & (b >= 0), np.minimum(a, b), -1)
-        hc = np.where((a >= 0) & (b >= 0), np.maximum(a, b), -1)
-        hr_, hc_, self.hess_map = _pattern(hr, hc, self.nx)
-        self.hess_sparsity = ca.Sparsity.triplet(self.nx, self.nx, hr_.tolist(), hc_.tolist())
+
+        def hess(b: slice) -> tuple[np.ndarray, np.ndarray]:  # upper triangle: local (i <= j) -> global (min, max)
+            a, c = zmap[b][:, iu], zmap[b][:, ju]
+            return np.where(c >= 0, np.minimum(a, c), -1), np.where(a >= 0, np.maximum(a, c), -1)
+
+        def nonzero(kernel: str, entries: Callable[[slice], tuple[np.ndarray, np.ndarray]]
+                    ) -> tuple[Callable[[slice], tuple[np.ndarray, np.ndarray]], int]:
+            """``entries`` restricted to the structural nonzeros of the kernel's output, in its nonzero order
+            (the structural zeros, e.g. the coordinate couplings of the isotropic J_Y = (M + tt L) (x) I_m,
+            54 of the 162 entries of a triangle in R^3, never enter the pattern: J has a third fewer
+            nonzeros), and their number."""
+            nz = np.asarray(self.kernels[kernel].sparsity_out(1 if kernel in ("k_jac", "k_hjac") else 0).find(),
+                            np.int64)
+
+            def kept(b: slice) -> tuple[np.ndarray, np.ndarray]:
+                rows, cols = entries(b)
+                return rows[:, nz], cols[:, nz]
+            return kept, nz.size
+
+        self.jac_pattern = _pattern(*nonzero("k_jac", jac), K, (self.ng, self.nx))
+        self.hjac_pattern = _pattern(*(nonzero("k_hjac", hjac) if nh else (hjac, 0)), K, (self.nh, self.nx))
+        self.hess_pattern = _pattern(*nonzero("k_hess", hess), K, (self.nx, self.nx))
+        self._all_entries = {"jac": (jac, 2 * nl * nl, (self.ng, self.nx)),
+                             "hjac": (hjac, 2 * nl * nh, (self.nh, self.nx)),
+                             "hess": (hess, iu.size, (self.nx, self.nx))}
+        self._mx_patterns: dict[str, Pattern] = {}
+
+    def mx_pattern(self, name: str) -> Pattern:
+        """The pattern of ``name`` ("jac", "hjac", "hess") over every element entry, structural zeros included:
+        the one the MX functions (IPOPT's KKT matrix) have always had, built on first use. (IPOPT's iterates
+        depend on it through MUMPS's ordering: without the zeros, the first step of the 64-gon ellipse of
+        ``tests/test_tangential.py`` took 50 iterations instead of 44.)"""
+        if name not in self._mx_patterns:
+            entries, width, shape = self._all_entries[name]
+            self._mx_patterns[name] = _pattern(entries, width, self.K, shape)
+        return self._mx_patterns[name]
 
     # -- global functions ------------------------------------------------------------------
-    def functions(self, kernels: dict[str, ca.Function] | None = None) -> dict[str, ca.Function]:
-        """Assemble the global MX functions from element kernels (symbolic or compiled).
+    def functions(self, kernels: dict[str, ca.Function] | None = None) -> GlobalFunctions:
+        """The global MX functions assembled from element kernels (symbolic or compiled), each built on
+        first access (:class:`GlobalFunctions`).
 
         Returns
         -------
-        dict with ``f(z, p)``, ``g(z, p)`` (inner, ng), ``grad_f(z, p) -> (f, grad)``,
+        GlobalFunctions, a mapping with ``f(z, p)``, ``g(z, p)`` (inner, ng), ``grad_f(z, p) -> (f, grad)``,
         ``jac_g(z, p) -> (g, J)`` (inner), ``jac_c(z, p) -> (c, J_c)`` with c = [g; h] (the same as
         jac_g without outer constraints), ``h(z, p)`` (nh), ``hess_lag(z, p, lam_f, lam_c) -> triu(H)``
         of ``lam_f f + lam_c . c``, and the symbols ``z``, ``p`` with expressions ``f_expr``,
         ``g_expr`` (= c) for ``nlpsol``.
         """
-        k = self.kernels if kernels is None else kernels
-        K, nl, nh = self.K, self.spec.nl, self.nh
-        z = ca.MX.sym("z", self.nx)
-        p = ca.MX.sym("p", self.np_)
-        lam_f = ca.MX.sym("lam_f")
-        lam_c = ca.MX.sym("lam_c", self.nc)
-        v = ca.vertcat(z, p, ca.DM(self.const_values.ravel()))
-        E = ca.reshape(v[self.gather.ravel().tolist()], self.gather.shape[1], K)
-        par = self.params.scalar_block(p)
-        # lam_g per element (0 on dropped rows)
-        lg_ext = ca.vertcat(lam_c[: self.ng], 0)
-        LG = ca.reshape(lg_ext[self.g_map.ravel().tolist()], nl, K)
-
-        f = ca.sum2(k["k_f"].map(K)(E, par))
-        g = _scatter_add(ca.vec(k["k_g"].map(K)(E, par)), self.g_map, self.ng)
-        fg, gradl = k["k_grad"].map(K)(E, par)
-        grad = _scatter_add(ca.vec(gradl), self.grad_map, self.nx)
-        gj, jl = k["k_jac"].map(K)(E, par)
-        gjac = _scatter_add(ca.vec(gj), self.g_map, self.ng)
-        J = ca.sparsity_cast(_scatter_add(ca.vec(jl), self.jac_map, self.jac_sparsity.nnz()), self.jac_sparsity)
-        lh = [lam_c[self.ng :]] if nh else []
-        hl = k["k_hess"].map(K)(E, par, lam_f, LG, *lh)
-        H = ca.sparsity_cast(_scatter_add(ca.vec(hl), self.hess_map, self.hess_sparsity.nnz()), self.hess_sparsity)
-        for name in self.params.vectors:  # nodal vectors b: g -= tt b on the free-Y rows
-            b = self.params.vector(p, name)[self._free_y_rows()]
-            g = g - self.params.scalar(p, "tt") * b
-            gjac = gjac - self.params.scalar(p, "tt") * b
-        target = ca.vertcat(*[self.params.scalar(p, t) for t in self.targets])
-        if nh:
-            h = ca.sum2(k["k_h"].map(K)(E, par)) - target
-            hh, hjl = k["k_hjac"].map(K)(E, par)
-            Jh = ca.sparsity_cast(_scatter_add(ca.vec(hjl), self.hjac_map, self.hjac_sparsity.nnz()),
-                                  self.hjac_sparsity)
-            c, Jc = ca.vertcat(g, h), ca.vertcat(J, Jh)
-            cj = ca.vertcat(gjac, ca.sum2(hh) - target)
-        else:
-            h, c, Jc, cj = ca.MX(0, 1), g, J, gjac
-        io = ["x", "p"]
-        return {
-            "z": z,
-            "p": p,
-            "f_expr": f,
-            "g_expr": c,
-            "f": ca.Function("nlp_f", [z, p], [f], io, ["f"]),
-            "g": ca.Function("nlp_g", [z, p], [g], io, ["g"]),
-            "h": ca.Function("nlp_h", [z, p], [h], io, ["h"]),
-            "grad_f": ca.Function("nlp_grad_f", [z, p], [ca.sum2(fg), grad], io, ["f", "grad"]),
-            "jac_g": ca.Function("nlp_jac_g", [z, p], [gjac, J], io, ["g", "jac"]),
-            "jac_c": ca.Function("nlp_jac_c", [z, p], [cj, Jc], io, ["g", "jac"]),
-            "hess_lag": ca.Function("nlp_hess_l", [z, p, lam_f, lam_c], [H], ["x", "p", "lam_f", "lam_g"], ["hess"]),
-        }
+        return GlobalFunctions(self, self.kernels if kernels is None else kernels)
 
     def _free_y_rows(self) -> list[int]:
         """Positions in an (N*m) nodal vector of the free-Y rows, in constraint order."""
@@ -377,3 +415,151 @@ class StepProblem:
         for t in self.terms:
             values.update(t.values(Xk, tau, S, self.x_free))
         return self.params.pack(Xk, values)
+
+
+class GlobalFunctions(Mapping):
+    """The assembled global functions of a :class:`StepProblem` (keys: :meth:`StepProblem.functions`),
+    each built on its first access, with the expressions they share.
+
+    Every function is gather -> mapped element kernel -> scatter-add over the whole mesh; its MX graph
+    holds index vectors of the size of the element-entry maps, and its evaluation buffers the element
+    outputs (the Hessian's: 171 values per triangle). A solver that never asks for a function (the
+    reduced solvers never use ``f_expr``, ``g_expr`` or ``jac_c`` without outer constraints; IPOPT never
+    uses ``g`` or ``h``) pays neither.
+
+    Parameters
+    ----------
+    problem : StepProblem
+    kernels : the element kernels (symbolic or compiled, :data:`KERNEL_NAMES`)
+    """
+
+    KEYS = ("z", "p", "f_expr", "g_expr", "f", "g", "h", "grad_f", "jac_g", "jac_c", "hess_lag")
+
+    def __init__(self, problem: StepProblem, kernels: dict[str, ca.Function]) -> None:
+        self.problem = problem
+        self.kernels = kernels
+        self._built: dict[str, Any] = {}
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in self.KEYS:
+            raise KeyError(key)
+        if key not in self._built:
+            self._built[key] = getattr(self, f"_build_{key}")()
+        return self._built[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.KEYS)
+
+    def __len__(self) -> int:
+        return len(self.KEYS)
+
+    def built(self) -> tuple[str, ...]:
+        """The keys built so far (functions and the shared expressions, in order of construction)."""
+        return tuple(self._built)
+
+    def _part(self, key: str, make: Callable[[], Any]) -> Any:
+        """A shared expression, made once (kept with the built functions under a private key)."""
+        if key not in self._built:
+            self._built[key] = make()
+        return self._built[key]
+
+    # -- shared symbols and expressions ----------------------------------------------------
+    def _build_z(self) -> ca.MX:
+        return ca.MX.sym("z", self.problem.nx)
+
+    def _build_p(self) -> ca.MX:
+        return ca.MX.sym("p", self.problem.np_)
+
+    def _elements(self) -> tuple[ca.MX, ca.MX]:
+        """E: the (nin, K) element inputs gathered from [z; p; consts], and the scalar parameter block."""
+        def make() -> tuple[ca.MX, ca.MX]:
+            P = self.problem
+            v = ca.vertcat(self["z"], self["p"], ca.DM(P.const_values.ravel()))
+            E = ca.reshape(v[P.gather.ravel().tolist()], P.gather.shape[1], P.K)
+            return E, P.params.scalar_block(self["p"])
+        return self._part("_elements", make)
+
+    def _map(self, name: str) -> ca.Function:
+        return self.kernels[name].map(self.problem.K)
+
+    def _vectors(self, g: ca.MX) -> ca.MX:
+        """g minus tt b on the free-Y rows for every nodal vector b of the terms."""
+        P, p = self.problem, self["p"]
+        for name in P.params.vectors:
+            g = g - P.params.scalar(p, "tt") * P.params.vector(p, name)[P._free_y_rows()]
+        return g
+
+    def _target(self) -> ca.MX:
+        P, p = self.problem, self["p"]
+        return ca.vertcat(*[P.params.scalar(p, t) for t in P.targets])
+
+    def _f(self) -> ca.MX:
+        return self._part("_f", lambda: ca.sum2(self._map("k_f")(*self._elements())))
+
+    def _g(self) -> ca.MX:
+        P = self.problem
+        return self._part("_g", lambda: self._vectors(
+            _scatter_add(ca.vec(self._map("k_g")(*self._elements())), P.g_map, P.ng)))
+
+    def _h(self) -> ca.MX:
+        if not self.problem.nh:
+            return ca.MX(0, 1)
+        return self._part("_h", lambda: ca.sum2(self._map("k_h")(*self._elements())) - self._target())
+
+    def _jac(self) -> tuple[ca.MX, ca.MX]:
+        """(g, J) of the inner constraint from the Jacobian kernel."""
+        def make() -> tuple[ca.MX, ca.MX]:
+            P = self.problem
+            gj, jl = self._map("k_jac")(*self._elements())
+            J = _assembled(jl, P.mx_pattern("jac"))
+            return self._vectors(_scatter_add(ca.vec(gj), P.g_map, P.ng)), J
+        return self._part("_jac", make)
+
+    # -- functions ---------------------------------------------------------------------------
+    def _build_f_expr(self) -> ca.MX:
+        return self._f()
+
+    def _build_g_expr(self) -> ca.MX:
+        return ca.vertcat(self._g(), self._h()) if self.problem.nh else self._g()
+
+    def _build_f(self) -> ca.Function:
+        return ca.Function("nlp_f", [self["z"], self["p"]], [self._f()], _IO, ["f"])
+
+    def _build_g(self) -> ca.Function:
+        return ca.Function("nlp_g", [self["z"], self["p"]], [self._g()], _IO, ["g"])
+
+    def _build_h(self) -> ca.Function:
+        return ca.Function("nlp_h", [self["z"], self["p"]], [self._h()], _IO, ["h"])
+
+    def _build_grad_f(self) -> ca.Function:
+        P = self.problem
+        fg, gradl = self._map("k_grad")(*self._elements())
+        grad = _scatter_add(ca.vec(gradl), P.grad_map, P.nx)
+        return ca.Function("nlp_grad_f", [self["z"], self["p"]], [ca.sum2(fg), grad], _IO, ["f", "grad"])
+
+    def _build_jac_g(self) -> ca.Function:
+        return ca.Function("nlp_jac_g", [self["z"], self["p"]], list(self._jac()), _IO, ["g", "jac"])
+
+    def _build_jac_c(self) -> ca.Function:
+        P = self.problem
+        gjac, J = self._jac()
+        if P.nh:
+            hh, hjl = self._map("k_hjac")(*self._elements())
+            Jh = _assembled(hjl, P.mx_pattern("hjac"))
+            gjac, J = ca.vertcat(gjac, ca.sum2(hh) - self._target()), ca.vertcat(J, Jh)
+        return ca.Function("nlp_jac_c", [self["z"], self["p"]], [gjac, J], _IO, ["g", "jac"])
+
+    def _build_hess_lag(self) -> ca.Function:
+        P = self.problem
+        z, p = self["z"], self["p"]
+        lam_f = ca.MX.sym("lam_f")
+        lam_c = ca.MX.sym("lam_c", P.nc)
+        E, par = self._elements()
+        LG = ca.reshape(ca.vertcat(lam_c[: P.ng], 0)[P.g_map.ravel().tolist()], P.spec.nl, P.K)  # 0 on dropped rows
+        lh = [lam_c[P.ng :]] if P.nh else []
+        hl = self._map("k_hess")(E, par, lam_f, LG, *lh)
+        H = _assembled(hl, P.mx_pattern("hess"))
+        return ca.Function("nlp_hess_l", [z, p, lam_f, lam_c], [H], ["x", "p", "lam_f", "lam_g"], ["hess"])
+
+
+_IO = ["x", "p"]

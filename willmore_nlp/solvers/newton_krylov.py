@@ -29,7 +29,10 @@ differs is the linear algebra and the globalisation:
   on measured times would make the iterates depend on the machine's load.)
 * Indefiniteness. When CG meets a direction of non-positive curvature the shift delta D is raised
   (delta = 1 first, then 10 delta) and CG restarts; the next Newton iteration starts from delta / 10
-  (0 below 1e-3), so the final iterations are pure Newton.
+  (0 below 1e-3), so the final iterations are pure Newton. A shift above ``max_shift`` (1e3) ends the
+  solve unconverged: the steps of the measured convergent solves needed at most 10, while the
+  first step of the genus-2 surface at tau = h needed 1e4-1e6 and crawled through its 50 iterations
+  (both solvers converge there only at tau <= h/512).
 * Globalisation. Backtracking (halving) line search with the Armijo condition on W^. A step whose
   predicted decrease is below the rounding level of W^ (100 eps |W^|) is accepted when it reduces
   |grad W^|_inf instead, whatever W^ does there (the last, quadratically convergent iterations:
@@ -93,6 +96,10 @@ class NewtonKrylovSettings(ReducedSettings):
         rebuilt at the current point.
     cg_forcing : float
         Largest CG forcing term (relative residual of a Newton system).
+    max_shift : float
+        The solve stops (not converged) when the shift of a Newton system would exceed ``max_shift`` D: the
+        step problem is then far from convex at X^k (a tau too large for the shape), and the flow retries
+        with tau/2 at once instead of after ``max_iter`` damped iterations.
     """
 
     solver = "newton-krylov"
@@ -104,6 +111,7 @@ class NewtonKrylovSettings(ReducedSettings):
     cg_rebuild: int = option(60, integer(1))
     cg_stale: int = option(25, integer(1))
     cg_forcing: float = option(0.1, real(0, 1, lo_open=True))
+    max_shift: float = option(1e3, real(0, lo_open=True))
 
 
 @register_solver("newton-krylov", NewtonKrylovSettings)
@@ -123,9 +131,11 @@ class NewtonKrylovSolver(ReducedSolver):
         self.cg_rebuild = settings.cg_rebuild
         self.cg_stale = settings.cg_stale
         self.cg_forcing = settings.cg_forcing
+        self.max_shift = settings.max_shift
         self._jy = SymmetricFactor(settings.cholesky)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
+        evaluator.cholesky = self.backend  # the flow's own Y[X] solves: Cholesky of the N x N block as well
         P = self.P
         m = P.m
         if not np.all(P.y_free[P.x_free]):
@@ -190,9 +200,9 @@ class NewtonKrylovSolver(ReducedSolver):
         """D: the Hessian in X of the distance (and control) part of W, i.e. of W with tau = 0 (constant in X)."""
         p0 = self.P.params.replace(p, tau=0.0)
         with self._timed("eval"):
-            H = self.ev.hess_lag(z, p0, 1.0, np.zeros(self.P.nc))
+            U = sp.csc_matrix(self.ev.hess_lag_upper(z, p0, 1.0, np.zeros(self.P.nc))[: self.nxm, : self.nxm])
         self._count("n_eval_hess")
-        return sp.csc_matrix(H[: self.nxm, : self.nxm])
+        return (U + sp.triu(U, 1).T).tocsc()
 
     def _build_preconditioner(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
         """Factorise B = D + 2 tau K^T Ml^-1 K at ``pt`` (module docstring)."""
@@ -263,8 +273,9 @@ class NewtonKrylovSolver(ReducedSolver):
             pt.CBC = pt.C @ pt.BC
         return s - pt.BC @ np.linalg.solve(pt.CBC, pt.C @ s)
 
-    def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray:
-        """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed.
+    def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray | None:
+        """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed;
+        None when the shift would exceed ``max_shift``.
 
         ``pt.H`` (the Lagrangian Hessian at ``pt.z`` with multipliers ``pt.lam``) must be set. Solver state
         across iterations: ``_pre_x`` (where B was built), ``_delta``, ``_g0`` (first gradient size).
@@ -292,6 +303,9 @@ class NewtonKrylovSolver(ReducedSolver):
             if state != "negative":
                 break
             delta = max(1.0, 10 * delta)
+            if delta > self.max_shift:
+                self._delta_max = delta
+                return None
         self._delta = delta
         self._delta_max = max(self._delta_max, delta)
         return d
@@ -343,9 +357,12 @@ class NewtonKrylovSolver(ReducedSolver):
                 status = "stopped"
                 break
             with self._timed("eval"):
-                pt.H = self.ev.hess_lag(pt.z, p, 1.0, pt.lam)
+                pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)  # (half the memory of the mirrored matrix)
             self._count("n_eval_hess")
             d = self._direction(pt, p, D, h)
+            if d is None:
+                status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
+                break
             new = self._line_search(pt, p, d)
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
