@@ -40,6 +40,8 @@ from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 
 CACHE = Path("reports/studies/mesh_quality")
+BETAS = (1.0, 10.0, 100.0)
+"""tangential_weight values of the weight study (issue 14: is a weight > 1 the right surface default?)."""
 STATES: Path | None = None  # --save-states DIR: the torus states at the series' times (npz), for later analysis
 
 
@@ -74,6 +76,16 @@ def smoothed_box() -> Mesh:
     b = trimesh.creation.box().subdivide().subdivide().subdivide()
     trimesh.smoothing.filter_laplacian(b, iterations=10)
     return Mesh(np.asarray(b.vertices), np.asarray(b.faces), "smoothed box")
+
+
+BETA_GENUS0 = {"ellipsoid642": lambda: ellipsoid(3), "capsule": capsule, "capsule_noisy": noisy_capsule,
+               "box": smoothed_box}
+BETA_BOUNDARY: dict[str, tuple[str, int, bool, dict[str, Any]]] = {
+    "blend_conormal": ("surface_blending", 200, False, {"variant": "conormal"}),
+    "blend_ring": ("surface_blending", 200, False, {"variant": "ring"}),
+    "torus_hole": ("torus_hole", 100, True, {"fill": "noisy"})}
+"""The weight study's cases: problem, steps at scale 1, exact-torus reference?, parameters (as the beta = 1 rows)."""
+BETA_CASES = [*BETA_GENUS0, *BETA_BOUNDARY]
 
 
 def sphere_reference(mesh: Mesh) -> float:
@@ -211,10 +223,12 @@ def genus2_evolver(mesh: Mesh) -> dict[str, Any]:
 
 
 def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None = None, t_end: float | None = None,
-             reference: Any = None, switch: tuple[float, float] | None = None, **options: Any) -> dict[str, Any]:
+             reference: Any = None, switch: tuple[float, float] | None = None, keep_final: bool = False,
+             **options: Any) -> dict[str, Any]:
     """Run one flow, collecting the table's figures (see the module docstring).
 
-    ``switch = (t_s, tau_2)``: step with tau up to t_s, then with tau_2 up to t_end.
+    ``switch = (t_s, tau_2)``: step with tau up to t_s, then with tau_2 up to t_end. ``keep_final``: also store
+    the final mesh (``final_vertices``, ``final_simplices``) for the shape comparisons of :func:`beta_table`.
     """
     flow = WillmoreFlow(mesh, tau, tt, **options)
     rows: list[dict[str, Any]] = [flow.state().row()]
@@ -275,7 +289,10 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
            "retries": int(sum(r["retries"] for r in rows[1:])), "failed": failed, "W0": float(W[0]),
            "W": float(W[-1]), "W_ref": ref, "stationarity": float(stat), "wall": wall,
            "min_tau_seen": float(min((r["tau"] for r in rows[1:]), default=float("nan"))),
-           "tau_tilde_final": flow.tau_tilde}
+           "tau_tilde_final": flow.tau_tilde,
+           "iterations_mean": float(np.mean([x["iterations"] for x in rows[1:]])) if len(rows) > 1 else float("nan")}
+    if keep_final:
+        out.update({"final_vertices": final.vertices.tolist(), "final_simplices": final.simplices.tolist()})
     if name.startswith("torus "):
         R, r = torus_fit(flow.X)
         n = int(np.rint(np.sqrt(2 * mesh.n_vertices)))
@@ -336,6 +353,27 @@ def cases(scale: float) -> dict[str, Any]:
             return out | genus2_evolver(final[0])
         return go
 
+    def beta(key: str, b: float) -> Any:
+        """The case ``key`` with tangential_weight ``b`` and today's other defaults (the tangential_weight study,
+        :func:`beta_table`); the final mesh is kept for the shape comparison between weights."""
+        label = f", tangential_weight {b:g}"
+        if key in BETA_GENUS0:
+            mesh = BETA_GENUS0[key]()
+            return lambda: run_case(mesh.source + label, mesh, mesh.h, 0.01 * mesh.h**2, steps=n(200),
+                                    reference=lambda m, f: sphere_reference(m), keep_final=True,
+                                    tangential_weight=b)
+        pname, steps, ref, params = BETA_BOUNDARY[key]
+
+        def go() -> dict[str, Any]:
+            pb, _ = registry.build(pname, **params)
+            opts = {**pb.flow_options, "tangential_weight": b}
+            return run_case(f"{pname} " + " ".join(f"{k}={v}" for k, v in params.items()) + label, pb.mesh,
+                            pb.tau, pb.tau_tilde, steps=n(steps), reference=torus_exact if ref else None,
+                            lam=pb.lam, keep_final=True, **opts)
+        return go
+
+    beta_cases = {f"{key}_beta{b:g}": beta(key, b) for key in BETA_CASES for b in BETAS}
+
     return {
         "ellipsoid642": genus0(ellipsoid(3)),
         "ellipsoid2562": genus0(ellipsoid(4)),
@@ -380,7 +418,7 @@ def cases(scale: float) -> dict[str, Any]:
         "blend_ring_400": boundary("surface_blending", 400, variant="ring"),
         "torus_hole": boundary("torus_hole", 100, torus_exact, fill="noisy"),
         "torus_hole_off": boundary("torus_hole", 100, torus_exact, {"mesh_control": "off"}, fill="noisy"),
-    }
+    } | beta_cases
 
 
 def diagnose(steps: int = 10) -> None:
@@ -453,6 +491,55 @@ def symmetry(steps: int = 3) -> None:
               flush=True)
 
 
+def surface_distance(a: dict[str, Any], b: dict[str, Any]) -> float:
+    """Symmetric max distance between the final meshes of two cached results: the largest distance of a vertex of
+    either to the other's triangles (gpytoolbox's exact point-triangle distance): a one-sided Hausdorff distance
+    sampled at the vertices, blind to tangential motion."""
+    import gpytoolbox
+
+    Va, Fa = np.asarray(a["final_vertices"]), np.asarray(a["final_simplices"])
+    Vb, Fb = np.asarray(b["final_vertices"]), np.asarray(b["final_simplices"])
+    dab = gpytoolbox.squared_distance(Va, Vb, Fb, use_cpp=True)[0]
+    dba = gpytoolbox.squared_distance(Vb, Va, Fa, use_cpp=True)[0]
+    return float(np.sqrt(max(dab.max(), dba.max())))
+
+
+def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:
+    """The tangential_weight study: per case the cached beta = 1 row of the earlier defaults (if any) and the
+    rows of :data:`BETAS` with today's defaults; then the final shapes of beta = 10, 100 against beta = 1."""
+    def ok(r: dict[str, Any]) -> str:
+        return f"{r['failed'].split(': ', 1)[0]}: {r['failed'].split(': ')[-1][:48]}" if r["failed"] else "no"
+
+    lines = ["| case | tangential_weight | run length (x default) | steps | t | retries | failed | min angle before / "
+             "after repair | stepped states | final | IPOPT it/step | wall [s] | W final | W/W_ref - 1 | "
+             "stationarity |", "|---" * 15 + "|"]
+    shapes_ = ["| case | beta | W(beta) / W(1) - 1 | same vertex count | max vertex distance / h | "
+               "max surface distance / h |", "|---|---|---|---|---|---|"]
+    for key in BETA_CASES:
+        rows = [(f"{key} (cached)", cached.get(key))] + [(f"{b:g}", cached.get(f"{key}_beta{b:g}")) for b in BETAS]
+        for beta, r in rows:
+            if r is None:
+                continue
+            rel = r["W"] / r["W_ref"] - 1 if np.isfinite(r["W_ref"]) and not r["failed"] else float("nan")
+            it = r.get("iterations_mean", float("nan"))
+            lines.append(f"| {key} | {beta} | {r.get('scale', 1.0):g} | {r['steps']} | {r['t']:.4g} | "
+                         f"{r['retries']} | {ok(r)} | {r['min_angle_before']:.3g} / {r['min_angle_after']:.3g} | "
+                         f"{r.get('min_angle_steps', float('nan')):.3g} | {r['min_angle_final']:.3g} | {it:.2f} | "
+                         f"{r['wall']:.0f} | {r['W']:.6g} | {rel:.2e} | {r['stationarity']:.1e} |")
+        base = cached.get(f"{key}_beta1")
+        for b in BETAS[1:]:
+            r = cached.get(f"{key}_beta{b:g}")
+            if base is None or r is None or base["failed"] or r["failed"] or "final_vertices" not in r:
+                continue
+            Va, Vb = np.asarray(base["final_vertices"]), np.asarray(r["final_vertices"])
+            same = Va.shape == Vb.shape
+            vd = f"{np.linalg.norm(Va - Vb, axis=1).max() / base['h']:.3g}" if same else ""
+            shapes_.append(f"| {key} | {b:g} | {r['W'] / base['W'] - 1:+.2e} | {'yes' if same else 'no'} | {vd} | "
+                           f"{surface_distance(base, r) / base['h']:.3g} |")
+    return [*lines, "", "Final shapes against tangential_weight 1 (same case, same run length; h: the initial mean "
+            "edge):", "", *shapes_]
+
+
 def table(results: list[dict[str, Any]]) -> list[str]:
     lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | "
              "min angle of the stepped states | failed | "
@@ -501,7 +588,9 @@ def main() -> None:
         res["scale"] = args.scale
         f.write_text(json.dumps(res, indent=1))
         print(f"{name}: {res}", flush=True)
-    results = [json.loads((CACHE / f"{k}.json").read_text()) for k in todo if (CACHE / f"{k}.json").is_file()]
+    study = {f"{k}_beta{b:g}" for k in BETA_CASES for b in BETAS}
+    results = [json.loads((CACHE / f"{k}.json").read_text()) for k in todo
+               if k not in study and (CACHE / f"{k}.json").is_file()]
     lines = ["# Mesh-quality control: long surface flows with the defaults", "",
              f"`nice python reports/mesh_quality_study.py` on {platform.processor() or platform.machine()}, "
              f"{time.strftime('%Y-%m-%d')} (see the script's docstring for the columns).", ""]
@@ -515,6 +604,14 @@ def main() -> None:
         lines += [f"| {r['name']} | {r['W']:.4f} | {r['W'] / LAWSON_21 - 1:+.2%} | {r['evolver_initial']:.4f} | "
                   f"{r['evolver_final']:.4f} ({r['evolver_commands']}) | {r['W_of_evolver_mesh']:.4f} | "
                   f"{r['evolver_min_angle']:.3g} |" for r in g2]
+    cached = {k: json.loads((CACHE / f"{k}.json").read_text()) for k in todo if (CACHE / f"{k}.json").is_file()}
+    if any(f"{k}_beta{b:g}" in cached for k in BETA_CASES for b in BETAS):
+        lines += ["", "## tangential_weight 1, 10, 100 (`--cases KEY_beta1 KEY_beta10 KEY_beta100`)", "",
+                  "Today's defaults apart from the weight; \"(cached)\" is the case's row of the main table (earlier "
+                  "defaults, see the notes). W_ref as in the main table (NaN: no closed-form limit). Min angle: the "
+                  "smallest before / after repair over the run (the input included), of the stepped states, at the "
+                  "end.", ""]
+        lines += beta_table(cached)
     tor = [r for r in results if "R_over_r" in r]
     if tor:
         lines += ["", "Tori toward the Clifford torus (R/r -> sqrt 2 = 1.41421). W_grid: the Clifford torus meshed "
