@@ -2,6 +2,7 @@
 
     nice python reports/mesh_quality_study.py [--cases NAME ...] [--scale 1.0] [--table-only]
     nice python reports/mesh_quality_study.py --diagnose     # why single steps degrade the mesh
+    nice python reports/mesh_quality_study.py --first-step   # the first step against tangential_weight
 
 Every case runs with the library defaults (mesh control "auto", tau = h unless stated,
 tau_tilde = h^2/100) and, where the issue asks for it, the same case with ``mesh_control=off``
@@ -17,6 +18,9 @@ tau_tilde = h^2/100) and, where the issue asks for it, the same case with ``mesh
   genus 0; the Clifford torus R/r = sqrt 2 fitted to the cross-section for the torus; the exact
   torus for the restoration); NaN where no closed-form limit exists (genus 2, blends);
 * stationarity: relative change of the Willmore energy in the last step.
+
+Cases ``KEY_beta1``, ``KEY_beta10``, ``KEY_beta100`` (KEY in :data:`BETA_CASES`) rerun the genus-0 and boundary
+cases with today's defaults and tangential_weight 1, 10, 100 (own table, with the final shapes compared).
 
 Finished cases are cached in ``reports/studies/mesh_quality/NAME.json`` (delete to rerun);
 ``--scale`` multiplies the run lengths (e.g. 0.25 for a quick look).
@@ -353,15 +357,15 @@ def cases(scale: float) -> dict[str, Any]:
             return out | genus2_evolver(final[0])
         return go
 
-    def beta(key: str, b: float) -> Any:
+    def beta(key: str, b: float, **kw: Any) -> Any:
         """The case ``key`` with tangential_weight ``b`` and today's other defaults (the tangential_weight study,
-        :func:`beta_table`); the final mesh is kept for the shape comparison between weights."""
-        label = f", tangential_weight {b:g}"
+        :func:`beta_table`; ``kw``: further flow options); the final mesh is kept for the shape comparison."""
+        label = f", tangential_weight {b:g}" + "".join(f", {k} = {v}" for k, v in kw.items())
         if key in BETA_GENUS0:
             mesh = BETA_GENUS0[key]()
             return lambda: run_case(mesh.source + label, mesh, mesh.h, 0.01 * mesh.h**2, steps=n(200),
                                     reference=lambda m, f: sphere_reference(m), keep_final=True,
-                                    tangential_weight=b)
+                                    tangential_weight=b, **kw)
         pname, steps, ref, params = BETA_BOUNDARY[key]
 
         def go() -> dict[str, Any]:
@@ -373,6 +377,8 @@ def cases(scale: float) -> dict[str, Any]:
         return go
 
     beta_cases = {f"{key}_beta{b:g}": beta(key, b) for key in BETA_CASES for b in BETAS}
+    # the first step at tau = h fails with weight 10 on the box and the noisy capsule: two more halvings
+    beta_cases |= {f"{key}_beta10_retries6": beta(key, 10.0, max_retries=6) for key in ("box", "capsule_noisy")}
 
     return {
         "ellipsoid642": genus0(ellipsoid(3)),
@@ -441,6 +447,25 @@ def diagnose(steps: int = 10) -> None:
     for q in (2.0, 1.757, 1.571, np.sqrt(2)):
         g = shapes.torus(1.0, 1.0 / q, 24, 12)
         print(f"grid 24x12 on the exact torus R/r = {q:.4g}: min angle {geometry.quality(g)['min_angle']:.2f}")
+
+
+def first_step_probe(betas: tuple[float, ...] = (1.0, 3.0, 10.0, 30.0, 100.0)) -> None:
+    """Print whether the first step of the smoothed box and the noisy capsule converges and passes the mesh checks
+    at tau = h, h/4, h/16, h/64 for several tangential weights (one attempt each, no iteration budget): where a
+    weight > 1 hurts (docs/guide/mesh_quality.md, "Which tangential_weight")."""
+    for mesh in (smoothed_box(), noisy_capsule()):
+        h = mesh.h
+        for b in betas:
+            cells = []
+            for frac in (1, 4, 16, 64):
+                flow = WillmoreFlow(mesh, h / frac, 0.01 * h * h, tangential_weight=b, max_retries=0,
+                                    first_step_budget=0)
+                try:
+                    r = flow.run(steps=1)[0]
+                    cells.append(f"h/{frac}: {r.iterations} it, W {r.willmore:.3f}, {r.quality['min_angle']:.3g} deg")
+                except FlowError as exc:
+                    cells.append(f"h/{frac}: " + str(exc.rejected[-1] if exc.rejected else exc).split(": ", 1)[-1])
+            print(f"{mesh.source}, tangential_weight {b:g}: " + "; ".join(cells), flush=True)
 
 
 def conformal_torus(q: float, n: int, m: int, r: float = 1.0) -> Mesh:
@@ -516,7 +541,8 @@ def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:
     shapes_ = ["| case | beta | W(beta) / W(1) - 1 | same vertex count | max vertex distance / h | "
                "max surface distance / h |", "|---|---|---|---|---|---|"]
     for key in BETA_CASES:
-        rows = [(f"{key} (cached)", cached.get(key))] + [(f"{b:g}", cached.get(f"{key}_beta{b:g}")) for b in BETAS]
+        rows = [("1 (cached)", cached.get(key)), *((f"{b:g}", cached.get(f"{key}_beta{b:g}")) for b in BETAS),
+                ("10, max_retries 6", cached.get(f"{key}_beta10_retries6"))]
         for beta, r in rows:
             if r is None:
                 continue
@@ -527,14 +553,14 @@ def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:
                          f"{r.get('min_angle_steps', float('nan')):.3g} | {r['min_angle_final']:.3g} | {it:.2f} | "
                          f"{r['wall']:.0f} | {r['W']:.6g} | {rel:.2e} | {r['stationarity']:.1e} |")
         base = cached.get(f"{key}_beta1")
-        for b in BETAS[1:]:
-            r = cached.get(f"{key}_beta{b:g}")
+        for b, r in [(f"{b:g}", cached.get(f"{key}_beta{b:g}")) for b in BETAS[1:]] + [
+                ("10, max_retries 6", cached.get(f"{key}_beta10_retries6"))]:
             if base is None or r is None or base["failed"] or r["failed"] or "final_vertices" not in r:
                 continue
             Va, Vb = np.asarray(base["final_vertices"]), np.asarray(r["final_vertices"])
             same = Va.shape == Vb.shape
             vd = f"{np.linalg.norm(Va - Vb, axis=1).max() / base['h']:.3g}" if same else ""
-            shapes_.append(f"| {key} | {b:g} | {r['W'] / base['W'] - 1:+.2e} | {'yes' if same else 'no'} | {vd} | "
+            shapes_.append(f"| {key} | {b} | {r['W'] / base['W'] - 1:+.2e} | {'yes' if same else 'no'} | {vd} | "
                            f"{surface_distance(base, r) / base['h']:.3g} |")
     return [*lines, "", "Final shapes against tangential_weight 1 (same case, same run length; h: the initial mean "
             "edge):", "", *shapes_]
@@ -566,6 +592,8 @@ def main() -> None:
     ap.add_argument("--table-only", action="store_true", help="only write the table of the cached cases")
     ap.add_argument("--diagnose", action="store_true", help="only print the single-step diagnosis (torus 24x12)")
     ap.add_argument("--symmetry", action="store_true", help="only print why the torus flows leave the symmetry")
+    ap.add_argument("--first-step", action="store_true",
+                    help="only print the first step of the box and noisy capsule against tangential_weight")
     ap.add_argument("--save-states", type=Path, help="write the torus states of the series to this directory")
     args = ap.parse_args()
     global STATES
@@ -575,6 +603,9 @@ def main() -> None:
         return
     if args.symmetry:
         symmetry()
+        return
+    if args.first_step:
+        first_step_probe()
         return
     CACHE.mkdir(parents=True, exist_ok=True)
     todo = cases(args.scale)
@@ -588,7 +619,7 @@ def main() -> None:
         res["scale"] = args.scale
         f.write_text(json.dumps(res, indent=1))
         print(f"{name}: {res}", flush=True)
-    study = {f"{k}_beta{b:g}" for k in BETA_CASES for b in BETAS}
+    study = {f"{k}_beta{b:g}" for k in BETA_CASES for b in BETAS} | {f"{k}_beta10_retries6" for k in BETA_CASES}
     results = [json.loads((CACHE / f"{k}.json").read_text()) for k in todo
                if k not in study and (CACHE / f"{k}.json").is_file()]
     lines = ["# Mesh-quality control: long surface flows with the defaults", "",
