@@ -87,7 +87,8 @@ BETA_GENUS0 = {"ellipsoid642": lambda: ellipsoid(3), "capsule": capsule, "capsul
 BETA_BOUNDARY: dict[str, tuple[str, int, bool, dict[str, Any]]] = {
     "blend_conormal": ("surface_blending", 200, False, {"variant": "conormal"}),
     "blend_ring": ("surface_blending", 200, False, {"variant": "ring"}),
-    "torus_hole": ("torus_hole", 100, True, {"fill": "noisy"})}
+    "torus_hole": ("torus_hole", 100, True, {"fill": "noisy"}),
+    "blend_conormal_400": ("surface_blending", 400, False, {"variant": "conormal"})}
 """The weight study's cases: problem, steps at scale 1, exact-torus reference?, parameters (as the beta = 1 rows)."""
 BETA_CASES = [*BETA_GENUS0, *BETA_BOUNDARY]
 
@@ -296,7 +297,8 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
            "tau_tilde_final": flow.tau_tilde,
            "iterations_mean": float(np.mean([x["iterations"] for x in rows[1:]])) if len(rows) > 1 else float("nan")}
     if keep_final:
-        out.update({"final_vertices": final.vertices.tolist(), "final_simplices": final.simplices.tolist()})
+        out.update({"final_vertices": final.vertices.tolist(), "final_simplices": final.simplices.tolist(),
+                    "W_last": W[-20:].tolist()})
     if name.startswith("torus "):
         R, r = torus_fit(flow.X)
         n = int(np.rint(np.sqrt(2 * mesh.n_vertices)))
