@@ -541,7 +541,13 @@ def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:
              "after repair | stepped states | final | IPOPT it/step | wall [s] | W final | W/W_ref - 1 | "
              "stationarity |", "|---" * 15 + "|"]
     shapes_ = ["| case | beta | W(beta) / W(1) - 1 | same vertex count | max vertex distance / h | "
-               "max surface distance / h |", "|---|---|---|---|---|---|"]
+               "max surface distance / h | genus 0: R / R(1) - 1; max abs(r - R) / h, beta (1) |",
+               "|---|---|---|---|---|---|---|"]
+
+    def radii(r: dict[str, Any]) -> np.ndarray:
+        V = np.asarray(r["final_vertices"])
+        return np.linalg.norm(V - V.mean(axis=0), axis=1)
+
     for key in BETA_CASES:
         rows = [("1 (cached)", cached.get(key)), *((f"{b:g}", cached.get(f"{key}_beta{b:g}")) for b in BETAS),
                 ("10, max_retries 6", cached.get(f"{key}_beta10_retries6"))]
@@ -562,8 +568,13 @@ def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:
             Va, Vb = np.asarray(base["final_vertices"]), np.asarray(r["final_vertices"])
             same = Va.shape == Vb.shape
             vd = f"{np.linalg.norm(Va - Vb, axis=1).max() / base['h']:.3g}" if same else ""
+            sphere = ""
+            if key in BETA_GENUS0:
+                ra, rb = radii(base), radii(r)
+                sphere = (f"{rb.mean() / ra.mean() - 1:+.2e}; {np.abs(rb - rb.mean()).max() / base['h']:.3g} "
+                          f"({np.abs(ra - ra.mean()).max() / base['h']:.3g})")
             shapes_.append(f"| {key} | {b} | {r['W'] / base['W'] - 1:+.2e} | {'yes' if same else 'no'} | {vd} | "
-                           f"{surface_distance(base, r) / base['h']:.3g} |")
+                           f"{surface_distance(base, r) / base['h']:.3g} | {sphere} |")
     return [*lines, "", "Final shapes against tangential_weight 1 (same case, same run length; h: the initial mean "
             "edge):", "", *shapes_]
 
@@ -643,7 +654,8 @@ def main() -> None:
                   "Today's defaults apart from the weight; \"(cached)\" is the case's row of the main table (earlier "
                   "defaults, see the notes). W_ref as in the main table (NaN: no closed-form limit). Min angle: the "
                   "smallest before / after repair over the run (the input included), of the stepped states, at the "
-                  "end.", ""]
+                  "end. A first pass at `--scale 0.25` is kept in `reports/studies/mesh_quality/beta_scale0.25/`. "
+                  "`--first-step` prints the first step of the box and the noisy capsule against the weight.", ""]
         lines += beta_table(cached)
     tor = [r for r in results if "R_over_r" in r]
     if tor:
