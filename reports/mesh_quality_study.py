@@ -2,6 +2,7 @@
 
     nice python reports/mesh_quality_study.py [--cases NAME ...] [--scale 1.0] [--table-only]
     nice python reports/mesh_quality_study.py --diagnose     # why single steps degrade the mesh
+    nice python reports/mesh_quality_study.py --first-step   # the first step against tangential_weight
 
 Every case runs with the library defaults (mesh control "auto", tau = h unless stated,
 tau_tilde = h^2/100) and, where the issue asks for it, the same case with ``mesh_control=off``
@@ -17,6 +18,9 @@ tau_tilde = h^2/100) and, where the issue asks for it, the same case with ``mesh
   genus 0; the Clifford torus R/r = sqrt 2 fitted to the cross-section for the torus; the exact
   torus for the restoration); NaN where no closed-form limit exists (genus 2, blends);
 * stationarity: relative change of the Willmore energy in the last step.
+
+Cases ``KEY_beta1``, ``KEY_beta10``, ``KEY_beta100`` (KEY in :data:`BETA_CASES`) rerun the genus-0 and boundary
+cases with today's defaults and tangential_weight 1, 10, 100 (own table, with the final shapes compared).
 
 Finished cases are cached in ``reports/studies/mesh_quality/NAME.json`` (delete to rerun);
 ``--scale`` multiplies the run lengths (e.g. 0.25 for a quick look).
@@ -40,6 +44,8 @@ from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 
 CACHE = Path("reports/studies/mesh_quality")
+BETAS = (1.0, 10.0, 100.0)
+"""tangential_weight values of the weight study (issue 14: is a weight > 1 the right surface default?)."""
 STATES: Path | None = None  # --save-states DIR: the torus states at the series' times (npz), for later analysis
 
 
@@ -74,6 +80,17 @@ def smoothed_box() -> Mesh:
     b = trimesh.creation.box().subdivide().subdivide().subdivide()
     trimesh.smoothing.filter_laplacian(b, iterations=10)
     return Mesh(np.asarray(b.vertices), np.asarray(b.faces), "smoothed box")
+
+
+BETA_GENUS0 = {"ellipsoid642": lambda: ellipsoid(3), "capsule": capsule, "capsule_noisy": noisy_capsule,
+               "box": smoothed_box}
+BETA_BOUNDARY: dict[str, tuple[str, int, bool, dict[str, Any]]] = {
+    "blend_conormal": ("surface_blending", 200, False, {"variant": "conormal"}),
+    "blend_ring": ("surface_blending", 200, False, {"variant": "ring"}),
+    "torus_hole": ("torus_hole", 100, True, {"fill": "noisy"}),
+    "blend_conormal_400": ("surface_blending", 400, False, {"variant": "conormal"})}
+"""The weight study's cases: problem, steps at scale 1, exact-torus reference?, parameters (as the beta = 1 rows)."""
+BETA_CASES = [*BETA_GENUS0, *BETA_BOUNDARY]
 
 
 def sphere_reference(mesh: Mesh) -> float:
@@ -211,10 +228,12 @@ def genus2_evolver(mesh: Mesh) -> dict[str, Any]:
 
 
 def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None = None, t_end: float | None = None,
-             reference: Any = None, switch: tuple[float, float] | None = None, **options: Any) -> dict[str, Any]:
+             reference: Any = None, switch: tuple[float, float] | None = None, keep_final: bool = False,
+             **options: Any) -> dict[str, Any]:
     """Run one flow, collecting the table's figures (see the module docstring).
 
-    ``switch = (t_s, tau_2)``: step with tau up to t_s, then with tau_2 up to t_end.
+    ``switch = (t_s, tau_2)``: step with tau up to t_s, then with tau_2 up to t_end. ``keep_final``: also store
+    the final mesh (``final_vertices``, ``final_simplices``) for the shape comparisons of :func:`beta_table`.
     """
     flow = WillmoreFlow(mesh, tau, tt, **options)
     rows: list[dict[str, Any]] = [flow.state().row()]
@@ -275,7 +294,11 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
            "retries": int(sum(r["retries"] for r in rows[1:])), "failed": failed, "W0": float(W[0]),
            "W": float(W[-1]), "W_ref": ref, "stationarity": float(stat), "wall": wall,
            "min_tau_seen": float(min((r["tau"] for r in rows[1:]), default=float("nan"))),
-           "tau_tilde_final": flow.tau_tilde}
+           "tau_tilde_final": flow.tau_tilde,
+           "iterations_mean": float(np.mean([x["iterations"] for x in rows[1:]])) if len(rows) > 1 else float("nan")}
+    if keep_final:
+        out.update({"final_vertices": final.vertices.tolist(), "final_simplices": final.simplices.tolist(),
+                    "W_last": W[-20:].tolist()})
     if name.startswith("torus "):
         R, r = torus_fit(flow.X)
         n = int(np.rint(np.sqrt(2 * mesh.n_vertices)))
@@ -336,6 +359,29 @@ def cases(scale: float) -> dict[str, Any]:
             return out | genus2_evolver(final[0])
         return go
 
+    def beta(key: str, b: float, **kw: Any) -> Any:
+        """The case ``key`` with tangential_weight ``b`` and today's other defaults (the tangential_weight study,
+        :func:`beta_table`; ``kw``: further flow options); the final mesh is kept for the shape comparison."""
+        label = f", tangential_weight {b:g}" + "".join(f", {k} = {v}" for k, v in kw.items())
+        if key in BETA_GENUS0:
+            mesh = BETA_GENUS0[key]()
+            return lambda: run_case(mesh.source + label, mesh, mesh.h, 0.01 * mesh.h**2, steps=n(200),
+                                    reference=lambda m, f: sphere_reference(m), keep_final=True,
+                                    tangential_weight=b, **kw)
+        pname, steps, ref, params = BETA_BOUNDARY[key]
+
+        def go() -> dict[str, Any]:
+            pb, _ = registry.build(pname, **params)
+            opts = {**pb.flow_options, "tangential_weight": b}
+            return run_case(f"{pname} " + " ".join(f"{k}={v}" for k, v in params.items()) + label, pb.mesh,
+                            pb.tau, pb.tau_tilde, steps=n(steps), reference=torus_exact if ref else None,
+                            lam=pb.lam, keep_final=True, **opts)
+        return go
+
+    beta_cases = {f"{key}_beta{b:g}": beta(key, b) for key in BETA_CASES for b in BETAS}
+    # the first step at tau = h fails with weight 10 on the box and the noisy capsule: two more halvings
+    beta_cases |= {f"{key}_beta10_retries6": beta(key, 10.0, max_retries=6) for key in ("box", "capsule_noisy")}
+
     return {
         "ellipsoid642": genus0(ellipsoid(3)),
         "ellipsoid2562": genus0(ellipsoid(4)),
@@ -380,7 +426,7 @@ def cases(scale: float) -> dict[str, Any]:
         "blend_ring_400": boundary("surface_blending", 400, variant="ring"),
         "torus_hole": boundary("torus_hole", 100, torus_exact, fill="noisy"),
         "torus_hole_off": boundary("torus_hole", 100, torus_exact, {"mesh_control": "off"}, fill="noisy"),
-    }
+    } | beta_cases
 
 
 def diagnose(steps: int = 10) -> None:
@@ -403,6 +449,25 @@ def diagnose(steps: int = 10) -> None:
     for q in (2.0, 1.757, 1.571, np.sqrt(2)):
         g = shapes.torus(1.0, 1.0 / q, 24, 12)
         print(f"grid 24x12 on the exact torus R/r = {q:.4g}: min angle {geometry.quality(g)['min_angle']:.2f}")
+
+
+def first_step_probe(betas: tuple[float, ...] = (1.0, 3.0, 10.0, 30.0, 100.0)) -> None:
+    """Print whether the first step of the smoothed box and the noisy capsule converges and passes the mesh checks
+    at tau = h, h/4, h/16, h/64 for several tangential weights (one attempt each, no iteration budget): where a
+    weight > 1 hurts (docs/guide/mesh_quality.md, "Which tangential_weight")."""
+    for mesh in (smoothed_box(), noisy_capsule()):
+        h = mesh.h
+        for b in betas:
+            cells = []
+            for frac in (1, 4, 16, 64):
+                flow = WillmoreFlow(mesh, h / frac, 0.01 * h * h, tangential_weight=b, max_retries=0,
+                                    first_step_budget=0)
+                try:
+                    r = flow.run(steps=1)[0]
+                    cells.append(f"h/{frac}: {r.iterations} it, W {r.willmore:.3f}, {r.quality['min_angle']:.3g} deg")
+                except FlowError as exc:
+                    cells.append(f"h/{frac}: " + str(exc.rejected[-1] if exc.rejected else exc).split(": ", 1)[-1])
+            print(f"{mesh.source}, tangential_weight {b:g}: " + "; ".join(cells), flush=True)
 
 
 def conformal_torus(q: float, n: int, m: int, r: float = 1.0) -> Mesh:
@@ -453,6 +518,67 @@ def symmetry(steps: int = 3) -> None:
               flush=True)
 
 
+def surface_distance(a: dict[str, Any], b: dict[str, Any]) -> float:
+    """Symmetric max distance between the final meshes of two cached results: the largest distance of a vertex of
+    either to the other's triangles (gpytoolbox's exact point-triangle distance): a one-sided Hausdorff distance
+    sampled at the vertices, blind to tangential motion."""
+    import gpytoolbox
+
+    Va, Fa = np.asarray(a["final_vertices"]), np.asarray(a["final_simplices"])
+    Vb, Fb = np.asarray(b["final_vertices"]), np.asarray(b["final_simplices"])
+    dab = gpytoolbox.squared_distance(Va, Vb, Fb, use_cpp=True)[0]
+    dba = gpytoolbox.squared_distance(Vb, Va, Fa, use_cpp=True)[0]
+    return float(np.sqrt(max(dab.max(), dba.max())))
+
+
+def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:
+    """The tangential_weight study: per case the cached beta = 1 row of the earlier defaults (if any) and the
+    rows of :data:`BETAS` with today's defaults; then the final shapes of beta = 10, 100 against beta = 1."""
+    def ok(r: dict[str, Any]) -> str:
+        return f"{r['failed'].split(': ', 1)[0]}: {r['failed'].split(': ')[-1][:48]}" if r["failed"] else "no"
+
+    lines = ["| case | tangential_weight | run length (x default) | steps | t | retries | failed | min angle before / "
+             "after repair | stepped states | final | IPOPT it/step | wall [s] | W final | W/W_ref - 1 | "
+             "stationarity |", "|---" * 15 + "|"]
+    shapes_ = ["| case | beta | W(beta) / W(1) - 1 | same vertex count | max vertex distance / h | "
+               "max surface distance / h | genus 0: R / R(1) - 1; max abs(r - R) / h, beta (1) |",
+               "|---|---|---|---|---|---|---|"]
+
+    def radii(r: dict[str, Any]) -> np.ndarray:
+        V = np.asarray(r["final_vertices"])
+        return np.linalg.norm(V - V.mean(axis=0), axis=1)
+
+    for key in BETA_CASES:
+        rows = [("1 (cached)", cached.get(key)), *((f"{b:g}", cached.get(f"{key}_beta{b:g}")) for b in BETAS),
+                ("10, max_retries 6", cached.get(f"{key}_beta10_retries6"))]
+        for beta, r in rows:
+            if r is None:
+                continue
+            rel = r["W"] / r["W_ref"] - 1 if np.isfinite(r["W_ref"]) and not r["failed"] else float("nan")
+            it = r.get("iterations_mean", float("nan"))
+            lines.append(f"| {key} | {beta} | {r.get('scale', 1.0):g} | {r['steps']} | {r['t']:.4g} | "
+                         f"{r['retries']} | {ok(r)} | {r['min_angle_before']:.3g} / {r['min_angle_after']:.3g} | "
+                         f"{r.get('min_angle_steps', float('nan')):.3g} | {r['min_angle_final']:.3g} | {it:.2f} | "
+                         f"{r['wall']:.0f} | {r['W']:.6g} | {rel:.2e} | {r['stationarity']:.1e} |")
+        base = cached.get(f"{key}_beta1")
+        for b, r in [(f"{b:g}", cached.get(f"{key}_beta{b:g}")) for b in BETAS[1:]] + [
+                ("10, max_retries 6", cached.get(f"{key}_beta10_retries6"))]:
+            if base is None or r is None or base["failed"] or r["failed"] or "final_vertices" not in r:
+                continue
+            Va, Vb = np.asarray(base["final_vertices"]), np.asarray(r["final_vertices"])
+            same = Va.shape == Vb.shape
+            vd = f"{np.linalg.norm(Va - Vb, axis=1).max() / base['h']:.3g}" if same else ""
+            sphere = ""
+            if key in BETA_GENUS0:
+                ra, rb = radii(base), radii(r)
+                sphere = (f"{rb.mean() / ra.mean() - 1:+.2e}; {np.abs(rb - rb.mean()).max() / base['h']:.3g} "
+                          f"({np.abs(ra - ra.mean()).max() / base['h']:.3g})")
+            shapes_.append(f"| {key} | {b} | {r['W'] / base['W'] - 1:+.2e} | {'yes' if same else 'no'} | {vd} | "
+                           f"{surface_distance(base, r) / base['h']:.3g} | {sphere} |")
+    return [*lines, "", "Final shapes against tangential_weight 1 (same case, same run length; h: the initial mean "
+            "edge):", "", *shapes_]
+
+
 def table(results: list[dict[str, Any]]) -> list[str]:
     lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | "
              "min angle of the stepped states | failed | "
@@ -479,6 +605,8 @@ def main() -> None:
     ap.add_argument("--table-only", action="store_true", help="only write the table of the cached cases")
     ap.add_argument("--diagnose", action="store_true", help="only print the single-step diagnosis (torus 24x12)")
     ap.add_argument("--symmetry", action="store_true", help="only print why the torus flows leave the symmetry")
+    ap.add_argument("--first-step", action="store_true",
+                    help="only print the first step of the box and noisy capsule against tangential_weight")
     ap.add_argument("--save-states", type=Path, help="write the torus states of the series to this directory")
     args = ap.parse_args()
     global STATES
@@ -488,6 +616,9 @@ def main() -> None:
         return
     if args.symmetry:
         symmetry()
+        return
+    if args.first_step:
+        first_step_probe()
         return
     CACHE.mkdir(parents=True, exist_ok=True)
     todo = cases(args.scale)
@@ -501,7 +632,9 @@ def main() -> None:
         res["scale"] = args.scale
         f.write_text(json.dumps(res, indent=1))
         print(f"{name}: {res}", flush=True)
-    results = [json.loads((CACHE / f"{k}.json").read_text()) for k in todo if (CACHE / f"{k}.json").is_file()]
+    study = {f"{k}_beta{b:g}" for k in BETA_CASES for b in BETAS} | {f"{k}_beta10_retries6" for k in BETA_CASES}
+    results = [json.loads((CACHE / f"{k}.json").read_text()) for k in todo
+               if k not in study and (CACHE / f"{k}.json").is_file()]
     lines = ["# Mesh-quality control: long surface flows with the defaults", "",
              f"`nice python reports/mesh_quality_study.py` on {platform.processor() or platform.machine()}, "
              f"{time.strftime('%Y-%m-%d')} (see the script's docstring for the columns).", ""]
@@ -515,6 +648,15 @@ def main() -> None:
         lines += [f"| {r['name']} | {r['W']:.4f} | {r['W'] / LAWSON_21 - 1:+.2%} | {r['evolver_initial']:.4f} | "
                   f"{r['evolver_final']:.4f} ({r['evolver_commands']}) | {r['W_of_evolver_mesh']:.4f} | "
                   f"{r['evolver_min_angle']:.3g} |" for r in g2]
+    cached = {k: json.loads((CACHE / f"{k}.json").read_text()) for k in todo if (CACHE / f"{k}.json").is_file()}
+    if any(f"{k}_beta{b:g}" in cached for k in BETA_CASES for b in BETAS):
+        lines += ["", "## tangential_weight 1, 10, 100 (`--cases KEY_beta1 KEY_beta10 KEY_beta100`)", "",
+                  "Today's defaults apart from the weight; \"(cached)\" is the case's row of the main table (earlier "
+                  "defaults, see the notes). W_ref as in the main table (NaN: no closed-form limit). Min angle: the "
+                  "smallest before / after repair over the run (the input included), of the stepped states, at the "
+                  "end. A first pass at `--scale 0.25` is kept in `reports/studies/mesh_quality/beta_scale0.25/`. "
+                  "`--first-step` prints the first step of the box and the noisy capsule against the weight.", ""]
+        lines += beta_table(cached)
     tor = [r for r in results if "R_over_r" in r]
     if tor:
         lines += ["", "Tori toward the Clifford torus (R/r -> sqrt 2 = 1.41421). W_grid: the Clifford torus meshed "
