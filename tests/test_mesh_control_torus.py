@@ -29,15 +29,20 @@ def test_asymmetry_wavenumber_finds_the_mode(k: int) -> None:
     assert torus_grid_asymmetry_wavenumber(X[:-1], 24, 12) == -1
 
 
-def test_tangential_weight_suppresses_the_mesh_scale_instability_at_the_clifford_torus() -> None:
-    """The paper's scheme from the 24x12 grid on the Clifford torus (r = 0.5, tau = 1e-3) leaves the 24-fold symmetry
-    in its first step, to 0.09 r, in the mode of wavenumber 12 (neighbouring meridians move apart): a mesh-scale
-    instability of the scheme's tangential freedom. With tangential_weight = 10 (the normal velocity, and so the
-    flow as h -> 0, unchanged) the same steps stay symmetric to round-off."""
+def test_the_step_at_the_clifford_grid_amplifies_the_mesh_scale_mode() -> None:
+    """From the 24x12 grid on the Clifford torus (r = 0.5, tau = 1e-3) perturbed by 1e-8 r (seeded: round-off alone
+    seeds the mode in some environments and not in others), the first step of the paper's scheme leaves the 24-fold
+    symmetry to 0.046 r in the mode of wavenumber 12 (neighbouring meridians apart): the symmetric step is not the
+    step's minimiser. tangential_weight = 10 (normal velocity unchanged) takes it less far (0.017 r), but the mode
+    grows from the same 6e-9 with it too (measured: 4.6e-2 / 1.7e-2)."""
     g = shapes.torus(np.sqrt(2), 1.0, 24, 12)
-    mesh = g.with_vertices(g.vertices / 2)
-    paper = WillmoreFlow(mesh, 1e-3, 0.01 * mesh.h**2, mesh_control="off").run(steps=1)[-1].vertices
-    assert torus_grid_asymmetry(paper, 24, 12) > 0.05 * 0.5
-    assert torus_grid_asymmetry_wavenumber(paper, 24, 12) == 12
-    out = WillmoreFlow(mesh, 1e-3, 0.01 * mesh.h**2, mesh_control="off", tangential_weight=10.0).run(steps=3)
-    assert max(torus_grid_asymmetry(r.vertices, 24, 12) for r in out) < 1e-12
+    rng = np.random.default_rng(0)
+    mesh = g.with_vertices(g.vertices / 2 + 0.5e-8 * rng.standard_normal(g.vertices.shape))
+    a0 = torus_grid_asymmetry(mesh.vertices, 24, 12)
+    a = {}
+    for weight in (1.0, 10.0):
+        X = WillmoreFlow(mesh, 1e-3, 0.01 * mesh.h**2, mesh_control="off", tangential_weight=weight).run(steps=1)
+        a[weight] = torus_grid_asymmetry(X[-1].vertices, 24, 12)
+        assert torus_grid_asymmetry_wavenumber(X[-1].vertices, 24, 12) == 12
+    assert a[1.0] > 0.05 * 0.5 > 1e6 * a0
+    assert 1e6 * a0 < a[10.0] < 0.5 * a[1.0]
