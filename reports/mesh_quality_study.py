@@ -693,18 +693,18 @@ def main() -> None:
                   "`grid_minimum`): its minimiser lies below sqrt 2 by O(h^2):", ""]
         lines += grid_table()
     lines += ["", "Notes: rows named \"threshold repair only\" and \"mesh control off\" are cached from the runs "
-              "before "
-              "the light repair (`remesh_repair = 0`, trigger 20 deg, target = initial mean edge; "
+              "before the light repair (`remesh_repair = 0`, trigger 20 deg, target = initial mean edge; "
               "`reports/studies/mesh_quality/threshold_only/` keeps the other cases of that default). The torus 48x24 "
               "with the switch to tau = 4e-3 at t = 0.1 was stopped at t = 0.2 (IPOPT > 200 iterations per step); "
               "`torus48_fixed_tau` keeps tau = 1e-3 to t = 1. The tori 24x12, 32x16 and 64x32 ran with `--scale 0.2` "
-              "(to t = 0.2). The noisy capsule is `noisy_capsule()` (seed 0). Run with `rest_tau_tilde` and the "
-              "light repair in quarter steps (`remesh.RELAX_SUBSTEPS`): the smoothed box and the ellipsoid 2,562 v "
-              "(200 steps, with today's defaults); `torus32_fixed_tau` ran with the first version of the rest test "
-              "(rest_tol 1e-5 per step, not per unit time L^4), which lowered the torus's tau_tilde to 1/100; the other rows "
-              "are cached from before those changes (tau_tilde end / start NaN). `torus48_substeps` (today's defaults) "
-              "and the `tangential_weight 10` tori ran with the current rest test (never at rest at tau = 1e-3); their "
-              "series also hold the wall time, mean IPOPT iterations and retries so far (`--save-states DIR` keeps "
+              "(to t = 0.2). The noisy capsule is `noisy_capsule()` (seed 0). Run with `rest_tau_tilde` and the light "
+              "repair in quarter steps (`remesh.RELAX_SUBSTEPS`): the smoothed box and the ellipsoid 2,562 v (200 "
+              "steps, with today's defaults); `torus32_fixed_tau` ran with the first version of the rest test "
+              "(rest_tol 1e-5 per step, not per unit time L^4), which lowered the torus's tau_tilde to 1/100; the "
+              "other rows are cached from before those changes (tau_tilde end / start NaN). `torus48_substeps` "
+              "(today's defaults) and the `tangential_weight 10` tori ran with the current rest test (never at rest "
+              "at tau = 1e-3); their series also hold the wall time, mean IPOPT iterations and retries so far "
+              "(`--save-states DIR` keeps "
               "the states)."]
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print("\n".join(lines))
