@@ -7,6 +7,8 @@ normals for the sphere and torus).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import trimesh
 
@@ -197,23 +199,34 @@ def genus2(h: float = 0.1, c: float = 0.035, grid: int = 80) -> Mesh:
     length ``h`` with projection onto it (both from gpytoolbox). The Euler characteristic is
     checked (-2).
     """
+    ax = [np.linspace(-1.3, 1.3, grid), np.linspace(-0.8, 0.8, grid), np.linspace(-0.5, 0.5, grid)]
+
+    def lemniscate(P: np.ndarray) -> np.ndarray:
+        x, y, z = P.T
+        return (x**4 - x**2 + y**2) ** 2 + z**2 - c
+
+    return _genus2_level_set(lemniscate, ax, h, f"genus2(h={h})")
+
+
+def _genus2_level_set(func: Callable[[np.ndarray], np.ndarray], ax: list[np.ndarray], h: float, name: str) -> Mesh:
+    """Genus-2 mesh of the zero set of ``func`` ((n, 3) -> (n,)) sampled on the grid of the three axes ``ax``:
+    marching cubes, isotropic remeshing to edge length ``h`` with projection (gpytoolbox), outward orientation,
+    and the Euler characteristic checked (-2)."""
     import gpytoolbox
 
     from willmore_nlp.remesh import euler_characteristic
 
-    ax = [np.linspace(-1.3, 1.3, grid), np.linspace(-0.8, 0.8, grid), np.linspace(-0.5, 0.5, grid)]
+    n = [len(a) for a in ax]
     G = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3, order="F")  # x fastest
-    x, y, z = G.T
-    S = (x**4 - x**2 + y**2) ** 2 + z**2 - c
-    V, F = gpytoolbox.marching_cubes(S, G, grid, grid, grid)
+    V, F = gpytoolbox.marching_cubes(func(G), G, *n)
     V, F = gpytoolbox.remesh_botsch(np.asarray(V, float), np.asarray(F, np.int32), 20, h, True)
     V, F = np.asarray(V, float), np.asarray(F, np.int64)
     if np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])) < 0:
         F = F[:, ::-1].copy()
     if euler_characteristic(F) != -2:
-        raise MeshError(f"genus2(h={h}): marching cubes gave Euler characteristic {euler_characteristic(F)}, "
+        raise MeshError(f"{name}: marching cubes gave Euler characteristic {euler_characteristic(F)}, "
                         "not -2 (refine the grid)")
-    return Mesh(V, F, f"genus2(h={h})")
+    return Mesh(V, F, name)
 
 
 def double_torus_function(P: np.ndarray, R: float = 1.0, r: float = 0.5, d: float = 1.25,
@@ -241,27 +254,14 @@ def double_torus(R: float = 1.0, r: float = 0.5, d: float = 1.25, h: float = 0.2
     is resolved once ``h`` is a fraction of ``r`` (h |H| <= 0.66 at h = 0.2). The Euler
     characteristic is checked (-2); needs d < R + r (the tubes overlap) and d > R - r (two holes).
     """
-    import gpytoolbox
-
-    from willmore_nlp.remesh import euler_characteristic
-
     if not (0 < r < R and R - r < d < R + r and blend > 0):
         raise MeshError(f"double_torus: need 0 < r < R, R - r < d < R + r, blend > 0; got R={R}, r={r}, d={d}, "
                         f"blend={blend}")
     e = d + R + r + 2 * blend + 2 * h
     f = r + 2 * blend + 2 * h
     ax = [np.linspace(-e, e, grid), np.linspace(-(R + f), R + f, grid), np.linspace(-f, f, grid)]
-    G = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3, order="F")  # x fastest
-    S = double_torus_function(G, R, r, d, blend)
-    V, F = gpytoolbox.marching_cubes(S, G, grid, grid, grid)
-    V, F = gpytoolbox.remesh_botsch(np.asarray(V, float), np.asarray(F, np.int32), 20, h, True)
-    V, F = np.asarray(V, float), np.asarray(F, np.int64)
-    if np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])) < 0:
-        F = F[:, ::-1].copy()
-    if euler_characteristic(F) != -2:
-        raise MeshError(f"double_torus: marching cubes gave Euler characteristic {euler_characteristic(F)}, "
-                        "not -2 (refine the grid)")
-    return Mesh(V, F, f"double_torus(R={R}, r={r}, d={d}, h={h})")
+    return _genus2_level_set(lambda P: double_torus_function(P, R, r, d, blend), ax, h,
+                             f"double_torus(R={R}, r={r}, d={d}, h={h})")
 
 
 def spheroid_area_volume(a: float, c: float) -> tuple[float, float]:
