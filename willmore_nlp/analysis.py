@@ -209,10 +209,7 @@ def normal_jumps(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> dict[str, fl
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     inv = inv.ravel()
     order = np.argsort(inv, kind="stable")
-    pairs = order.reshape(-1, 2) if np.all(counts == 2) else None
-    if pairs is None:
-        keep = counts[inv[order]] == 2
-        pairs = order[keep].reshape(-1, 2)
+    pairs = order[counts[inv[order]] == 2].reshape(-1, 2)  # the two triangles of every interior edge
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     t1, t2 = owner[pairs[:, 0]], owner[pairs[:, 1]]
