@@ -680,12 +680,12 @@ def main() -> None:
                   "defaults, see the notes). W_ref as in the main table (NaN: no closed-form limit). Min angle: the "
                   "smallest before / after repair over the run (the input included), of the stepped states, at the "
                   "end. A first pass at `--scale 0.25` is kept in `reports/studies/mesh_quality/beta_scale0.25/`. "
-                  "`--first-step` prints the first step of the box and the noisy capsule against the weight. \"below 1e-8 "
-                  "from step\": the step from which the relative change of W per step stayed below 1e-8 (\"never\": "
-                  "not at the end; blank: run before the column existed); \"exact torus\": the largest distance of "
-                  "the final vertices from the exact torus R = 1, r = 0.5 in initial mean edges (`torus_hole`; its "
-                  "fixed vertices lie on it). Since these rows `torus_hole` defaults to tangential_weight 10 (the "
-                  "cached main-table row ran with 1 and the earlier defaults).", ""]
+                  "`--first-step` prints the first step of the box and the noisy capsule against the weight. "
+                  "\"below 1e-8 from step\": the step from which the relative change of W per step stayed below "
+                  "1e-8 (\"never\": not at the end; blank: run before the column existed); \"exact torus\": the "
+                  "largest distance of the final vertices from the exact torus R = 1, r = 0.5 in initial mean edges "
+                  "(`torus_hole`; its fixed vertices lie on it). Since these rows `torus_hole` defaults to "
+                  "tangential_weight 10 (the cached main-table row ran with 1 and the earlier defaults).", ""]
         lines += beta_table(cached)
     tor = [r for r in results if "R_over_r" in r]
     if tor:
