@@ -123,6 +123,8 @@ def run_case(case: str, codegen: bool, solver: str = "ipopt", save: str | None =
             row.update(n_cg2=r2.stats.get("n_cg"), n_precond2=r2.stats.get("n_precond_builds", 0),
                        factor2_s=r2.stats.get("t_wall_factor"), cg2_s=r2.stats.get("t_wall_cg"))
     if solver != "ipopt":
+        row.update(rejected=list(r.rejected), rejected_iterations=st.get("rejected_iterations"),
+                   tau_taken=r.tau / tau)
         row.update(step_s=r.wall_time, iterations=r.iterations, retries=r.retries, eval_s=st.get("t_wall_eval"),
                    factor_s=st.get("t_wall_factor"), cg_s=st.get("t_wall_cg"), n_cg=st.get("n_cg"),
                    n_fact=st.get("n_factorizations"), n_precond=st.get("n_precond_builds"), shift=st.get("delta_max"),
