@@ -1,7 +1,7 @@
 """Scale benchmark of one time step (outside the test suite).
 
     python -m willmore_nlp.bench [--spheres 3 4 5 6] [--torus 96x48] [--vm-max 10242] [--out reports/benchmark_scale]
-                                 [--solvers ipopt newton-krylov]
+                                 [--solvers ipopt newton-krylov] [--ipopt-max 40962]
 
 Every case runs in its own subprocess (so peak memory is per case) and measures: build time of the
 step problem and solver, compile time of the generated kernels cold (empty cache) and cached, the
@@ -14,7 +14,9 @@ exponent of per-step time against N over the spheres and writes a Markdown table
 Every other solver of ``--solvers`` (default: ``newton-krylov``) runs the same step, with generated C,
 in its own subprocess of the same run; a second table compares it with IPOPT: step time and speed-up,
 its iterations, CG iterations, factorisations and time split, peak memory of both, and the largest
-difference of X^{k+1} from IPOPT's, in units of the mean edge length h.
+difference of X^{k+1} from IPOPT's, in units of the mean edge length h. Cases above ``--ipopt-max``
+vertices run the other solvers alone. Every row records the machine's 1-minute load average at the start
+and end of its case (the machine is shared).
 """
 
 from __future__ import annotations
@@ -90,7 +92,7 @@ def run_case(case: str, codegen: bool, solver: str = "ipopt", save: str | None =
     h = mesh.h
     tau, tt = 0.2 * h, h * h / 100
     row: dict[str, Any] = {"case": case, "N": mesh.n_vertices, "K": mesh.n_simplices, "codegen": codegen,
-                           "solver": solver, "h": h}
+                           "solver": solver, "h": h, "load": _load()}
     if codegen and solver == "ipopt":
         from willmore_nlp.model.build import build_step
 
@@ -117,10 +119,16 @@ def run_case(case: str, codegen: bool, solver: str = "ipopt", save: str | None =
     if codegen:  # a second step, from a state the flow reached (the first starts from the initial mesh)
         r2 = flow.step()
         row.update(step2_s=r2.wall_time, iterations2=r2.iterations)
+        if solver != "ipopt":
+            row.update(n_cg2=r2.stats.get("n_cg"), n_precond2=r2.stats.get("n_precond_builds", 0),
+                       factor2_s=r2.stats.get("t_wall_factor"), cg2_s=r2.stats.get("t_wall_cg"))
     if solver != "ipopt":
+        row.update(rejected=list(r.rejected), rejected_iterations=st.get("rejected_iterations"),
+                   tau_taken=r.tau / tau)
         row.update(step_s=r.wall_time, iterations=r.iterations, retries=r.retries, eval_s=st.get("t_wall_eval"),
                    factor_s=st.get("t_wall_factor"), cg_s=st.get("t_wall_cg"), n_cg=st.get("n_cg"),
                    n_fact=st.get("n_factorizations"), n_precond=st.get("n_precond_builds"), shift=st.get("delta_max"),
+                   blas=st.get("blas"), load_end=_load(),
                    peak_rss_gb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)
         return row
     row.update(
@@ -136,7 +144,13 @@ def run_case(case: str, codegen: bool, solver: str = "ipopt", save: str | None =
         row["kkt_fact_s"] = kkt_factorisation_time(flow, r.vertices, r.Y, r.tau, flow.lam_g)
         row["step_over_fact"] = r.wall_time / (r.iterations * row["kkt_fact_s"])
     row["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    row["load_end"] = _load()
     return row
+
+
+def _load() -> str:
+    """The machine's 1-minute load average (the benchmark shares the machine: times depend on it)."""
+    return f"{os.getloadavg()[0]:.1f}"
 
 
 def _subprocess(case: str, codegen: bool, timeout: float, solver: str = "ipopt",
@@ -169,7 +183,8 @@ SOLVER_COLUMNS = [
     ("cg_s", "CG [s]"),
     ("ipopt_rss_gb", "IPOPT peak RSS [GB]"), ("peak_rss_gb", "peak RSS [GB]"), ("dx_h", "max abs dX / h"),
     ("ipopt_step2_s", "IPOPT step 2 [s]"), ("step2_s", "step 2 [s]"), ("speedup2", "speed-up 2"),
-    ("ipopt_iterations2", "IPOPT it 2"), ("iterations2", "Newton it 2"),
+    ("ipopt_iterations2", "IPOPT it 2"), ("iterations2", "Newton it 2"), ("n_cg2", "CG it 2"),
+    ("n_precond2", "B fact 2"), ("blas", "BLAS"), ("ipopt_load", "IPOPT load"), ("load", "load"),
 ]
 
 
@@ -251,18 +266,29 @@ def _solver_table(rows: list[dict[str, Any]]) -> list[str]:
             lines.append(f"| {r['case']} | | {r['solver']} | failed: {r['error']} |")
             continue
         lines.append("| " + " | ".join(_fmt(r.get(k)) for k, _ in SOLVER_COLUMNS) + " |")
+    from willmore_nlp.analysis import fit_order
+
+    for name in dict.fromkeys(r["solver"] for r in other):
+        sph = [r for r in other if r["solver"] == name and str(r["case"]).startswith("sphere") and "step_s" in r]
+        if len(sph) >= 2:
+            e1 = fit_order([r["N"] for r in sph], [r["step_s"] for r in sph])
+            e2 = fit_order([r["N"] for r in sph], [r["step2_s"] for r in sph])
+            lines += ["", f"Fitted exponent of {name}'s step time vs N (spheres): step 1 **{e1:.2f}**, "
+                      f"step 2 **{e2:.2f}**"]
     return lines
 
 
 def _compare(row: dict[str, Any], ref: dict[str, Any], x: Path, x_ref: Path) -> None:
     """Fill ``row`` (another solver) with its speed-up over and difference from the IPOPT row ``ref``."""
-    if "error" in row or "error" in ref:
+    row["load"] = f"{row.get('load')}-{row.get('load_end')}"
+    if "error" in row or "error" in ref or not ref:
         return
     row["ipopt_step_s"] = ref["step_s"]
     row["ipopt_rss_gb"] = ref["peak_rss_gb"]
     row["speedup"] = ref["step_s"] / row["step_s"]
     row["dx_h"] = float(np.abs(np.load(x) - np.load(x_ref)).max()) / row["h"]
     row["ipopt_step2_s"] = ref["step2_s"]
+    row["ipopt_load"] = f"{ref.get('load')}-{ref.get('load_end')}"
     row["ipopt_iterations2"] = ref["iterations2"]
     row["speedup2"] = ref["step2_s"] / row["step2_s"]
 
@@ -275,6 +301,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="icosphere subdivisions (3: 642, 4: 2562, 5: 10242, 6: 40962 vertices)")
     ap.add_argument("--torus", nargs="*", default=["96x48"], help="torus grids n_major x n_minor")
     ap.add_argument("--vm-max", type=int, default=10242, help="largest N also run without codegen")
+    ap.add_argument("--ipopt-max", type=int, default=40962,
+                    help="largest N run with IPOPT (larger cases: the other solvers alone, without comparison)")
     ap.add_argument("--timeout", type=float, default=3600.0, help="seconds per case")
     ap.add_argument("--out", default="reports/benchmark_scale", help="output path without suffix (.md, .csv)")
     ap.add_argument("--solvers", nargs="*", default=["ipopt", "newton-krylov"],
@@ -296,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
             x_ref = Path(tmp) / "ipopt.npy"
             ref: dict[str, Any] = {}
             for cg in (True, False):
-                if not cg and n_vert > args.vm_max:
+                if (not cg and n_vert > args.vm_max) or n_vert > args.ipopt_max:
                     continue
                 row = _subprocess(case, cg, args.timeout, save=str(x_ref) if cg else None)
                 rows.append(row)

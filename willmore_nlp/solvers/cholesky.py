@@ -10,15 +10,19 @@ Backends
     SuiteSparse's CHOLMOD through the registry wheel ``sksparse-minimal`` (a fork of ``cholespy``
     that bundles CHOLMOD built with METIS and LAPACK/BLAS, so that it factorises supernodally and
     tries METIS beside AMD; no system libraries). Each call orders and factorises (the binding has
-    no numeric-only refactorisation). Measured on the preconditioner of the 10,242-vertex sphere
-    (30,726 x 30,726, 1.75e6 nonzeros; one thread, quiet machine): 1.12 s against 2.01 s for
-    ``cholespy`` (CHOLMOD simplicial with AMD only) and 0.99 s for MKL PARDISO (``pypardiso``,
-    whose ``mkl`` wheels weigh 270 MB to download and 0.9 GB installed); at 2,562 vertices
-    0.48 s / 0.65 s / 0.15 s. Solves with the supernodal factor run in the bundled reference BLAS
-    and were slower than cholespy's (B above: 0.021 s / 0.015 s; M + tt L with three right-hand
-    sides at 10,242 vertices: 2.3 ms / 0.6 ms), so the factor is converted to its simplicial form
-    after each factorisation (``change_factor``, the cost of one or two solves): solves then took
-    5.5 ms instead of 8.7 ms (B, 2,562 vertices) and 0.11 ms instead of 1.1 ms (M + tt L, 2,562).
+    no numeric-only refactorisation). The wheel's bundled BLAS is the reference (netlib) one; before
+    the extension is loaded, :func:`_use_casadi_openblas` puts the OpenBLAS that CasADi ships (IPOPT's
+    own) into the global symbol scope, so that CHOLMOD's dense kernels run in OpenBLAS
+    (:data:`BLAS`; ``WILLMORE_NLP_CHOLMOD_BLAS=reference`` keeps the reference BLAS). Measured on the
+    preconditioner B of the 10,242-vertex sphere (30,726 x 30,726, 1.75e6 nonzeros; one thread):
+    factorisation 0.73 s with OpenBLAS against 1.73 s with the reference BLAS (earlier, with the
+    reference BLAS: 2.01 s for ``cholespy``, CHOLMOD simplicial with AMD only, and 0.99 s for MKL
+    PARDISO, ``pypardiso``, whose ``mkl`` wheels weigh 270 MB to download and 0.9 GB installed);
+    solves with B 16.5 ms with the supernodal factor against 23.5 ms after conversion to the
+    simplicial form (24.5 ms with the reference BLAS, whose supernodal solves took 32 ms). Solves with
+    the N x N matrix M + tt L (three right-hand sides) stay faster in the simplicial form (1.5 ms
+    against 2.1 ms at 10,242 vertices). ``SymmetricFactor(simplicial=...)`` chooses the form;
+    by default simplicial only with the reference BLAS (the conversion costs about two solves).
     ``cholespy`` itself cannot be loaded in the same process (both register the same nanobind type).
 ``scipy``
     SuperLU (``scipy.sparse.linalg.splu``) with COLAMD ordering: used when ``sksparse-minimal`` is
@@ -27,6 +31,10 @@ Backends
 
 from __future__ import annotations
 
+import ctypes
+import os
+import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,6 +42,43 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from willmore_nlp.errors import UserInputError
+
+BLAS_ENV = "WILLMORE_NLP_CHOLMOD_BLAS"
+"""Environment variable: ``reference`` keeps the wheel's own reference BLAS for CHOLMOD (default: ``openblas``)."""
+
+
+def _use_casadi_openblas() -> str:
+    """Put the OpenBLAS shipped with CasADi into the process's global symbol scope, before CHOLMOD is loaded.
+
+    The extension of ``sksparse-minimal`` resolves its BLAS/LAPACK symbols (dgemm_, dsyrk_, dtrsm_, dpotrf_,
+    dgemv_, dtrsv_ and their complex versions) when it is imported; the dynamic linker looks in the global
+    scope before the extension's own dependencies (the bundled reference BLAS), so a library loaded with
+    ``RTLD_GLOBAL`` first serves them. CasADi's ``libcasadi-tp-openblas`` exports these standard names
+    and is the library IPOPT and MUMPS already use (it is their own dependency, so their results do not
+    change). Measured on the preconditioner of the 10,242-vertex sphere (one thread): supernodal
+    factorisation 0.73 s instead of 1.73 s, solve 16.5 ms instead of 24.5 ms (simplicial form).
+
+    Returns what CHOLMOD's BLAS is: ``"openblas"``, or ``"reference"`` (asked for by :data:`BLAS_ENV`,
+    library not found, or ``sksparse_minimal`` imported before this module).
+    """
+    if os.environ.get(BLAS_ENV, "openblas").strip().lower() == "reference":
+        return "reference"
+    if "sksparse_minimal._cholespy_core" in sys.modules:  # pragma: no cover - bound to its own BLAS already
+        return "reference"
+    try:
+        import casadi
+
+        libs = sorted(Path(casadi.__file__).parent.glob("libcasadi-tp-openblas.so*"))
+        if not libs:
+            return "reference"
+        ctypes.CDLL(str(libs[0]), mode=os.RTLD_GLOBAL | os.RTLD_NOW)
+    except (ImportError, OSError):  # pragma: no cover - depends on the installation
+        return "reference"
+    return "openblas"
+
+
+BLAS = _use_casadi_openblas()
+"""BLAS of CHOLMOD's supernodal factorisation and solves (:func:`_use_casadi_openblas`)."""
 
 try:
     from sksparse_minimal._cholespy_core import CholeskySolver as _Cholmod
@@ -61,14 +106,18 @@ class SymmetricFactor:
     Parameters
     ----------
     backend : {"auto", "cholmod", "scipy"}
+    simplicial : bool, optional
+        CHOLMOD only: convert each supernodal factor to its simplicial form for the solves (module
+        docstring); default: only when CHOLMOD runs on the reference BLAS.
 
     Attributes
     ----------
     n_numeric : number of factorisations done
     """
 
-    def __init__(self, backend: str = "auto") -> None:
+    def __init__(self, backend: str = "auto", simplicial: bool | None = None) -> None:
         self.backend = resolve_backend(backend)
+        self.simplicial = (BLAS == "reference") if simplicial is None else simplicial
         self._solver: Any = None
         self._n = 0
         self.n_numeric = 0
@@ -84,9 +133,8 @@ class SymmetricFactor:
             A.sort_indices()
             self._solver = _Cholmod(self._n, A.indptr.astype(np.int32), A.indices.astype(np.int32),
                                     np.ascontiguousarray(A.data, dtype=float))
-            # supernodal factorisation, simplicial LL' solves (module docstring): the conversion costs
-            # about two solves and makes each 1.2x (B) to 3-10x (M + tt L, three right-hand sides) faster
-            self._solver.change_factor(True, False)
+            if self.simplicial:  # supernodal factorisation, simplicial LL' solves (module docstring)
+                self._solver.change_factor(True, False)
         self.n_numeric += 1
         return self
 

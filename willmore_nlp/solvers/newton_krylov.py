@@ -67,7 +67,7 @@ from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.settings import integer, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
-from willmore_nlp.solvers.cholesky import BACKENDS, FullFactor, KronFactor, SymmetricFactor
+from willmore_nlp.solvers.cholesky import BACKENDS, BLAS, FullFactor, KronFactor, SymmetricFactor
 from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, _Point
 
 
@@ -132,7 +132,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self.cg_stale = settings.cg_stale
         self.cg_forcing = settings.cg_forcing
         self.max_shift = settings.max_shift
-        self._jy = SymmetricFactor(settings.cholesky)
+        self._jy = SymmetricFactor(settings.cholesky, simplicial=True)  # (N x N: simplicial solves faster)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
         evaluator.cholesky = self.backend  # the flow's own Y[X] solves: Cholesky of the N x N block as well
@@ -330,6 +330,7 @@ class NewtonKrylovSolver(ReducedSolver):
         stats["newton_iterations"] = it
         stats.setdefault("n_cg", 0)
         stats["cholesky"] = self.backend
+        stats["blas"] = BLAS if self.backend == "cholmod" else ""
         stats["t_wall_total"] = time.perf_counter() - t0
         for key in ("eval", "factor", "cg"):
             stats[f"t_wall_{key}"] = self._times.get(key, 0.0)
