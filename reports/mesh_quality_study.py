@@ -39,7 +39,14 @@ import numpy as np
 import trimesh
 
 from willmore_nlp import FlowError, WillmoreFlow, geometry, registry
-from willmore_nlp.analysis import conformal_ratios, sector_ratios, torus_fit, torus_grid_asymmetry, torus_projection
+from willmore_nlp.analysis import (
+    clifford_reference,
+    conformal_ratios,
+    sector_ratios,
+    torus_fit,
+    torus_grid_asymmetry,
+    torus_projection,
+)
 from willmore_nlp.analysis import surface_distance as mesh_distance
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
@@ -263,8 +270,7 @@ def cases(scale: float) -> dict[str, Any]:
                                 reference=lambda m, f: sphere_reference(m), **kw)
 
     def clifford(m: Mesh, f: Any) -> float:
-        _, r = torus_fit(m.vertices)
-        return geometry.willmore_energy(m.with_vertices(torus_projection(m.vertices, np.sqrt(2) * r, r)))
+        return clifford_reference(m.vertices, m.simplices)
 
     def torus(n: int = 48, switch: bool = True, note: str = "", **kw: Any) -> Any:
         """R = 1, r = 0.5 on n x n/2 to t = scale, tau = 1e-3 (4e-3 after t = 0.1 when ``switch`` and scale = 1)."""
