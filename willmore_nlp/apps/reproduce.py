@@ -419,8 +419,9 @@ FIG67_POWERS = (1, 2, 3)
 measured 2-5 s per step of the 96 x 48 torus on the shared 2-core machine); h^3 is 887 steps."""
 
 FIG67_SOLVER = "newton-krylov"
-"""Step solver of the Figs. 6-7 runs: 2-3 times faster than IPOPT per step on the 96 x 48 torus (first steps at
-tau = h^2: 3.1 / 2.1 s against 10.6 / 4.6 s, the same W to 5 digits)."""
+"""Step solver of the Figs. 6-7 runs: faster than IPOPT per step on the 96 x 48 torus (the first four steps at
+tau = h^2, machine shared: 3.1, 2.1, 5.4, 9.1 s against 10.6, 4.6, 10.1, 11.9 s; W equal to 5 digits after two
+steps, within 0.06 % after four, where the repairs of the two paths differ)."""
 
 FIG6_T_END = 0.97
 """The paper's last Fig. 6 time; the tau = h^2 run is continued to it."""
@@ -619,8 +620,9 @@ def fig6_7(fig_dir: Path) -> str:
         f"run continued to t = {FIG6_T_END}. Unlike the other sections these runs use today's surface defaults, not "
         "the paper's scheme: the mesh control (`mesh_control = auto`: flips, the light repair and, below 15 deg, "
         "isotropic remeshing) and the torus problem's `tangential_weight = 10` (docs/guide/mesh_quality.md, \"The "
-        "torus at the paper's h\"); step solver `newton-krylov` (2-3 times faster per step than IPOPT on this "
-        f"torus). tau = h^4 = {h**4:.2g} would take {int(np.ceil(FIG67_T / h**4))} steps: at the measured "
+        "torus at the paper's h\"); step solver `newton-krylov` (1.3-3.4 times faster per step than IPOPT over "
+        f"the first four steps at tau = h^2). tau = h^4 = {h**4:.2g} would take {int(np.ceil(FIG67_T / h**4))} "
+        "steps: at the measured "
         f"{s0['wall'] / s0['steps']:.1f} s per step of the tau = h^3 run "
         f"{np.ceil(FIG67_T / h**4) * s0['wall'] / s0['steps'] / 3600:.0f} h on this shared 2-core machine, so h^3 "
         "is the smallest step here. Runs: `willmore-nlp run torus --set n_major=96 --set n_minor=48 --set tau=TAU "
