@@ -144,9 +144,13 @@ def surface_blending(r_bottom: float = 1.0, r_top: float = 0.8, gap: float = 1.2
     """Blend two coaxial cylinders of radii r_bottom and r_top across a gap (Fig. 9).
 
     Three fixed rows on each cylinder (Gamma, ring and one more); the ``n_gap - 1`` free rows start
-    on the cone between the cylinders' ends and flow to a smooth blending surface. Measured: the
-    default runs its 15 steps (energy settles by step 10); longer runs drift tangentially until the
-    mesh check stops them (step 18), and r_top = 0.6 over gap 1 collapses triangles by step 10.
+    on the cone between the cylinders' ends and flow to a smooth blending surface. Measured with the
+    paper's scheme (``mesh_control=off``): the default runs its 15 steps (energy settles by step 10);
+    longer runs drift tangentially until the mesh check stops them (step 18), and r_top = 0.6 over gap 1
+    collapses triangles by step 10. With the library defaults (mesh control on) and the paper's tangential
+    weight 1, kept here, both variants come to rest: the relative change of W per step stays below 1e-8
+    from step 256 (conormal) and 302 (ring) of 400, no retry, 3.1 IPOPT iterations per step; a weight of
+    100 leaves 7.8e-7 per step after 400 steps (docs/guide/mesh_quality.md, "Restorations and blends at rest").
     """
     n_fixed = 3
     nz = 2 * n_fixed + n_gap
@@ -166,8 +170,8 @@ def surface_blending(r_bottom: float = 1.0, r_top: float = 0.8, gap: float = 1.2
 
 @register("torus_hole")
 def torus_hole(n_major: int = 32, n_minor: int = 16, hole: float = 0.55, fill: str = "flat", amp: float = 0.3,
-               variant: str = "ring", seed: int = 0, tau: float | None = None, tau_tilde: float | None = None,
-               steps: int = 40) -> Problem:
+               variant: str = "ring", seed: int = 0, tangential_weight: float = 10.0, tau: float | None = None,
+               tau_tilde: float | None = None, steps: int = 40) -> Problem:
     """Restoration (Fig. 10): a region of a torus (R = 1, r = 0.5) is cut out, filled with a coarse
     patch and restored by the flow with the rest of the torus fixed.
 
@@ -175,6 +179,16 @@ def torus_hole(n_major: int = 32, n_minor: int = 16, hole: float = 0.55, fill: s
     "flat" (the patch pressed toward the plane x1 = const of its boundary by the factor 1 - amp)
     or "noisy" (normal noise of relative size ``amp`` times h, seeded). The paper used variant 2
     ("ring") for this figure.
+
+    ``tangential_weight`` (default 10; 1 is the paper's scheme) charges the tangential part of the step's
+    distance term that many times (the normal motion, and so the flow as h -> 0, is unchanged). Measured
+    (100 steps, library defaults; docs/guide/mesh_quality.md, "Restorations and blends at rest"): with 1 the
+    step at tau = h slides the 15 free vertices toward degenerate triangles (budget cut or edge ratio
+    3e3; accepted at h/2 or h/4, 4-7 deg before the repair), the light repair slides them back, and the
+    accepted step size alternating between h/2 and h/4 leaves a 2-cycle (noisy fill: relative change of W
+    1.5e-3 per step, 153 retries; flat: 6.8e-3, 260 retries); with 10 every step is taken at tau = h
+    (no retry, 5 IPOPT iterations), W changes by less than 1e-8 per step from step 44 (noisy) and 43 (flat),
+    the min angle stays 25.3 deg or more.
     """
     mesh = shapes.torus(1.0, 0.5, n_major, n_minor)
     V = np.array(mesh.vertices)
@@ -192,7 +206,8 @@ def torus_hole(n_major: int = 32, n_minor: int = 16, hole: float = 0.55, fill: s
         raise MeshError(f"torus_hole: fill must be 'flat' or 'noisy', got {fill!r}")
     mesh = mesh.with_vertices(V)
     tau_, tt_ = _steps(mesh.h, tau, tau_tilde)
-    return Problem(mesh, tau_, tt_, 0.0, steps=steps, flow_options={"boundary": Boundary(free, variant)},
+    return Problem(mesh, tau_, tt_, 0.0, steps=steps,
+                   flow_options={"boundary": Boundary(free, variant), "tangential_weight": float(tangential_weight)},
                    description="torus with a cut-out region restored")
 
 
