@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from willmore_nlp import WillmoreFlow, registry
+from willmore_nlp import WillmoreFlow
 from willmore_nlp.analysis import (
     clifford_reference,
     conformal_ratios,
@@ -80,11 +80,3 @@ def test_torus_measures_against_exact_tori() -> None:
     d = surface_distance(sph.vertices, sph.simplices, 1.1 * sph.vertices, sph.simplices)
     assert 0.1 <= d <= 0.1 + 1.1 * sph.h**2
 
-
-def test_torus_problem_default_tangential_weight() -> None:
-    """The torus problem charges tangential motion 10 times by default (measured better toward the Clifford torus:
-    docs/guide/mesh_quality.md); 1, the paper's scheme, on request."""
-    pb, _ = registry.build("torus")
-    assert pb.make_flow().settings.tangential_weight == 10.0
-    pb1, _ = registry.build("torus", tangential_weight=1)
-    assert pb1.make_flow().settings.tangential_weight == 1.0
