@@ -415,8 +415,8 @@ FIG67_T = 0.3735
 """The paper's time of Fig. 7."""
 
 FIG67_POWERS = (1, 2, 3)
-"""tau = h^p of the Fig. 7 runs. The paper's smallest, h^4 = 3.2e-5, would be 11,840 steps (about 12 h at the
-measured 2-5 s per step of the 96 x 48 torus on the shared 2-core machine); h^3 is 887 steps."""
+"""tau = h^p of the Fig. 7 runs. The paper's smallest, h^4 = 3.2e-5, would be 11,839 steps (6 h at the 1.8 s per
+step measured with h^3 on the shared 2-core machine); h^3 is 888 steps (27 min)."""
 
 FIG67_SOLVER = "newton-krylov"
 """Step solver of the Figs. 6-7 runs: faster than IPOPT per step on the 96 x 48 torus (the first four steps at
