@@ -655,8 +655,9 @@ def fig6_7(fig_dir: Path) -> str:
         "study drift away from the tori of revolution after t ~ 0.3 (docs/guide/mesh_quality.md); the smallest "
         f"angle of any stepped state here, before its repair, is {before:.1f} deg (the repairs and the one isotropic "
         "remeshing keep every accepted state above 15 deg). The paper's scheme alone (`mesh_control = off`, "
-        "tangential weight 1) is not run at this h: on 48 x 24 its mesh collapses before t = 0.1 (the guide's "
-        "\"Measured effect\").", "",
+        "tangential weight 1) is not in this section: started at this h with tau = h^2, its triangles flatten "
+        "and its steps shrink by retries before t = 0.05, where it was stopped (docs/guide/mesh_quality.md, \"The "
+        "torus at the paper's h\").", "",
         f"![Fig. 6](figures/{img})", "", f"![Fig. 6 shapes](figures/{img_s})", "",
         f"![Fig. 7](figures/{img_7})", "",
     ])
