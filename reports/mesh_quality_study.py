@@ -39,7 +39,15 @@ import numpy as np
 import trimesh
 
 from willmore_nlp import FlowError, WillmoreFlow, geometry, registry
-from willmore_nlp.analysis import torus_grid_asymmetry
+from willmore_nlp.analysis import (
+    clifford_reference,
+    conformal_ratios,
+    sector_ratios,
+    torus_fit,
+    torus_grid_asymmetry,
+    torus_projection,
+)
+from willmore_nlp.analysis import surface_distance as mesh_distance
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 
@@ -101,64 +109,6 @@ def sphere_reference(mesh: Mesh) -> float:
     """Willmore energy of the mesh's vertices projected radially onto a sphere about their centroid."""
     V = mesh.vertices - mesh.vertices.mean(axis=0)
     return geometry.willmore_energy(Mesh(V / np.linalg.norm(V, axis=1, keepdims=True), mesh.simplices))
-
-
-def torus_fit(V: np.ndarray) -> tuple[float, float]:
-    """(R, r) of a torus of revolution about x3 by a least-squares circle fit of the cross-section (rho, x3)."""
-    rho, z = np.hypot(V[:, 0], V[:, 1]), V[:, 2] - V[:, 2].mean()
-    A = np.column_stack([2 * rho, 2 * z, np.ones_like(rho)])
-    (a, b, c), *_ = np.linalg.lstsq(A, rho**2 + z**2, rcond=None)
-    return float(a), float(np.sqrt(c + a * a + b * b))
-
-
-def sector_circles(V: np.ndarray, sectors: int = 8) -> np.ndarray:
-    """(sectors, 3) cross-section circles (distance of the centre from the axis, its height, radius), fitted by
-    least squares in each of ``sectors`` equal angular sectors about the principal axis (the direction of least
-    extent) through the centroid."""
-    c = V.mean(axis=0)
-    _, vec = np.linalg.eigh(np.cov((V - c).T))
-    axis, e1 = vec[:, 0], vec[:, 2]
-    Y = (V - c) @ np.column_stack([e1, np.cross(axis, e1), axis])
-    k = np.floor((np.arctan2(Y[:, 1], Y[:, 0]) + np.pi) / (2 * np.pi / sectors)).astype(int) % sectors
-    out = np.empty((sectors, 3))
-    for i in range(sectors):
-        rho, z = np.hypot(Y[k == i, 0], Y[k == i, 1]), Y[k == i, 2]
-        A = np.column_stack([2 * rho, 2 * z, np.ones_like(rho)])
-        (a, b, cc), *_ = np.linalg.lstsq(A, rho**2 + z**2, rcond=None)
-        out[i] = a, b, np.sqrt(cc + a * a + b * b)
-    return out
-
-
-def sector_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
-    """R/r of the :func:`sector_circles`: all equal on a torus of revolution; they spread when the flow leaves
-    the rotational symmetry (a Moebius image of a torus, a cyclide, has the same smooth energy)."""
-    C = sector_circles(V, sectors)
-    return C[:, 0] / C[:, 2]
-
-
-def conformal_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
-    """(sectors/2,) R/r of the torus of revolution Moebius-equivalent to the shape, from opposite sector circles.
-
-    Two circles of one meridian plane (radii r1, r2, centres d apart) have the Moebius-invariant inversive
-    distance delta = (d^2 - r1^2 - r2^2) / (2 r1 r2), which is 2 (R/r)^2 - 1 on a torus of revolution. On the
-    64x32 Clifford torus inverted in spheres centred 3 and 4 away, where the circle fit gives R/r = 1.26 and
-    1.76, these give 1.36-1.42 and 1.42-1.44 (sectors are wedges, not the cyclide's planes of circles).
-    """
-    C = sector_circles(V, sectors)
-    h = sectors // 2
-    (Ra, za, ra), (Rb, zb, rb) = C[:h].T, C[h:].T
-    delta = ((Ra + Rb) ** 2 + (za - zb) ** 2 - ra**2 - rb**2) / (2 * ra * rb)
-    return np.sqrt((delta + 1) / 2)
-
-
-def torus_projection(V: np.ndarray, R: float, r: float) -> np.ndarray:
-    """Closest points of V on the torus of revolution (R, r) about x3 through the centroid height."""
-    zc = V[:, 2].mean()
-    rho = np.hypot(V[:, 0], V[:, 1])
-    d = np.column_stack([rho - R, V[:, 2] - zc])
-    d *= r / np.linalg.norm(d, axis=1, keepdims=True)
-    rr = R + d[:, 0]
-    return np.column_stack([rr * V[:, 0] / rho, rr * V[:, 1] / rho, zc + d[:, 1]])
 
 
 def grid_minimum(n: int) -> tuple[float, float, float]:
@@ -328,8 +278,7 @@ def cases(scale: float) -> dict[str, Any]:
                                 reference=lambda m, f: sphere_reference(m), **kw)
 
     def clifford(m: Mesh, f: Any) -> float:
-        _, r = torus_fit(m.vertices)
-        return geometry.willmore_energy(m.with_vertices(torus_projection(m.vertices, np.sqrt(2) * r, r)))
+        return clifford_reference(m.vertices, m.simplices)
 
     def torus(n: int = 48, switch: bool = True, note: str = "", **kw: Any) -> Any:
         """R = 1, r = 0.5 on n x n/2 to t = scale, tau = 1e-3 (4e-3 after t = 0.1 when ``switch`` and scale = 1)."""
@@ -527,16 +476,9 @@ def symmetry(steps: int = 3) -> None:
 
 
 def surface_distance(a: dict[str, Any], b: dict[str, Any]) -> float:
-    """Symmetric max distance between the final meshes of two cached results: the largest distance of a vertex of
-    either to the other's triangles (gpytoolbox's exact point-triangle distance): a one-sided Hausdorff distance
-    sampled at the vertices, blind to tangential motion."""
-    import gpytoolbox
-
-    Va, Fa = np.asarray(a["final_vertices"]), np.asarray(a["final_simplices"])
-    Vb, Fb = np.asarray(b["final_vertices"]), np.asarray(b["final_simplices"])
-    dab = gpytoolbox.squared_distance(Va, Vb, Fb, use_cpp=True)[0]
-    dba = gpytoolbox.squared_distance(Vb, Va, Fa, use_cpp=True)[0]
-    return float(np.sqrt(max(dab.max(), dba.max())))
+    """:func:`willmore_nlp.analysis.surface_distance` between the final meshes of two cached results."""
+    return mesh_distance(np.asarray(a["final_vertices"]), np.asarray(a["final_simplices"]),
+                         np.asarray(b["final_vertices"]), np.asarray(b["final_simplices"]))
 
 
 def rest_from(r: dict[str, Any]) -> str:

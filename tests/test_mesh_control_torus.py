@@ -8,7 +8,16 @@ import numpy as np
 import pytest
 
 from willmore_nlp import WillmoreFlow
-from willmore_nlp.analysis import torus_grid_asymmetry, torus_grid_asymmetry_wavenumber
+from willmore_nlp.analysis import (
+    clifford_reference,
+    conformal_ratios,
+    rigid_align,
+    surface_distance,
+    torus_fit,
+    torus_grid_asymmetry,
+    torus_grid_asymmetry_wavenumber,
+)
+from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import shapes
 
 
@@ -46,3 +55,28 @@ def test_the_step_at_the_clifford_grid_amplifies_the_mesh_scale_mode() -> None:
         assert torus_grid_asymmetry_wavenumber(X[-1].vertices, 24, 12) == 12
     assert a[1.0] > 0.05 * 0.5 > 1e6 * a0
     assert 1e6 * a0 < a[10.0] < 0.5 * a[1.0]
+
+
+def test_torus_measures_against_exact_tori() -> None:
+    """The Figs. 6-7 measures on exact tori: the circle fit and the conformal R/r return the torus's R/r (to
+    round-off; the torus shifted in x3), the mesh-matched Clifford reference of a shifted, scaled grid Clifford torus
+    is the grid Clifford torus (W is scale invariant), a small rigid motion is undone, and the
+    distance between two concentric spheres is their radius difference up to the chord sagitta."""
+    m = shapes.torus(1.3, 0.5, 48, 24)
+    V = m.vertices + np.array([0.0, 0.0, 0.2])
+    R, r = torus_fit(V)
+    assert (R, r) == (pytest.approx(1.3, abs=1e-12), pytest.approx(0.5, abs=1e-12))
+    assert conformal_ratios(V) == pytest.approx(1.3 / 0.5, rel=1e-9)
+    cliff = shapes.torus(np.sqrt(2) * 0.4, 0.4, 48, 24)
+    grid = willmore_energy(shapes.torus(np.sqrt(2), 1.0, 48, 24))
+    assert clifford_reference(cliff.vertices - np.array([0.0, 0.0, 0.3]), cliff.simplices) == pytest.approx(
+        grid, rel=1e-12)
+    E = shapes.icosphere(3).vertices * np.array([1.0, 0.7, 0.4])  # no rotational symmetry
+    c, s = np.cos(0.05), np.sin(0.05)  # moves points by < h/2 (at 0.1 the closest-vertex iteration stalls)
+    moved = E @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array(
+        [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) + np.array([0.3, -0.1, 0.05])
+    assert np.abs(rigid_align(moved, E) - E).max() < 1e-12
+    sph = shapes.icosphere(3)
+    d = surface_distance(sph.vertices, sph.simplices, 1.1 * sph.vertices, sph.simplices)
+    assert 0.1 <= d <= 0.1 + 1.1 * sph.h**2
+

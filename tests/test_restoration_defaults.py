@@ -19,7 +19,7 @@ def _torus_distance(V: np.ndarray) -> np.ndarray:
 
 def test_problems_use_their_tangential_weight() -> None:
     """The default each problem declares is what its flow runs with; the parameter overrides it."""
-    expected = {"torus_hole": 10.0, "genus2_blending": 100.0, "surface_blending": 1.0}
+    expected = {"torus": 10.0, "torus_hole": 10.0, "genus2_blending": 100.0, "surface_blending": 1.0}
     for name, weight in expected.items():
         params = {"h": 0.3} if name == "genus2_blending" else {}
         pb, _ = registry.build(name, **params)
