@@ -19,7 +19,8 @@ tangential control the Willmore energy rises by ~1e-4 per step while the neck st
 
 @register("vesicle")
 def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0, subdivisions: int = 3,
-            bend: float = 1.2, tau: float | None = None, tau_tilde: float | None = None, steps: int = 300) -> Problem:
+            bend: float = 1.2, tau: float | None = None, tau_tilde: float | None = None, steps: int = 300,
+            tangential_weight: float = 1.0) -> Problem:
     """Vesicle of reduced volume v relaxing at fixed V and A: prolate ~0.85, discocyte ~0.65, stomatocyte below.
 
     The start is a spheroid (``start`` = "prolate" or "oblate", an icosphere of ``subdivisions``
@@ -60,7 +61,8 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
         mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
     h = mesh.h
     tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)
-    options: dict[str, object] = {"volume": "initial", "area": "initial", "c0": float(c0)}
+    options: dict[str, object] = {"volume": "initial", "area": "initial", "c0": float(c0),
+                                  "tangential_weight": float(tangential_weight)}
     if start == "cup":
         tau_ = CUP_TAU if tau is None else float(tau)
         options.update(adaptive=True, tangential_control="meanratio")
