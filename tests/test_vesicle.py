@@ -13,6 +13,8 @@ from willmore_nlp.geometry import enclosed_volume, measure
 from willmore_nlp.mesh import shapes
 from willmore_nlp.registry import Problem
 
+VESICLE_WEIGHT = 1.0
+"""The vesicle problem's default tangential_weight (reports/vesicle_weight_study.md, docs/guide/vesicles.md)."""
 SHORT = ("hessian_normal on", "normal_motion on", "g 20") + ("hessian_seek", "g 5") * 3
 
 
@@ -145,7 +147,8 @@ def test_vesicle_problem_start() -> None:
         pb, resolved = build("vesicle", reduced_volume=0.85, start=start, subdivisions=2, c0=0.5)
         assert shapes.reduced_volume(measure(pb.mesh), enclosed_volume(pb.mesh)) == pytest.approx(0.85, abs=1e-12)
         assert pb.flow_options == {"volume": "initial", "area": "initial", "c0": 0.5, "relax": True,
-                                   "relax_max_tau": 8 * pb.tau, "relax_tol": 1e-5}
+                                   "relax_max_tau": 8 * pb.tau, "relax_tol": 1e-5,
+                                   "tangential_weight": VESICLE_WEIGHT}
         assert resolved["start"] == start and pb.mesh.n_vertices == 162
         X = pb.mesh.vertices
         assert (np.ptp(X[:, 2]) > np.ptp(X[:, 0])) == (start == "prolate")
@@ -157,6 +160,24 @@ def test_vesicle_problem_start() -> None:
         build("vesicle", start="cup", reduced_volume=0.95, bend=1.2)
     with pytest.raises(UserInputError, match="parameter reduced_volume"):
         build("vesicle", reduced_volume=1.5)
+
+
+def test_vesicle_flow_uses_its_tangential_weight() -> None:
+    """The problem's ``tangential_weight`` (default :data:`VESICLE_WEIGHT`, the parameter overrides it) is the
+    beta of the distance term the flow's steps are built with, for the spheroids and the cup; a weight below 1
+    is refused naming the option."""
+    from willmore_nlp.errors import UserInputError
+    from willmore_nlp.registry import build
+
+    for start in ("prolate", "cup"):
+        for params, weight in (({}, VESICLE_WEIGHT), ({"tangential_weight": 37.0}, 37.0)):
+            pb, resolved = build("vesicle", reduced_volume=0.65, start=start, subdivisions=1, **params)
+            flow = pb.make_flow()
+            assert resolved["tangential_weight"] == weight
+            assert flow.settings.tangential_weight == weight and flow.setup.problem.tangential_weight == weight
+    pb, _ = build("vesicle", reduced_volume=0.65, subdivisions=1, tangential_weight=0.5)
+    with pytest.raises(UserInputError, match="tangential_weight"):
+        pb.make_flow()
 
 
 def test_vesicle_flow_keeps_volume_and_area() -> None:
@@ -214,7 +235,8 @@ def test_cup_start_has_the_requested_reduced_volume(v: float, bend: float) -> No
     pb, _ = build_cup(v, bend)
     np.testing.assert_array_equal(pb.mesh.vertices, shapes.cup_of_reduced_volume(v, 2, bend).vertices)
     assert pb.flow_options == {"volume": "initial", "area": "initial", "c0": 0.0, "adaptive": True,
-                               "tangential_control": "meanratio"} and pb.t_end is not None
+                               "tangential_control": "meanratio", "tangential_weight": VESICLE_WEIGHT}
+    assert pb.t_end is not None
 
 
 def build_cup(v: float, bend: float, subdivisions: int = 2) -> tuple[Problem, dict[str, Any]]:
