@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from willmore_nlp.flow import FlowError
 from willmore_nlp.geometry import enclosed_volume, measure, quality
 from willmore_nlp.registry import build
 
@@ -52,8 +53,8 @@ def run(start: str, v: float, weight: float) -> dict[str, Any]:
     try:
         for _ in range(STEPS[start]):
             res.append(flow.step())
-    except Exception as exc:  # noqa: BLE001 - recorded in the table, the other runs go on
-        error = f"{type(exc).__name__}: {str(exc).split(';')[0]}"
+    except FlowError as exc:  # recorded in the table, the other runs go on
+        error = str(exc).split(";")[0]
     wall = time.time() - t0
     after = np.array([r.willmore for r in res]) / (8 * np.pi)
     before = np.array([r.stats.get("willmore_before_remesh", r.willmore) for r in res]) / (8 * np.pi)
@@ -117,11 +118,12 @@ def markdown(runs: list[dict[str, Any]], wall: float) -> str:
     for r in runs:
         s = summary(r)
         n = max(r["steps"], 1)
+        failed = f" FAILED: {r['error']}" if r["error"] else ""
         lines.append(
-            f"| {r['start']} | {r['v']} | {r['weight']:g} | {r['steps']}{' FAILED: ' + r['error'] if r['error'] else ''}"
+            f"| {r['start']} | {r['v']} | {r['weight']:g} | {r['steps']}{failed}"
             f" | {r['t']:.3g} | **{r['after'][-1]:.5f}** | {r['before'][-1]:.5f} | {100 * s['lift_last']:+.3f} % "
-            f"({100 * s['lift_max']:+.3f} %) | {s['change_last']:.1e} ({s['change_max']:.1e}) | {s['change_b_max']:.1e} "
-            f"| {r['dV']:.0e} | {r['dA']:.0e} | {r['retries']} | {r['iterations'] / n:.2f} "
+            f"({100 * s['lift_max']:+.3f} %) | {s['change_last']:.1e} ({s['change_max']:.1e}) "
+            f"| {s['change_b_max']:.1e} | {r['dV']:.0e} | {r['dA']:.0e} | {r['retries']} | {r['iterations'] / n:.2f} "
             f"({(r['iterations'] + r['rejected_iterations']) / n:.2f}) | {r['min_angle']:.1f} ({r['final_angle']:.1f}) "
             f"| {r['wall']:.0f} | {100 * s['gap']:+.2f} % | {100 * s['gap_before']:+.2f} % |")
     lines += ["", "Recorded w / 8 pi every 10 steps:", ""]
@@ -144,7 +146,7 @@ def main() -> None:
     order = sorted(range(len(jobs)), key=lambda i: -STEPS[jobs[i][0]])
     t = time.time()
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
-        done = dict(zip(order, ex.map(_run, [jobs[i] for i in order])))
+        done = dict(zip(order, ex.map(_run, [jobs[i] for i in order]), strict=True))
     (OUT / "vesicle_weight_study.md").write_text(markdown([done[i] for i in range(len(jobs))], time.time() - t))
 
 
