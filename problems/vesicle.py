@@ -12,6 +12,13 @@ CUP_TAU = 2e-3
 """Step size from the cup (area 4 pi; ``adaptive`` halves it when a step fails). Measured at 642 vertices,
 v = 0.55, with the relaxation's growing steps: steps of 4e-3 and 8e-3 once the neck forms made the Willmore
 energy jump by 5-10 %, the invagination tipped over and step 41 failed at every tau down to tau / 8."""
+SPHEROID_WEIGHT = 10.0
+"""Default ``tangential_weight`` from the spheroids (reports/vesicle_weight_study.md, 642 vertices, 30/90 steps):
+against the paper's 1 the light repair's lift falls from 0.045 % to 0.007 % (oblate v = 0.65) and 0.075 % to
+0.022 % (oblate v = 0.55), the per-step change at the end from 6e-6 / 1.7e-5 to 3.4e-6 / 6.7e-7, retries 6 -> 0
+(v = 0.55), IPOPT iterations per step 5.4 / 9.4 -> 4.1, the gap to the axisymmetric reference -1.98 / -2.27 %
+-> -1.78 / -2.11 % (prolate v = 0.85: equal, -1.12 %). From the cup the default stays 1: weight 10 fails the
+v = 0.50 cup's first step (4 retries) and 100 is still falling by 2e-4 per step after 160 steps."""
 CUP_T_END = 0.3
 """End time of the flow from the cup (the relaxation's stopping test ends it early: with the mean-ratio
 tangential control the Willmore energy rises by ~1e-4 per step while the neck still forms)."""
@@ -20,7 +27,7 @@ tangential control the Willmore energy rises by ~1e-4 per step while the neck st
 @register("vesicle")
 def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0, subdivisions: int = 3,
             bend: float = 1.2, tau: float | None = None, tau_tilde: float | None = None, steps: int = 300,
-            tangential_weight: float = 1.0) -> Problem:
+            tangential_weight: float | None = None) -> Problem:
     """Vesicle of reduced volume v relaxing at fixed V and A: prolate ~0.85, discocyte ~0.65, stomatocyte below.
 
     The start is a spheroid (``start`` = "prolate" or "oblate", an icosphere of ``subdivisions``
@@ -37,8 +44,10 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     control (the default light repair alone let the energy jump by 2-5 % at the neck from step to step).
     Flow options: ``volume="initial"``, ``area="initial"``, ``c0`` (spontaneous curvature,
     h = k1 + k2 convention) and, for the spheroids, the equilibrium mode ``relax=True`` with
-    ``relax_max_tau = 8 tau`` and ``relax_tol = 1e-5``. Defaults tau = h^2 / 25 (the cup: ``CUP_TAU``),
-    tau_tilde = h^2 / 100. Measured on 642 vertices:
+    ``relax_max_tau = 8 tau`` and ``relax_tol = 1e-5``. ``tangential_weight`` (beta of the distance term; 1 is
+    the paper's scheme): default ``SPHEROID_WEIGHT`` = 10 from the spheroids, 1 from the cup (measured in
+    reports/vesicle_weight_study.md; reports/vesicle_evolver.md's flows ran with 1). Defaults tau = h^2 / 25
+    (the cup: ``CUP_TAU``), tau_tilde = h^2 / 100. Measured on 642 vertices:
     the oblate v = 0.65 start's first step fails to converge in 200 IPOPT iterations at every tau from
     h = 0.16 down to 0.01 and converges in 4 iterations at 1e-3; steps above ~16 tau make the Willmore
     energy oscillate by 2e-4 and cost 3x the iterations, and with the generic ``relax_tol = 1e-4``
@@ -61,6 +70,8 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
         mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
     h = mesh.h
     tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)
+    if tangential_weight is None:
+        tangential_weight = 1.0 if start == "cup" else SPHEROID_WEIGHT
     options: dict[str, object] = {"volume": "initial", "area": "initial", "c0": float(c0),
                                   "tangential_weight": float(tangential_weight)}
     if start == "cup":

@@ -13,8 +13,9 @@ from willmore_nlp.geometry import enclosed_volume, measure
 from willmore_nlp.mesh import shapes
 from willmore_nlp.registry import Problem
 
-VESICLE_WEIGHT = 1.0
-"""The vesicle problem's default tangential_weight (reports/vesicle_weight_study.md, docs/guide/vesicles.md)."""
+SPHEROID_WEIGHT, CUP_WEIGHT = 10.0, 1.0
+"""The vesicle problem's default tangential_weight from a spheroid and from the cup (reports/vesicle_weight_study.md,
+docs/guide/vesicles.md)."""
 SHORT = ("hessian_normal on", "normal_motion on", "g 20") + ("hessian_seek", "g 5") * 3
 
 
@@ -148,7 +149,7 @@ def test_vesicle_problem_start() -> None:
         assert shapes.reduced_volume(measure(pb.mesh), enclosed_volume(pb.mesh)) == pytest.approx(0.85, abs=1e-12)
         assert pb.flow_options == {"volume": "initial", "area": "initial", "c0": 0.5, "relax": True,
                                    "relax_max_tau": 8 * pb.tau, "relax_tol": 1e-5,
-                                   "tangential_weight": VESICLE_WEIGHT}
+                                   "tangential_weight": SPHEROID_WEIGHT}
         assert resolved["start"] == start and pb.mesh.n_vertices == 162
         X = pb.mesh.vertices
         assert (np.ptp(X[:, 2]) > np.ptp(X[:, 0])) == (start == "prolate")
@@ -163,17 +164,16 @@ def test_vesicle_problem_start() -> None:
 
 
 def test_vesicle_flow_uses_its_tangential_weight() -> None:
-    """The problem's ``tangential_weight`` (default :data:`VESICLE_WEIGHT`, the parameter overrides it) is the
-    beta of the distance term the flow's steps are built with, for the spheroids and the cup; a weight below 1
-    is refused naming the option."""
+    """The problem's ``tangential_weight`` (default :data:`SPHEROID_WEIGHT` from a spheroid, :data:`CUP_WEIGHT`
+    from the cup; the parameter overrides it) is the beta of the distance term the flow's steps are built with;
+    a weight below 1 is refused naming the option."""
     from willmore_nlp.errors import UserInputError
     from willmore_nlp.registry import build
 
-    for start in ("prolate", "cup"):
-        for params, weight in (({}, VESICLE_WEIGHT), ({"tangential_weight": 37.0}, 37.0)):
-            pb, resolved = build("vesicle", reduced_volume=0.65, start=start, subdivisions=1, **params)
+    for start, default in (("prolate", SPHEROID_WEIGHT), ("oblate", SPHEROID_WEIGHT), ("cup", CUP_WEIGHT)):
+        for params, weight in (({}, default), ({"tangential_weight": 37.0}, 37.0)):
+            pb, _ = build("vesicle", reduced_volume=0.65, start=start, subdivisions=1, **params)
             flow = pb.make_flow()
-            assert resolved["tangential_weight"] == weight
             assert flow.settings.tangential_weight == weight and flow.setup.problem.tangential_weight == weight
     pb, _ = build("vesicle", reduced_volume=0.65, subdivisions=1, tangential_weight=0.5)
     with pytest.raises(UserInputError, match="tangential_weight"):
@@ -235,7 +235,7 @@ def test_cup_start_has_the_requested_reduced_volume(v: float, bend: float) -> No
     pb, _ = build_cup(v, bend)
     np.testing.assert_array_equal(pb.mesh.vertices, shapes.cup_of_reduced_volume(v, 2, bend).vertices)
     assert pb.flow_options == {"volume": "initial", "area": "initial", "c0": 0.0, "adaptive": True,
-                               "tangential_control": "meanratio", "tangential_weight": VESICLE_WEIGHT}
+                               "tangential_control": "meanratio", "tangential_weight": CUP_WEIGHT}
     assert pb.t_end is not None
 
 
