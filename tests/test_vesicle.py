@@ -178,6 +178,8 @@ def test_vesicle_flow_uses_its_tangential_weight() -> None:
     pb, _ = build("vesicle", reduced_volume=0.65, subdivisions=1, tangential_weight=0.5)
     with pytest.raises(UserInputError, match="tangential_weight"):
         pb.make_flow()
+    with pytest.raises(UserInputError, match="parameter tangential_weight"):
+        build("vesicle", subdivisions=1, tangential_weight="abc")
 
 
 def test_vesicle_flow_keeps_volume_and_area() -> None:
