@@ -315,21 +315,17 @@ def surface_distance(Va: np.ndarray, Fa: np.ndarray, Vb: np.ndarray, Fb: np.ndar
 
 def rigid_align(A: np.ndarray, B: np.ndarray, iterations: int = 20) -> np.ndarray:
     """(N, 3) points A moved rigidly (rotation and translation) toward the point cloud B ((M, 3)): centroids
-    matched, then iterated closest points with the Kabsch rotation (nearest vertices of B as partners).
+    matched, then iterated closest points (trimesh's ``registration.icp``: nearest vertices of B as partners,
+    a proper rotation and a translation, no scaling or reflection, ``iterations`` rounds).
 
     For comparing two surfaces that differ by a rigid motion plus a small change of shape; it finds the local
     optimum near the identity (the shapes are assumed roughly aligned already: a rotation of 0.05 rad of an
     ellipsoid's 642 vertices, moving them by up to 0.3 h, is undone to round-off; 0.1 rad stalls at 0.1).
     """
-    from scipy.spatial import cKDTree
+    from trimesh.registration import icp
 
     A, B = np.asarray(A, float), np.asarray(B, float)
-    X = A - A.mean(axis=0) + B.mean(axis=0)
-    tree = cKDTree(B)
-    for _ in range(iterations):
-        P = B[tree.query(X)[1]]
-        cx, cp = X.mean(axis=0), P.mean(axis=0)
-        U, _, Vt = np.linalg.svd((X - cx).T @ (P - cp))
-        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-        X = (X - cx) @ (U @ D @ Vt) + cp
-    return X
+    start = np.eye(4)
+    start[:3, 3] = B.mean(axis=0) - A.mean(axis=0)
+    _, X, _ = icp(A, B, initial=start, threshold=0.0, max_iterations=iterations, reflection=False, scale=False)
+    return np.asarray(X)
