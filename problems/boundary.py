@@ -9,6 +9,8 @@ on curved surfaces for tau_tilde = h^2 / 10 (README, "Clamped boundaries").
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from willmore_nlp import geometry
@@ -168,6 +170,24 @@ def surface_blending(r_bottom: float = 1.0, r_top: float = 0.8, gap: float = 1.2
                    description="blending surface between two cylinders")
 
 
+def _refill(name: str, mesh: Mesh, free: np.ndarray, fill: str, amp: float, seed: int,
+            normals: Callable[[], np.ndarray], axis: int, centre: Callable[[np.ndarray], float]) -> Mesh:
+    """The restorations' coarse fill of the cut-out patch (``free``, (N,) bool): "noisy" moves each free vertex
+    along ``normals()`` ((N, 3) unit normals of the uncut surface) by ``amp`` h times a seeded standard normal
+    draw; "flat" presses the patch toward the plane x_axis = centre(x_axis of the patch) by the factor 1 - amp.
+    """
+    V = np.array(mesh.vertices)
+    if fill == "noisy":
+        noise = np.random.default_rng(seed).standard_normal(int(free.sum()))
+        V[free] += amp * mesh.h * noise[:, None] * normals()[free]
+    elif fill == "flat":
+        c = centre(V[free, axis])
+        V[free, axis] = c + (1 - amp) * (V[free, axis] - c)
+    else:
+        raise MeshError(f"{name}: fill must be 'flat' or 'noisy', got {fill!r}")
+    return mesh.with_vertices(V)
+
+
 @register("torus_hole")
 def torus_hole(n_major: int = 32, n_minor: int = 16, hole: float = 0.55, fill: str = "flat", amp: float = 0.3,
                variant: str = "ring", seed: int = 0, tangential_weight: float = 10.0, tau: float | None = None,
@@ -193,18 +213,12 @@ def torus_hole(n_major: int = 32, n_minor: int = 16, hole: float = 0.55, fill: s
     mesh = shapes.torus(1.0, 0.5, n_major, n_minor)
     V = np.array(mesh.vertices)
     free = np.linalg.norm(V - np.array([1.5, 0.0, 0.0]), axis=1) < hole
-    if fill == "flat":
-        x0 = V[free, 0].min()
-        V[free, 0] = x0 + (1 - amp) * (V[free, 0] - x0)
-    elif fill == "noisy":
-        rng = np.random.default_rng(seed)
-        c = np.column_stack([V[:, :2] / np.linalg.norm(V[:, :2], axis=1, keepdims=True), np.zeros(len(V))])
-        nrm = V - c
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-        V[free] += amp * mesh.h * rng.standard_normal(int(free.sum()))[:, None] * nrm[free]
-    else:
-        raise MeshError(f"torus_hole: fill must be 'flat' or 'noisy', got {fill!r}")
-    mesh = mesh.with_vertices(V)
+
+    def tube_normals() -> np.ndarray:  # the exact torus's unit normals (from the tube's core circle)
+        nrm = V - np.column_stack([V[:, :2] / np.linalg.norm(V[:, :2], axis=1, keepdims=True), np.zeros(len(V))])
+        return nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+
+    mesh = _refill("torus_hole", mesh, free, fill, amp, seed, tube_normals, axis=0, centre=np.min)
     tau_, tt_ = _steps(mesh.h, tau, tau_tilde)
     return Problem(mesh, tau_, tt_, 0.0, steps=steps,
                    flow_options={"boundary": Boundary(free, variant), "tangential_weight": float(tangential_weight)},
@@ -236,17 +250,9 @@ def genus2_blending(h: float = 0.2, hole: float = 0.6, fill: str = "noisy", amp:
 
     mesh = shapes.double_torus(h=h)
     y0 = brentq(lambda y: float(shapes.double_torus_function(np.array([[0.0, y, 0.0]]))[0]), 0.0, 2.0, xtol=1e-12)
-    V = np.array(mesh.vertices)
-    free = np.linalg.norm(V - np.array([0.0, y0, 0.0]), axis=1) < hole
-    if fill == "noisy":
-        nrm = geometry.vertex_normals(mesh)
-        V[free] += amp * mesh.h * np.random.default_rng(seed).standard_normal(int(free.sum()))[:, None] * nrm[free]
-    elif fill == "flat":
-        yc = V[free, 1].mean()
-        V[free, 1] = yc + (1 - amp) * (V[free, 1] - yc)
-    else:
-        raise MeshError(f"genus2_blending: fill must be 'flat' or 'noisy', got {fill!r}")
-    mesh = mesh.with_vertices(V)
+    free = np.linalg.norm(mesh.vertices - np.array([0.0, y0, 0.0]), axis=1) < hole
+    mesh = _refill("genus2_blending", mesh, free, fill, amp, seed, lambda: geometry.vertex_normals(mesh), axis=1,
+                   centre=np.mean)
     tau_, tt_ = _steps(mesh.h, tau, tau_tilde)
     return Problem(mesh, tau_, tt_, 0.0, steps=steps,
                    flow_options={"boundary": Boundary(free, variant), "tangential_weight": float(tangential_weight)},
