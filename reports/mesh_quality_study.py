@@ -48,6 +48,7 @@ from willmore_nlp.analysis import (
     torus_projection,
 )
 from willmore_nlp.analysis import surface_distance as mesh_distance
+from willmore_nlp.analysis import torus_distance as exact_torus_distance
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 
@@ -493,8 +494,7 @@ def torus_distance(r: dict[str, Any]) -> str:
     ``torus_hole`` cases (the fixed vertices lie on it, so this is the free vertices' largest distance)."""
     if not r["name"].startswith("torus_hole") or "final_vertices" not in r:
         return ""
-    V = np.asarray(r["final_vertices"])
-    return f"{np.abs(np.hypot(np.hypot(V[:, 0], V[:, 1]) - 1.0, V[:, 2]) - 0.5).max() / r['h']:.3g}"
+    return f"{exact_torus_distance(np.asarray(r['final_vertices']), 1.0, 0.5).max() / r['h']:.3g}"
 
 
 def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:

@@ -229,12 +229,17 @@ def normal_jumps(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> dict[str, fl
     return {"gamma": top(gamma), "patch": top(on_free), "fixed": top(fixed)}
 
 
-def torus_fit(V: np.ndarray) -> tuple[float, float]:
-    """(R, r) of a torus of revolution about x3 by a least-squares circle fit of the cross-section (rho, x3)."""
-    rho, z = np.hypot(V[:, 0], V[:, 1]), V[:, 2] - V[:, 2].mean()
+def _circle_fit(rho: np.ndarray, z: np.ndarray) -> tuple[float, float, float]:
+    """(centre rho, centre z, radius) of the least-squares (algebraic) circle through the (K,) points (rho, z)."""
     A = np.column_stack([2 * rho, 2 * z, np.ones_like(rho)])
     (a, b, c), *_ = np.linalg.lstsq(A, rho**2 + z**2, rcond=None)
-    return float(a), float(np.sqrt(c + a * a + b * b))
+    return float(a), float(b), float(np.sqrt(c + a * a + b * b))
+
+
+def torus_fit(V: np.ndarray) -> tuple[float, float]:
+    """(R, r) of a torus of revolution about x3 by a least-squares circle fit of the cross-section (rho, x3)."""
+    R, _, r = _circle_fit(np.hypot(V[:, 0], V[:, 1]), V[:, 2] - V[:, 2].mean())
+    return R, r
 
 
 def sector_circles(V: np.ndarray, sectors: int = 8) -> np.ndarray:
@@ -248,10 +253,7 @@ def sector_circles(V: np.ndarray, sectors: int = 8) -> np.ndarray:
     k = np.floor((np.arctan2(Y[:, 1], Y[:, 0]) + np.pi) / (2 * np.pi / sectors)).astype(int) % sectors
     out = np.empty((sectors, 3))
     for i in range(sectors):
-        rho, z = np.hypot(Y[k == i, 0], Y[k == i, 1]), Y[k == i, 2]
-        A = np.column_stack([2 * rho, 2 * z, np.ones_like(rho)])
-        (a, b, cc), *_ = np.linalg.lstsq(A, rho**2 + z**2, rcond=None)
-        out[i] = a, b, np.sqrt(cc + a * a + b * b)
+        out[i] = _circle_fit(np.hypot(Y[k == i, 0], Y[k == i, 1]), Y[k == i, 2])
     return out
 
 
@@ -285,6 +287,12 @@ def torus_projection(V: np.ndarray, R: float, r: float) -> np.ndarray:
     d *= r / np.linalg.norm(d, axis=1, keepdims=True)
     rr = R + d[:, 0]
     return np.column_stack([rr * V[:, 0] / rho, rr * V[:, 1] / rho, zc + d[:, 1]])
+
+
+def torus_distance(V: np.ndarray, R: float, r: float) -> np.ndarray:
+    """(N,) distance of the points V ((N, 3)) from the torus of revolution (R, r) about the x3 axis, centred at
+    the origin (the exact surface of ``shapes.torus(R, r, ...)``)."""
+    return np.abs(np.hypot(np.hypot(V[:, 0], V[:, 1]) - R, V[:, 2]) - r)
 
 
 def clifford_reference(V: np.ndarray, simplices: np.ndarray) -> float:

@@ -33,6 +33,7 @@ from willmore_nlp.analysis import (
     sector_ratios,
     sphere_step_radius,
     surface_distance,
+    torus_distance,
     torus_fit,
     winding_number,
     wulff_widths,
@@ -834,20 +835,6 @@ DEFAULTS_RUNS: tuple[tuple[str, str, int, dict[str, Any]], ...] = (
 """Figs. 9-10 with the library defaults: label, problem, steps, parameters (issue 14's stationarity targets)."""
 
 
-def _torus_distance(V: np.ndarray) -> np.ndarray:
-    """(N,) distance of each point from the exact torus R = 1, r = 0.5 about x3 (the torus of ``torus_hole``)."""
-    return np.abs(np.hypot(np.hypot(V[:, 0], V[:, 1]) - 1.0, V[:, 2]) - 0.5)
-
-
-def _surface_gap(Va: np.ndarray, Fa: np.ndarray, Vb: np.ndarray, Fb: np.ndarray) -> float:
-    """Largest distance of a vertex of either triangle mesh from the other's triangles (gpytoolbox's exact
-    point-triangle distance): blind to tangential motion, unlike a vertex-by-vertex distance."""
-    import gpytoolbox
-
-    return float(np.sqrt(max(gpytoolbox.squared_distance(Va, Vb, Fb, use_cpp=True)[0].max(),
-                             gpytoolbox.squared_distance(Vb, Va, Fa, use_cpp=True)[0].max())))
-
-
 def _defaults_run(name: str, steps: int, **params: Any) -> tuple[dict[str, Any], Any, list[StepResult]]:
     """Problem ``name`` with the library defaults (mesh control on, the problem's tangential weight) for
     ``steps`` steps: the figures of the defaults table, the problem and the steps."""
@@ -873,8 +860,8 @@ def _defaults_run(name: str, steps: int, **params: Any) -> tuple[dict[str, Any],
            "min_angle_final": last.quality["min_angle"], "stopped": stopped,
            "lift": float(last.willmore / rows[-1].get("willmore_before_remesh", np.nan) - 1)
            if last.remeshed else 0.0,
-           "torus0": float(_torus_distance(pb.mesh.vertices[free]).max() / pb.mesh.h),
-           "torus": float(_torus_distance(last.vertices[last.free]).max() / pb.mesh.h)}
+           "torus0": float(torus_distance(pb.mesh.vertices[free], 1.0, 0.5).max() / pb.mesh.h),
+           "torus": float(torus_distance(last.vertices[last.free], 1.0, 0.5).max() / pb.mesh.h)}
     return out, pb, res
 
 
@@ -917,7 +904,7 @@ def fig9_10(fig_dir: Path) -> str:
     gaps = {}
     for label in ("torus_hole fill=noisy", "torus_hole fill=flat"):
         last = d_runs[label][2][-1]
-        gaps[label] = _surface_gap(last.vertices, last.simplices, undisturbed.vertices,
+        gaps[label] = surface_distance(last.vertices, last.simplices, undisturbed.vertices,
                                    undisturbed.simplices) / d_runs[label][1].mesh.h
         d_checks.append(Check(f"{label}: distance from the undisturbed patch's final surface / h", gaps[label], "<=",
                               0.25))
