@@ -43,6 +43,7 @@ from willmore_nlp import FlowError, WillmoreFlow, geometry, registry
 from willmore_nlp.analysis import (
     clifford_reference,
     conformal_ratios,
+    fit_order,
     minimal_s3_fit,
     sector_ratios,
     torus_fit,
@@ -617,6 +618,46 @@ def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:
             "edge):", "", *shapes_]
 
 
+def cached_genus2(todo: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The cached genus-2 cases that started from :func:`willmore_nlp.mesh.shapes.lawson_genus2`."""
+    return {k: json.loads((CACHE / f"{k}.json").read_text()) for k in todo
+            if k.startswith("genus2_lawson") and (CACHE / f"{k}.json").is_file()}
+
+
+def lawson_table(cached: dict[str, dict[str, Any]]) -> list[str]:
+    """Flows from the Lawson start: distance from a stereographic image of a minimal surface in S^3
+    (:func:`minimal_s3_fit`) at the start and the end, and the final energies against mesh size h (the gap to
+    Lawson's 43.8 and its observed order over the refinements)."""
+    if not cached:
+        return []
+    out = ["", "Flows from `shapes.lawson_genus2` (a Moebius image of Lawson's surface in which the mesh resolves "
+           "the curvature; see docs/guide/mesh_quality.md, Genus 2). residual: `analysis.minimal_s3_fit`, the L^2 "
+           "distance of H from the mean curvature of a stereographic image of a minimal surface in S^3 (0 for "
+           "Lawson's surface and its Moebius images; 0.0055 for the Clifford torus on the 48 x 24 grid); rho: the "
+           "fitted radius of the sphere (it moves when the surface slides along its Moebius orbit). \"gauge "
+           "shift\": the largest move of a vertex by `conformal_gauge` in one step.", "",
+           "| case | h | steps, t | retries, failed | min angle after repair (end) | W start -> end | W / 43.8 - 1 "
+           "| rest (last step) | residual start -> end | rho end |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in cached.values():
+        out.append(f"| {r['name']} | {r['h']:.3f} | {r['steps']}, {r['t']:.2f} | {r['retries']}, "
+                   f"{r['failed'] or 'no'} | {r['min_angle_after']:.1f} ({r['min_angle_final']:.1f}) | "
+                   f"{r['W0']:.3f} -> {r['W']:.4f} | {r['W'] / LAWSON_21 - 1:+.2%} | {r['stationarity']:.1e} | "
+                   f"{r['s3_residual_initial']:.3f} -> {r['s3_residual']:.3f} | {r['s3_rho']:.3f} |")
+    ref = [r for r in cached.values() if "conformal_gauge" in r["options"] and not r["failed"]]
+    if len(ref) >= 3:
+        ref.sort(key=lambda r: -r["h"])
+        h = np.array([r["h"] for r in ref])
+        w = np.array([r["W"] for r in ref])
+        p = np.log((w[0] - w[1]) / (w[1] - w[2])) / np.log(h[0] / h[1]) if (w[0] - w[1]) * (w[1] - w[2]) > 0 \
+            else float("nan")
+        out += ["", f"Refinement with `conformal_gauge` (h = {', '.join(f'{x:.3f}' for x in h)}): W = "
+                f"{', '.join(f'{x:.4f}' for x in w)}; gap to 43.8: "
+                f"{', '.join(f'{x / LAWSON_21 - 1:+.2%}' for x in w)}, "
+                f"observed order of the gap {fit_order(h, np.abs(w - LAWSON_21)):.2f}; order of the successive "
+                f"differences {p:.2f}."]
+    return out
+
+
 def table(results: list[dict[str, Any]]) -> list[str]:
     lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | "
              "min angle of the stepped states | failed | "
@@ -691,6 +732,7 @@ def main() -> None:
         lines += [f"| {r['name']} | {r['W']:.4f} | {r['W'] / LAWSON_21 - 1:+.2%} | {r['evolver_initial']:.4f} | "
                   f"{r['evolver_final']:.4f} ({r['evolver_commands']}) | {r['W_of_evolver_mesh']:.4f} | "
                   f"{r['evolver_min_angle']:.3g} |" for r in g2]
+        lines += lawson_table(cached_genus2(todo))
     cached = {k: json.loads((CACHE / f"{k}.json").read_text()) for k in todo if (CACHE / f"{k}.json").is_file()}
     if any(f"{k}_beta{b:g}" in cached for k in BETA_CASES for b in BETAS):
         lines += ["", "## tangential_weight 1, 10, 100 (`--cases KEY_beta1 KEY_beta10 KEY_beta100`)", "",

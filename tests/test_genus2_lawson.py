@@ -74,9 +74,10 @@ def test_conformal_gauge_refuses_constraints() -> None:
 
 def test_lawson_start_steps_with_the_gauge() -> None:
     """A few steps of the stored genus-2 start (remeshed coarser): no failed step, min angle >= 15 deg after
-    every repair, Euler characteristic -2 kept, the energy falls and stays near Lawson's."""
-    mesh = shapes.lawson_genus2(0.4)
-    assert euler_characteristic(mesh.simplices) == -2 and 250 < mesh.n_vertices < 450
+    every repair, Euler characteristic -2 kept, the energy falls and stays near Lawson's (557 v: W 43.58 -> 43.02,
+    min angle >= 35 deg, no retry)."""
+    mesh = shapes.lawson_genus2(0.3)
+    assert euler_characteristic(mesh.simplices) == -2 and 450 < mesh.n_vertices < 650
     w0 = geometry.willmore_energy(mesh)
     flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, adaptive=True, max_retries=6, tangential_weight=100.0,
                         conformal_gauge=True)
@@ -85,5 +86,5 @@ def test_lawson_start_steps_with_the_gauge() -> None:
     assert all(r.quality["min_angle"] >= 15.0 for r in results)
     assert all(euler_characteristic(r.simplices) == -2 for r in results)
     assert results[-1].willmore < w0
-    assert abs(results[-1].willmore / LAWSON_21 - 1) < 0.05
+    assert abs(results[-1].willmore / LAWSON_21 - 1) < 0.03
     assert all(np.isfinite(r.stats["conformal_gauge_shift"]) for r in results)

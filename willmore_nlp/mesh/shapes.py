@@ -273,7 +273,7 @@ def lawson_genus2(h: float | None = None) -> Mesh:
     """Closed genus-2 surface near a Moebius image of Lawson's minimal surface xi_{2,1} (the conjectured
     minimiser of the Willmore energy among genus-2 surfaces), in an image whose curvature the mesh resolves.
 
-    The stored surface (1,298 v, mean edge 0.20, |k1 + k2| h <= 0.45; :data:`LAWSON_GENUS2_DATA`) is returned
+    The stored surface (1,288 v, mean edge 0.20, |k1 + k2| h <= 0.53; :data:`LAWSON_GENUS2_DATA`) is returned
     as it is (``h`` None) or remeshed isotropically to edge length ``h`` with projection onto it
     (:func:`willmore_nlp.remesh.isotropic_remesh`). How it was made (``reports/mesh_quality_study.py
     --lawson-start``, docs/guide/mesh_quality.md "Genus 2"): the flow of :func:`double_torus` approaches
@@ -281,8 +281,8 @@ def lawson_genus2(h: float | None = None) -> Mesh:
     residual 0.68 -> 0.11) whose bar across the hole is thinner than the mesh's edges; that state was lifted
     to S^3 with the fitted centre and radius and projected back from the point of S^3 farthest from it
     (:func:`willmore_nlp.geometry.stereographic_reprojection`; the Willmore energy is Moebius invariant),
-    remeshed to h = 0.2 and flowed 5 steps with ``conformal_gauge``: W = 43.46 (Lawson: 43.8 in this
-    library's normalisation), minimal-S^3 residual 0.036.
+    remeshed to h = 0.2 and flowed 5 steps with ``conformal_gauge``: W = 43.48 (Lawson: 43.8 in this
+    library's normalisation), minimal-S^3 residual 0.039.
     """
     from willmore_nlp.remesh import isotropic_remesh
 
