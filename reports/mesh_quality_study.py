@@ -630,19 +630,24 @@ def lawson_table(cached: dict[str, dict[str, Any]]) -> list[str]:
     Lawson's 43.8 and its observed order over the refinements)."""
     if not cached:
         return []
+
+    def size(r: dict[str, Any]) -> float:
+        return float(np.sqrt(geometry.measure(Mesh(np.array(r["final_vertices"]), np.array(r["final_simplices"])))
+                             / (4 * np.pi)))
+
     out = ["", "Flows from `shapes.lawson_genus2` (a Moebius image of Lawson's surface in which the mesh resolves "
            "the curvature; see docs/guide/mesh_quality.md, Genus 2). residual: `analysis.minimal_s3_fit`, the L^2 "
            "distance of H from the mean curvature of a stereographic image of a minimal surface in S^3 (0 for "
-           "Lawson's surface and its Moebius images; 0.0055 for the Clifford torus on the 48 x 24 grid); rho: the "
-           "fitted radius of the sphere (it moves when the surface slides along its Moebius orbit). \"gauge "
-           "shift\": the largest move of a vertex by `conformal_gauge` in one step.", "",
+           "Lawson's surface and its Moebius images; 0.0055 for the Clifford torus on the 48 x 24 grid); rho / L: the "
+           "fitted radius of the sphere over the surface's size L = sqrt(area / 4 pi) (it moves when the surface "
+           "slides along its Moebius orbit; the stored start: 0.45).", "",
            "| case | h | steps, t | retries, failed | min angle after repair (end) | W start -> end | W / 43.8 - 1 "
-           "| rest (last step) | residual start -> end | rho end |", "|---|---|---|---|---|---|---|---|---|---|"]
+           "| rest (last step) | residual start -> end | rho / L end |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in cached.values():
         out.append(f"| {r['name']} | {r['h']:.3f} | {r['steps']}, {r['t']:.2f} | {r['retries']}, "
                    f"{r['failed'] or 'no'} | {r['min_angle_after']:.1f} ({r['min_angle_final']:.1f}) | "
                    f"{r['W0']:.3f} -> {r['W']:.4f} | {r['W'] / LAWSON_21 - 1:+.2%} | {r['stationarity']:.1e} | "
-                   f"{r['s3_residual_initial']:.3f} -> {r['s3_residual']:.3f} | {r['s3_rho']:.3f} |")
+                   f"{r['s3_residual_initial']:.3f} -> {r['s3_residual']:.3f} | {r['s3_rho'] / size(r):.3f} |")
     ref = [r for r in cached.values() if "conformal_gauge" in r["options"] and not r["failed"]]
     if len(ref) >= 3:
         ref.sort(key=lambda r: -r["h"])
