@@ -202,9 +202,7 @@ def lawson_start(out: Path = shapes.LAWSON_GENUS2_DATA) -> None:
     Vs, Fs = V, F
     for _ in range(2):
         Vs, Fs = gpytoolbox.subdivide(Vs, Fs, method="loop")
-    x = np.asarray(Vs) - c
-    r2 = np.einsum("ij,ij->i", x, x)
-    Y = np.column_stack([2 * rho * x, r2 - rho**2]) / (r2 + rho**2)[:, None]
+    Y = geometry.inverse_stereographic(np.asarray(Vs), c, rho)
     P = np.random.default_rng(0).normal(size=(200_000, 4))
     P /= np.linalg.norm(P, axis=1, keepdims=True)
     pole = P[np.argmax(cKDTree(Y).query(P)[0])]

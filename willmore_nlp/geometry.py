@@ -51,19 +51,25 @@ def special_conformal_map(X: np.ndarray, b: np.ndarray, centre: np.ndarray, scal
     return centre + scale * (y - np.outer(y2, b)) / (1 - 2 * y @ b + (b @ b) * y2)[:, None]
 
 
+def inverse_stereographic(X: np.ndarray, centre: np.ndarray, rho: float) -> np.ndarray:
+    """(N, 4) points of the unit 3-sphere: the inverse stereographic projection of radius ``rho`` about ``centre``
+    of the points X ((N, 3)), y = (2 rho (x - c), |x - c|^2 - rho^2) / (|x - c|^2 + rho^2)."""
+    x = np.asarray(X, float) - centre
+    r2 = np.einsum("ij,ij->i", x, x)
+    return np.column_stack([2 * rho * x, r2 - rho**2]) / (r2 + rho**2)[:, None]
+
+
 def stereographic_reprojection(X: np.ndarray, centre: np.ndarray, rho: float, pole: np.ndarray) -> np.ndarray:
     """(N, 3) image of the points X ((N, 3)) under a Moebius transformation given through the unit 3-sphere.
 
-    X is lifted to S^3 by the inverse stereographic projection of radius ``rho`` about ``centre``,
-    y = (2 rho (x - c), |x - c|^2 - rho^2) / (|x - c|^2 + rho^2), and projected back to R^3 from the unit
+    X is lifted to S^3 by the inverse stereographic projection of radius ``rho`` about ``centre``
+    (:func:`inverse_stereographic`) and projected back to R^3 from the unit
     4-vector ``pole`` (onto the orthogonal 3-space, in an orthonormal basis of it). Willmore energies of closed
     surfaces are unchanged (when the pole is not on the surface); a surface that is a stereographic image of a
     minimal surface in S^3 (:func:`willmore_nlp.analysis.minimal_s3_fit` gives ``centre`` and ``rho``) is
     mapped to another image of the same minimal surface.
     """
-    x = np.asarray(X, float) - centre
-    r2 = np.einsum("ij,ij->i", x, x)
-    Y = np.column_stack([2 * rho * x, r2 - rho**2]) / (r2 + rho**2)[:, None]
+    Y = inverse_stereographic(X, centre, rho)
     p = np.asarray(pole, float) / np.linalg.norm(pole)
     Q = np.linalg.qr(np.column_stack([p, np.eye(4)]))[0]  # first column +-p, the others span its complement
     return (Y @ Q[:, 1:4]) / (1 - Y @ p)[:, None]
