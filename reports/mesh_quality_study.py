@@ -32,6 +32,7 @@ import argparse
 import json
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,8 @@ from willmore_nlp import FlowError, WillmoreFlow, geometry, registry
 from willmore_nlp.analysis import (
     clifford_reference,
     conformal_ratios,
+    fit_order,
+    minimal_s3_fit,
     sector_ratios,
     torus_fit,
     torus_grid_asymmetry,
@@ -167,6 +170,61 @@ LAWSON_21 = 2 * 21.9
 """Willmore energy of Lawson's genus-2 surface xi_{2,1} in this library's normalisation w = 1/2 int (k1 + k2)^2
 (a round sphere 8 pi): 21.9 in int H^2, H the mean of the principal curvatures (Hsu, Kusner, Sullivan 1992,
 Experimental Math. 1:191-207), times 2."""
+
+
+def lawson_start(out: Path = shapes.LAWSON_GENUS2_DATA) -> None:
+    """Make the stored surface of :func:`willmore_nlp.mesh.shapes.lawson_genus2` (about 5 min of CPU).
+
+    The 839-v :func:`~willmore_nlp.mesh.shapes.double_torus` flows (adaptive from tau = h, tangential_weight 100)
+    toward a stereographic image of a minimal surface in S^3 whose bar across the hole gets thinner than the
+    edges; its state of smallest minimal-S^3 residual (:func:`~willmore_nlp.analysis.minimal_s3_fit`, within
+    the first 25 steps) is subdivided twice (Loop), lifted to S^3 with the fitted centre and radius and
+    projected back from the point of S^3 farthest from it (the best of 200,000 seeded random points;
+    :func:`~willmore_nlp.geometry.stereographic_reprojection`), put on its principal axes, remeshed to h = 0.2
+    and flowed 5 steps with ``conformal_gauge``."""
+    import gpytoolbox
+    from scipy.spatial import cKDTree
+
+    from willmore_nlp.analysis import minimal_s3_fit
+    from willmore_nlp.remesh import isotropic_remesh
+
+    dt = shapes.double_torus(h=0.22)
+    flow = WillmoreFlow(dt, dt.h, 0.01 * dt.h**2, adaptive=True, max_retries=12, tangential_weight=100.0)
+    best: tuple[float, np.ndarray, np.ndarray] = (np.inf, dt.vertices, dt.simplices)
+    for _ in range(25):
+        r = flow.step()
+        fit = minimal_s3_fit(r.vertices, flow.mesh.simplices)
+        print(f"  double torus step {r.step}: t = {r.t:.3f}, W = {r.willmore:.4f}, residual {fit[2]:.4f}", flush=True)
+        if fit[2] < best[0]:
+            best = (fit[2], r.vertices, flow.mesh.simplices)
+    V, F = best[1], best[2]
+    c, rho, res = minimal_s3_fit(V, F)
+    Vs, Fs = V, F
+    for _ in range(2):
+        Vs, Fs = gpytoolbox.subdivide(Vs, Fs, method="loop")
+    Y = geometry.inverse_stereographic(np.asarray(Vs), c, rho)
+    P = np.random.default_rng(0).normal(size=(200_000, 4))
+    P /= np.linalg.norm(P, axis=1, keepdims=True)
+    pole = P[np.argmax(cKDTree(Y).query(P)[0])]
+    Z = geometry.stereographic_reprojection(np.asarray(Vs), c, rho, pole)
+    Z -= Z.mean(axis=0)
+    U = np.linalg.eigh(np.cov(Z.T))[1]
+    U[:, 0] *= np.sign(np.linalg.det(U))  # a rotation
+    Z = Z @ U
+    rm = isotropic_remesh(Z, np.asarray(Fs, np.int64), 0.2)
+    start = Mesh(rm.vertices, rm.simplices, "reprojected")
+    if geometry.enclosed_volume(start) < 0:
+        start = Mesh(rm.vertices, rm.simplices[:, ::-1].copy(), "reprojected")
+    print(f"  state of residual {res:.4f} (W {geometry.willmore_energy(Mesh(V, F)):.4f}), pole {np.round(pole, 3)}: "
+          f"{start.n_vertices} v, W {geometry.willmore_energy(start):.4f}", flush=True)
+    flow = WillmoreFlow(start, start.h, 0.01 * start.h**2, adaptive=True, max_retries=12, tangential_weight=100.0,
+                        conformal_gauge=True)
+    flow.run(steps=5)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out, vertices=flow.X, simplices=flow.mesh.simplices)
+    final = flow.mesh.with_vertices(flow.X)
+    print(f"  stored {out}: {final.n_vertices} v, h = {final.h:.4f}, W = {geometry.willmore_energy(final):.4f}, "
+          f"residual {minimal_s3_fit(flow.X, flow.mesh.simplices)[2]:.4f}", flush=True)
 
 
 def genus2_evolver(mesh: Mesh) -> dict[str, Any]:
@@ -305,16 +363,21 @@ def cases(scale: float) -> dict[str, Any]:
 
     g2 = shapes.genus2()
 
-    def genus2(mesh: Mesh, label: str, **kw: Any) -> Any:
-        """Genus 2, adaptive steps from tau = h, ``n(200)`` steps, then Surface Evolver from the final mesh
-        (normal motion, :func:`willmore_nlp.evolver.evolver_equilibrium`) as a second solver."""
+    def genus2(mesh: Mesh | Callable[[], Mesh], label: str, steps: int = 200, **kw: Any) -> Any:
+        """Genus 2, adaptive steps from tau = h, ``n(steps)`` steps, then Surface Evolver from the final mesh
+        (normal motion, :func:`willmore_nlp.evolver.evolver_equilibrium`) as a second solver, and the final
+        surface's distance from a stereographic image of a minimal surface in S^3 (:func:`minimal_s3_fit`).
+        ``mesh``: a mesh or a function making it (built only when the case runs)."""
         def go() -> dict[str, Any]:
+            m = mesh() if callable(mesh) else mesh
             final: list[Mesh] = []
-            out = run_case(f"{label} ({mesh.n_vertices} v), adaptive"
+            out = run_case(f"{label} ({m.n_vertices} v), adaptive"
                            + "".join(f", {k} = {v}" for k, v in kw.items() if k != "max_retries"),
-                           mesh, mesh.h, 0.01 * mesh.h**2, steps=n(200), adaptive=True,
-                           reference=lambda m, f: final.append(m) or float("nan"), **kw)
-            return out | genus2_evolver(final[0])
+                           m, m.h, 0.01 * m.h**2, steps=n(steps), adaptive=True, keep_final=True,
+                           reference=lambda x, f: final.append(x) or float("nan"), **kw)
+            _, rho, res = minimal_s3_fit(final[0].vertices, final[0].simplices)
+            return out | genus2_evolver(final[0]) | {"s3_residual": res, "s3_rho": rho,
+                                                      "s3_residual_initial": minimal_s3_fit(m.vertices, m.simplices)[2]}
         return go
 
     def beta(key: str, b: float, **kw: Any) -> Any:
@@ -353,9 +416,16 @@ def cases(scale: float) -> dict[str, Any]:
                                    steps=n(200), adaptive=True, max_retries=12),
         "genus2_relax": lambda: run_case(f"genus-2 ({g2.n_vertices} v), relax", g2, g2.h, 0.01 * g2.h**2,
                                          steps=n(200), relax=True, max_retries=12),
-        "genus2_dt": genus2(shapes.double_torus(h=0.22), "double torus", max_retries=12, tangential_weight=100.0),
-        "genus2_dt_fine": genus2(shapes.double_torus(h=0.15), "double torus", max_retries=12,
+        "genus2_dt": genus2(lambda: shapes.double_torus(h=0.22), "double torus", max_retries=12,
+                            tangential_weight=100.0),
+        "genus2_dt_fine": genus2(lambda: shapes.double_torus(h=0.15), "double torus", max_retries=12,
                                  tangential_weight=100.0),
+        "genus2_lawson": genus2(shapes.lawson_genus2, "Lawson start", max_retries=12, tangential_weight=100.0,
+                                conformal_gauge=True),
+        "genus2_lawson_nogauge": genus2(shapes.lawson_genus2, "Lawson start", 40, max_retries=12,
+                                        tangential_weight=100.0),
+        **{f"genus2_lawson_h{h:g}": genus2(lambda h=h: shapes.lawson_genus2(h), "Lawson start", 60, max_retries=12,
+                                           tangential_weight=100.0, conformal_gauge=True) for h in (0.4, 0.28)},
         "genus2_off": lambda: run_case(f"genus-2 ({g2.n_vertices} v), adaptive, mesh control off", g2, g2.h,
                                        0.01 * g2.h**2, steps=n(200), adaptive=True, max_retries=12,
                                        mesh_control="off"),
@@ -546,6 +616,51 @@ def beta_table(cached: dict[str, dict[str, Any]]) -> list[str]:
             "edge):", "", *shapes_]
 
 
+def cached_genus2(todo: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The cached genus-2 cases that started from :func:`willmore_nlp.mesh.shapes.lawson_genus2`."""
+    return {k: json.loads((CACHE / f"{k}.json").read_text()) for k in todo
+            if k.startswith("genus2_lawson") and (CACHE / f"{k}.json").is_file()}
+
+
+def lawson_table(cached: dict[str, dict[str, Any]]) -> list[str]:
+    """Flows from the Lawson start: distance from a stereographic image of a minimal surface in S^3
+    (:func:`minimal_s3_fit`) at the start and the end, and the final energies against mesh size h (the gap to
+    Lawson's 43.8 and its observed order over the refinements)."""
+    if not cached:
+        return []
+
+    def size(r: dict[str, Any]) -> float:
+        return float(np.sqrt(geometry.measure(Mesh(np.array(r["final_vertices"]), np.array(r["final_simplices"])))
+                             / (4 * np.pi)))
+
+    out = ["", "Flows from `shapes.lawson_genus2` (a Moebius image of Lawson's surface in which the mesh resolves "
+           "the curvature; see docs/guide/mesh_quality.md, Genus 2). residual: `analysis.minimal_s3_fit`, the L^2 "
+           "distance of H from the mean curvature of a stereographic image of a minimal surface in S^3 (0 for "
+           "Lawson's surface and its Moebius images; 0.0055 for the Clifford torus on the 48 x 24 grid); rho / L: the "
+           "fitted radius of the sphere over the surface's size L = sqrt(area / 4 pi) (it moves when the surface "
+           "slides along its Moebius orbit; the stored start: 0.45).", "",
+           "| case | h | steps, t | retries, failed | min angle after repair (end) | W start -> end | W / 43.8 - 1 "
+           "| rest (last step) | residual start -> end | rho / L end |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in cached.values():
+        out.append(f"| {r['name']} | {r['h']:.3f} | {r['steps']}, {r['t']:.2f} | {r['retries']}, "
+                   f"{r['failed'] or 'no'} | {r['min_angle_after']:.1f} ({r['min_angle_final']:.1f}) | "
+                   f"{r['W0']:.3f} -> {r['W']:.4f} | {r['W'] / LAWSON_21 - 1:+.2%} | {r['stationarity']:.1e} | "
+                   f"{r['s3_residual_initial']:.3f} -> {r['s3_residual']:.3f} | {r['s3_rho'] / size(r):.3f} |")
+    ref = [r for r in cached.values() if "conformal_gauge" in r["options"] and not r["failed"]]
+    if len(ref) >= 3:
+        ref.sort(key=lambda r: -r["h"])
+        h = np.array([r["h"] for r in ref])
+        w = np.array([r["W"] for r in ref])
+        p = np.log((w[0] - w[1]) / (w[1] - w[2])) / np.log(h[0] / h[1]) if (w[0] - w[1]) * (w[1] - w[2]) > 0 \
+            else float("nan")
+        out += ["", f"Refinement with `conformal_gauge` (h = {', '.join(f'{x:.3f}' for x in h)}): W = "
+                f"{', '.join(f'{x:.4f}' for x in w)}; gap to 43.8: "
+                f"{', '.join(f'{x / LAWSON_21 - 1:+.2%}' for x in w)}, "
+                f"observed order of the gap {fit_order(h, np.abs(w - LAWSON_21)):.2f}; order of the successive "
+                f"differences {p:.2f}."]
+    return out
+
+
 def table(results: list[dict[str, Any]]) -> list[str]:
     lines = ["| case | run length (x default) | N0 -> N | steps | t | min angle (before / after repair) | "
              "min angle of the stepped states | failed | "
@@ -574,12 +689,17 @@ def main() -> None:
     ap.add_argument("--symmetry", action="store_true", help="only print why the torus flows leave the symmetry")
     ap.add_argument("--first-step", action="store_true",
                     help="only print the first step of the box and noisy capsule against tangential_weight")
+    ap.add_argument("--lawson-start", action="store_true",
+                    help="only make the stored surface of shapes.lawson_genus2 (about 5 min)")
     ap.add_argument("--save-states", type=Path, help="write the torus states of the series to this directory")
     args = ap.parse_args()
     global STATES
     STATES = args.save_states
     if args.diagnose:
         diagnose()
+        return
+    if args.lawson_start:
+        lawson_start()
         return
     if args.symmetry:
         symmetry()
@@ -615,6 +735,7 @@ def main() -> None:
         lines += [f"| {r['name']} | {r['W']:.4f} | {r['W'] / LAWSON_21 - 1:+.2%} | {r['evolver_initial']:.4f} | "
                   f"{r['evolver_final']:.4f} ({r['evolver_commands']}) | {r['W_of_evolver_mesh']:.4f} | "
                   f"{r['evolver_min_angle']:.3g} |" for r in g2]
+        lines += lawson_table(cached_genus2(todo))
     cached = {k: json.loads((CACHE / f"{k}.json").read_text()) for k in todo if (CACHE / f"{k}.json").is_file()}
     if any(f"{k}_beta{b:g}" in cached for k in BETA_CASES for b in BETAS):
         lines += ["", "## tangential_weight 1, 10, 100 (`--cases KEY_beta1 KEY_beta10 KEY_beta100`)", "",

@@ -290,6 +290,10 @@ class WillmoreFlow:
         if s.redistribute and not (mesh.d == 1 and mesh.is_closed and boundary is None):
             raise UserInputError(f"{mesh.source}: redistribute=True is implemented for closed curves without boundary "
                                  "conditions")
+        if s.conformal_gauge and not (mesh.d == 2 and mesh.m == 3 and mesh.is_closed and boundary is None
+                                      and s.volume is None and s.area is None):
+            raise UserInputError(f"{mesh.source}: conformal_gauge=True is for closed surfaces in R^3 without boundary "
+                                 "conditions or volume/area constraints")
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
         self.initial_mesh = mesh
         self.min_tau = 1e-2 * h**4 if s.min_tau is None else s.min_tau
@@ -526,6 +530,11 @@ class WillmoreFlow:
                     X = self._restore(X)
                 except (RuntimeError, np.linalg.LinAlgError) as exc:
                     reason = str(exc)
+            if reason is None and self.settings.conformal_gauge:
+                b, centre, scale = geometry.conformal_motion(self.X, X, self.mesh.simplices)
+                Xg = geometry.special_conformal_map(X, -b, centre, scale)
+                moved["conformal_gauge_shift"] = float(np.abs(Xg - X).max())
+                X = Xg
             if reason is None:
                 try:
                     Y = self._solve_y(X, tau, Y)

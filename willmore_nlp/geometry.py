@@ -41,6 +41,76 @@ def vertex_normals(mesh: Mesh) -> np.ndarray:
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
+def special_conformal_map(X: np.ndarray, b: np.ndarray, centre: np.ndarray, scale: float) -> np.ndarray:
+    """(N, 3) points X moved by the special conformal transformation with parameter ``b`` ((3,), in units of
+    ``scale``) about ``centre``: y -> (y - b |y|^2) / (1 - 2 <b, y> + |b|^2 |y|^2) with y = (X - centre) / scale
+    (an inversion, a translation by -b and the inversion again). These maps form an abelian group (b adds), and
+    d/de at b = e v is the conformal field V_v(y) = 2 <v, y> y - |y|^2 v."""
+    y = (np.asarray(X, float) - centre) / scale
+    y2 = np.einsum("ij,ij->i", y, y)
+    return centre + scale * (y - np.outer(y2, b)) / (1 - 2 * y @ b + (b @ b) * y2)[:, None]
+
+
+def inverse_stereographic(X: np.ndarray, centre: np.ndarray, rho: float) -> np.ndarray:
+    """(N, 4) points of the unit 3-sphere: the inverse stereographic projection of radius ``rho`` about ``centre``
+    of the points X ((N, 3)), y = (2 rho (x - c), |x - c|^2 - rho^2) / (|x - c|^2 + rho^2)."""
+    x = np.asarray(X, float) - centre
+    r2 = np.einsum("ij,ij->i", x, x)
+    return np.column_stack([2 * rho * x, r2 - rho**2]) / (r2 + rho**2)[:, None]
+
+
+def stereographic_reprojection(X: np.ndarray, centre: np.ndarray, rho: float, pole: np.ndarray) -> np.ndarray:
+    """(N, 3) image of the points X ((N, 3)) under a Moebius transformation given through the unit 3-sphere.
+
+    X is lifted to S^3 by the inverse stereographic projection of radius ``rho`` about ``centre``
+    (:func:`inverse_stereographic`) and projected back to R^3 from the unit
+    4-vector ``pole`` (onto the orthogonal 3-space, in an orthonormal basis of it). Willmore energies of closed
+    surfaces are unchanged (when the pole is not on the surface); a surface that is a stereographic image of a
+    minimal surface in S^3 (:func:`willmore_nlp.analysis.minimal_s3_fit` gives ``centre`` and ``rho``) is
+    mapped to another image of the same minimal surface.
+    """
+    Y = inverse_stereographic(X, centre, rho)
+    p = np.asarray(pole, float) / np.linalg.norm(pole)
+    Q = np.linalg.qr(np.column_stack([p, np.eye(4)]))[0]  # first column +-p, the others span its complement
+    return (Y @ Q[:, 1:4]) / (1 - Y @ p)[:, None]
+
+
+def conformal_motion(X0: np.ndarray, X1: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Special conformal part of the motion X0 -> X1 of a closed surface (same vertices, (N, 3); triangles S
+    of X0, (K, 3)).
+
+    The normal displacement <X1 - X0, n> is fitted in the lumped L^2 inner product of X0 by the normal
+    components of the ten conformal fields of R^3: translations, rotations, the dilation and the three
+    special conformal fields V_j(y) = 2 y_j y - |y|^2 e_j with y = (x - centre) / scale (centre the
+    vertex mean, scale = sqrt(area / 4 pi)). These are the zero modes of the Willmore energy of a closed
+    surface (it is Moebius invariant), so the L^2 gradient flow of the smooth energy has no component along
+    them; a discrete flow can drift along the Moebius orbit of its limit (reports/mesh_quality_study.md,
+    genus 2). Returns ``(b, centre, scale)``: the (3,) coefficients of the special conformal fields (the
+    least-norm fit, ignoring combinations of the ten fields whose normal components are below 1e-2 of the
+    largest), so that :func:`special_conformal_map` with ``-b`` undoes that part of the motion to first order.
+    """
+    X0 = np.asarray(X0, float)
+    mesh = Mesh(X0, S)
+    n = vertex_normals(mesh)
+    m = lumped_mass(X0, S)
+    centre = X0.mean(axis=0)
+    scale = float(np.sqrt(measure(mesh) / (4 * np.pi)))
+    y = (X0 - centre) / scale
+    yn = np.einsum("ij,ij->i", y, n)
+    y2 = np.einsum("ij,ij->i", y, y)
+    rot = np.cross(y, n)  # <e_j x y, n> = (y x n)_j: the rotations
+    B = np.column_stack([n, rot, yn] + [2 * y[:, j] * yn - y2 * n[:, j] for j in range(3)])
+    d = np.einsum("ij,ij->i", np.asarray(X1, float) - X0, n) / scale
+    w = np.sqrt(m)
+    # rcond: directions whose normal component nearly vanishes are left alone (moving along them would only slide
+    # the vertices); a surface with a continuous symmetry has such directions (a torus of revolution: the rotation
+    # about its axis and one more, singular value 1e-4 of the largest on a 32 x 16 grid), and there the special
+    # conformal coefficients also pick up part of a similarity (3e-4 from one of size 1e-3): meant for surfaces
+    # without one, e.g. of genus 2 (the double torus: 1e-6)
+    c = np.linalg.lstsq(B * w[:, None], d * w, rcond=1e-2)[0]
+    return c[7:], centre, scale
+
+
 def _sides(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     """(3, K) side lengths of triangles, side j opposite corner j."""
     return np.stack([np.linalg.norm(V[S[:, (j + 1) % 3]] - V[S[:, (j + 2) % 3]], axis=1) for j in range(3)])

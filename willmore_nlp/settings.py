@@ -393,6 +393,14 @@ class FlowSettings(Settings):
         Relative change of the Willmore energy per unit time, in the surface's own time scale L^4 (L^2 = area /
         4 pi), below which a step counts as at rest for ``rest_tau_tilde`` (default 3e-5; per step: below
         ``rest_tol tau / L^4``, so that a slow flow at a small tau, e.g. a torus at tau = 1e-3, is not at rest).
+    conformal_gauge : bool
+        Closed surfaces in R^3 without constraints (default False): after every step, undo the step's motion
+        along the three special conformal fields (:func:`willmore_nlp.geometry.conformal_motion`, applied by
+        :func:`willmore_nlp.geometry.special_conformal_map`; the shift is ``stats["conformal_gauge_shift"]``).
+        The Willmore energy of a closed surface is Moebius invariant, so the smooth flow has no component
+        along these fields and the flow as h -> 0 is unchanged; the discrete flow of a surface of genus >= 1
+        whose limit has a nontrivial Moebius orbit (Lawson's genus-2 surface) otherwise drifts along that
+        orbit toward images whose curvature the mesh does not resolve (docs/guide/mesh_quality.md, Genus 2).
     """
 
     solver: str = option("ipopt", Kind("a solver name", lambda v: isinstance(v, str), parse=str))
@@ -429,5 +437,6 @@ class FlowSettings(Settings):
     remesh_repair: int = option(2, integer(0))
     rest_tau_tilde: float = option(0.01, real(0, 1, lo_open=True, hi_open=False, note="1: off"))
     rest_tol: float = option(3e-5, real(0))
+    conformal_gauge: bool = option(False, BOOL)
 
     renamed: ClassVar[dict[str, str]] = {"remesh_relax": "remesh_repair"}  # its history action: "relax" then

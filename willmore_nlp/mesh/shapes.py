@@ -8,6 +8,7 @@ normals for the sphere and torus).
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import trimesh
@@ -262,6 +263,37 @@ def double_torus(R: float = 1.0, r: float = 0.5, d: float = 1.25, h: float = 0.2
     ax = [np.linspace(-e, e, grid), np.linspace(-(R + f), R + f, grid), np.linspace(-f, f, grid)]
     return _genus2_level_set(lambda P: double_torus_function(P, R, r, d, blend), ax, h,
                              f"double_torus(R={R}, r={r}, d={d}, h={h})")
+
+
+LAWSON_GENUS2_DATA = Path(__file__).parent / "data" / "lawson_genus2.npz"
+"""Stored surface of :func:`lawson_genus2` (made by ``reports/mesh_quality_study.py --lawson-start``)."""
+
+
+def lawson_genus2(h: float | None = None) -> Mesh:
+    """Closed genus-2 surface near a Moebius image of Lawson's minimal surface xi_{2,1} (the conjectured
+    minimiser of the Willmore energy among genus-2 surfaces), in an image whose curvature the mesh resolves.
+
+    The stored surface (1,288 v, mean edge 0.20, |k1 + k2| h <= 0.53; :data:`LAWSON_GENUS2_DATA`) is returned
+    as it is (``h`` None) or remeshed isotropically to edge length ``h`` with projection onto it
+    (:func:`willmore_nlp.remesh.isotropic_remesh`). How it was made (``reports/mesh_quality_study.py
+    --lawson-start``, docs/guide/mesh_quality.md "Genus 2"): the flow of :func:`double_torus` approaches
+    a stereographic image of a minimal surface in S^3 (:func:`willmore_nlp.analysis.minimal_s3_fit`:
+    residual 0.68 -> 0.11) whose bar across the hole is thinner than the mesh's edges; that state was lifted
+    to S^3 with the fitted centre and radius and projected back from the point of S^3 farthest from it
+    (:func:`willmore_nlp.geometry.stereographic_reprojection`; the Willmore energy is Moebius invariant),
+    remeshed to h = 0.2 and flowed 5 steps with ``conformal_gauge``: W = 43.48 (Lawson: 43.8 in this
+    library's normalisation), minimal-S^3 residual 0.039.
+    """
+    from willmore_nlp.remesh import isotropic_remesh
+
+    with np.load(LAWSON_GENUS2_DATA) as z:
+        V, F = np.asarray(z["vertices"], float), np.asarray(z["simplices"], np.int64)
+    if h is None:
+        return Mesh(V, F, "lawson_genus2()")
+    if not h > 0:
+        raise MeshError(f"lawson_genus2: h must be positive, got {h!r}")
+    r = isotropic_remesh(V, F, float(h))
+    return Mesh(r.vertices, r.simplices, f"lawson_genus2(h={h})")
 
 
 def spheroid_area_volume(a: float, c: float) -> tuple[float, float]:
