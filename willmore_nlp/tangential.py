@@ -221,7 +221,8 @@ def shortest_edges(V: np.ndarray, S: np.ndarray) -> np.ndarray:
 
 
 def _capped_step(V: np.ndarray, S: np.ndarray, P: np.ndarray, fraction: float) -> np.ndarray:
-    """(N, m) tangential mesh-improving step of V (projected by P), capped at MAX_STEP shortest edges, times fraction."""
+    """(N, m) tangential mesh-improving step of V (projected by P), capped at MAX_STEP shortest edges, times
+    fraction."""
     U = curve_displacement(V, S) if S.shape[1] == 2 else surface_displacement(V, S)
     T = np.einsum("nab,nb->na", P, U)
     cap = MAX_STEP * shortest_edges(V, S) / np.maximum(np.linalg.norm(T, axis=1), 1e-300)
