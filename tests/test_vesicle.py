@@ -237,7 +237,8 @@ def test_cup_start_has_the_requested_reduced_volume(v: float, bend: float) -> No
     pb, _ = build_cup(v, bend)
     np.testing.assert_array_equal(pb.mesh.vertices, shapes.cup_of_reduced_volume(v, 2, bend).vertices)
     assert pb.flow_options == {"volume": "initial", "area": "initial", "c0": 0.0, "adaptive": True,
-                               "tangential_control": "meanratio", "tangential_weight": CUP_WEIGHT}
+                               "tangential_control": "meanratio", "tangential_control_weight": 1.0,
+                               "tangential_weight": CUP_WEIGHT}
     assert pb.t_end is not None
 
 
