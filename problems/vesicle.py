@@ -20,6 +20,12 @@ against the paper's 1 the light repair's lift falls from 0.045 % to 0.007 % (obl
 (v = 0.55), IPOPT iterations per step 5.4 / 9.4 -> 4.1, the gap to the axisymmetric reference -1.98 / -2.27 %
 -> -1.78 / -2.11 % (prolate v = 0.85: equal, -1.12 %). From the cup the default stays 1: weight 10 fails the
 v = 0.50 cup's first step (4 retries) and 100 is still falling by 2e-4 per step after 160 steps."""
+CUP_CONTROL_WEIGHT = 1.0
+"""Default ``tangential_control_weight`` from the cup (the in-step mean-ratio control; the option's own default is
+0.3). Measured at 642 vertices, v = 0.55, to t = 0.3 (docs/guide/mesh_quality.md, "Rest means rest"): with 0.3
+the accepted states never settle (w / 8 pi 1.9971, the last 10 states spread over 2.8e-2; the light repair lifts W
+by 1-4 % per step); with 1 (target in quarter steps) w / 8 pi = 1.94223, the last 10 states within 1.1e-4, 2
+retries; with 3: 1.94647 within 7.5e-4, 4 retries."""
 CUP_T_END = 0.3
 """End time of the flow from the cup (the relaxation's stopping test ends it early: with the mean-ratio
 tangential control the Willmore energy rises by ~1e-4 per step while the neck still forms)."""
@@ -79,7 +85,7 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
                                   "tangential_weight": float(tangential_weight)}
     if start == "cup":
         tau_ = CUP_TAU if tau is None else float(tau)
-        options.update(adaptive=True, tangential_control="meanratio")
+        options.update(adaptive=True, tangential_control="meanratio", tangential_control_weight=CUP_CONTROL_WEIGHT)
         t_end: float | None = CUP_T_END
     else:
         tau_ = h * h / 25 if tau is None else float(tau)

@@ -12,7 +12,7 @@ from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
-from willmore_nlp.tangential import TangentialControl, mean_ratio, nodal_parameters
+from willmore_nlp.tangential import SUBSTEPS, TangentialControl, mean_ratio, nodal_parameters
 
 ON = TangentialControl("meanratio", 7.0)
 
@@ -78,7 +78,7 @@ def test_control_term_matches_numpy_and_derivatives_fd(case: str, check_step_der
     z = P.pack_z(X, Y)
     tau, tt, lam = 0.3, 0.1 * mesh.h**2, 0.5
     p0, p1 = s0.params(V, tau, tt, lam), s1.params(V, tau, tt, lam)
-    Q = nodal_parameters(V, mesh.simplices, P.x_free)
+    Q = nodal_parameters(V, mesh.simplices, P.x_free, substeps=SUBSTEPS)  # the target as the step takes it
     cells = np.arange(mesh.n_simplices)
     if P.element_const:  # clamped: the term lives on the patch (the ring's nodes are fixed anyway)
         key = {tuple(s) for s in P.simplices[P.element_const["patch"] > 0]}

@@ -237,7 +237,8 @@ def test_cup_start_has_the_requested_reduced_volume(v: float, bend: float) -> No
     pb, _ = build_cup(v, bend)
     np.testing.assert_array_equal(pb.mesh.vertices, shapes.cup_of_reduced_volume(v, 2, bend).vertices)
     assert pb.flow_options == {"volume": "initial", "area": "initial", "c0": 0.0, "adaptive": True,
-                               "tangential_control": "meanratio", "tangential_weight": CUP_WEIGHT}
+                               "tangential_control": "meanratio", "tangential_control_weight": 1.0,
+                               "tangential_weight": CUP_WEIGHT}
     assert pb.t_end is not None
 
 
@@ -258,8 +259,9 @@ def test_cup_start_bad_input() -> None:
 
 def test_vesicle_flow_from_the_cup_deepens_toward_the_stomatocyte() -> None:
     """From the 642-vertex cup of v = 0.55 the constrained flow moves toward the stomatocyte, the lowest shape
-    there: in 5 steps (to t = 0.007; the first needs a retry, the next two wait at its tau) the invagination
-    deepens in every step, from 0.36 of the height toward the depth of the
+    there: in 8 steps (to t = 0.0105; the first is taken at tau / 4, the next two wait at its tau; with the cup's
+    control weight 1, measured depths 0.54 after 5 steps and 0.71 after 8, where weight 0.3 reached t = 0.007
+    in 5 steps) the invagination deepens in every step, from 0.36 of the height toward the depth of the
     axisymmetric stomatocyte (its contour's (z_max - z(inner pole)) / height, computed here independently of
     any mesh, 0.80), getting closer to it; V and A stay exact and the bending energy falls."""
     from willmore_nlp.geometry import willmore_energy
@@ -273,7 +275,7 @@ def test_vesicle_flow_from_the_cup_deepens_toward_the_stomatocyte() -> None:
     depth = [invagination_depth(pb.mesh)]
     flow = pb.make_flow()
     w = [willmore_energy(pb.mesh)]
-    for _ in range(5):
+    for _ in range(8):
         r = flow.step()
         assert abs(r.volume / V0 - 1) < 1e-10 and abs(r.measure / A0 - 1) < 1e-10
         depth.append(invagination_depth(flow.mesh.with_vertices(flow.X)))

@@ -32,6 +32,7 @@ import numpy as np
 
 from willmore_nlp.geometry import vertex_normals
 from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.tangential import SUBSTEPS
 
 
 class RemeshError(MeshError):
@@ -388,14 +389,15 @@ def quadric_offsets(V: np.ndarray, F: np.ndarray, D: np.ndarray, idx: np.ndarray
     return dx[:, None] * t1 + dy[:, None] * t2 + off[:, None] * ni
 
 
-RELAX_SUBSTEPS = 4
+RELAX_SUBSTEPS = SUBSTEPS
 """Each pass of :func:`tangential_relax` is taken as this many sub-steps, each 1/RELAX_SUBSTEPS of the mean-ratio
 step (:func:`willmore_nlp.tangential.surface_displacement`) and of the cap. The step moves every vertex at once by
 a diagonally scaled descent step (a Jacobi iteration), which in one piece is unstable on anisotropic triangles: on
 the 32x16 torus six steps into its flow (min angle 20 deg), a short-wave azimuthal mode of the inner equator
 (wavenumbers 12-14 of 32) grew by a factor 25 per two passes from round-off (1e-12) until the move cap stopped it
 at 2e-3 r, which broke the torus's rotational symmetry within ten steps of its flow. At a quarter step the
-symmetric state stays symmetric to round-off (tested); four quarter steps move the mesh as far as one step."""
+symmetric state stays symmetric to round-off (tested); four quarter steps move the mesh as far as one step. The
+in-step control's target is taken in the same parts (:data:`willmore_nlp.tangential.SUBSTEPS`)."""
 
 
 def tangential_relax(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None, *,

@@ -10,7 +10,7 @@ import numpy as np
 from willmore_nlp.fem.element import measure
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.terms.base import Element, Term
-from willmore_nlp.tangential import TangentialControl, n_nodal, nodal_parameters
+from willmore_nlp.tangential import SUBSTEPS, TangentialControl, n_nodal, nodal_parameters
 
 
 class TangentialControlTerm(Term):
@@ -52,5 +52,5 @@ class TangentialControlTerm(Term):
         return e.par["control_weight"] * (measure(e.Xk) / nv * total)
 
     def values(self, Xk: np.ndarray, tau: float, simplices: np.ndarray, x_free: np.ndarray) -> dict[str, Any]:
-        Q = nodal_parameters(np.asarray(Xk, float), simplices, x_free, self.control.fraction(tau))
+        Q = nodal_parameters(np.asarray(Xk, float), simplices, x_free, self.control.fraction(tau), SUBSTEPS)
         return {"control_weight": self.control.weight, "control": Q}
