@@ -24,7 +24,7 @@ CUP_CONTROL_WEIGHT = 1.0
 """Default ``tangential_control_weight`` from the cup (the in-step mean-ratio control; the option's own default is
 0.3). Measured at 642 vertices, v = 0.55, to t = 0.3 (docs/guide/mesh_quality.md, "Rest means rest"): with 0.3
 the accepted states never settle (w / 8 pi 1.9971, the last 10 states spread over 2.8e-2; the light repair lifts W
-by 1-4 % per step); with 1 (target in quarter steps) w / 8 pi = 1.94223, the last 10 states within 1.1e-4, 2
+by 1-4 % per step); with 1 (target in quarter steps) w / 8 pi = 1.93605, the last 10 states within 4.6e-4, 2
 retries; with 3: 1.94647 within 7.5e-4, 4 retries."""
 CUP_T_END = 0.3
 """End time of the flow from the cup (the relaxation's stopping test ends it early: with the mean-ratio
