@@ -151,6 +151,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._gtol = 0.0  # the solve's stopping tolerance on |grad W^|_inf
         self._delta = self._delta_max = 0.0  # shift of the Newton systems
         self.should_stop = lambda: False
+        self._mesh: Mesh | None = None
 
     # -- bookkeeping ------------------------------------------------------------------
     @contextmanager
@@ -316,7 +317,9 @@ class NewtonKrylovSolver(ReducedSolver):
         self._counts, self._times = {}, {}
         P = self.P
         Xk = P.params.xk(p)
-        h = Mesh(Xk, P.simplices).h  # mean edge of X^k, the scale of the preconditioner's rebuild rule
+        if self._mesh is None:  # the topology (and its edges) is fixed for this solver
+            self._mesh = Mesh(Xk, P.simplices)
+        h = float(np.mean(self._mesh.edge_lengths(Xk)))  # mean edge of X^k: the preconditioner's rebuild scale
         with self._timed("eval"):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
