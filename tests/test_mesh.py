@@ -103,3 +103,32 @@ def test_willmore_energy_reference_values() -> None:
     P = np.stack([np.cos(t), np.sin(t)], 1) * (1 + 1e-9 * np.arange(n))[:, None]  # distinct points
     S = np.stack([np.arange(n), (np.arange(n) + 1) % n], 1)
     assert willmore_energy(Mesh(P, S)) == pytest.approx(k * np.pi, rel=2e-3)
+
+
+def test_with_vertices_checks_positions_and_shares_the_topology() -> None:
+    """``with_vertices`` gives what the constructor gives (vertices, edges, h, boundary) without checking the
+    topology again (its cached edges and boundary are shared), and refuses the same bad positions with the
+    constructor's messages."""
+    sphere = shapes.icosphere(2)
+    cap = sphere.simplices[sphere.vertices[sphere.simplices].mean(axis=1)[:, 2] > -0.3]  # a sphere with a hole
+    used, S = np.unique(cap, return_inverse=True)
+    disk = Mesh(sphere.vertices[used], S.reshape(cap.shape))
+    _ = disk.edges, disk.boundary_vertices
+    V = disk.vertices * np.array([1.0, 0.5, 2.0]) + 0.1
+    moved, fresh = disk.with_vertices(V), Mesh(V, disk.simplices)
+    np.testing.assert_array_equal(moved.vertices, fresh.vertices)
+    assert not moved.vertices.flags.writeable and moved.edges is disk.edges
+    np.testing.assert_array_equal(moved.edges, fresh.edges)
+    np.testing.assert_array_equal(moved.boundary_vertices, fresh.boundary_vertices)
+    assert moved.h == fresh.h and moved.source == disk.source and not moved.is_closed
+    W = V.copy()
+    W[3] = np.inf
+    with pytest.raises(MeshError, match="vertex 3 has a non-finite coordinate"):
+        disk.with_vertices(W)
+    W = V.copy()
+    W[disk.simplices[5]] = W[disk.simplices[5][0]] + [[0, 0, 0], [1e-3, 0, 0], [2e-3, 0, 0]]
+    with pytest.raises(MeshError, match="degenerate"):
+        disk.with_vertices(W)
+    with pytest.raises(MeshError, match="shape"):
+        disk.with_vertices(V[:-1])
+

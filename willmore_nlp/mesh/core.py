@@ -108,8 +108,23 @@ class Mesh:
         return float(np.mean(self.edge_lengths()))
 
     def with_vertices(self, vertices: np.ndarray) -> Mesh:
-        """The same topology at new vertex positions (validated)."""
-        return Mesh(np.asarray(vertices, dtype=float), self.simplices, self.source)
+        """The same topology at new vertex positions.
+
+        The positions are validated as by the constructor (finite, no degenerate simplex, no duplicate
+        vertex); the topology, already checked (indices, manifoldness, orientation), is shared with its
+        cached edges and boundary: no second check (about 1 s at 40,962 vertices, paid a few times a step).
+        """
+        from willmore_nlp.mesh.validate import validate_vertices
+
+        V = validate_vertices(vertices, self.simplices, self.source)
+        V.setflags(write=False)
+        new = object.__new__(Mesh)  # the dataclass __init__ would check the topology again
+        for name, value in (("vertices", V), ("simplices", self.simplices), ("source", self.source)):
+            object.__setattr__(new, name, value)
+        for name in ("boundary_facets", "boundary_vertices", "edges"):
+            if name in self.__dict__:
+                new.__dict__[name] = self.__dict__[name]
+        return new
 
     def __repr__(self) -> str:
         kind = "curve" if self.d == 1 else "surface"

@@ -30,21 +30,7 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
         duplicate simplices, and duplicate vertices (two vertices at the same position,
         up to :data:`DUPLICATE_RTOL` times the bounding-box size).
     """
-    try:
-        V = np.array(vertices, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise MeshError(f"{source}: vertices are not a numeric array ({exc})") from exc
-    if V.ndim != 2 or V.shape[1] not in (2, 3):
-        raise MeshError(f"{source}: vertices must have shape (N, 2) or (N, 3), got {V.shape}")
-    if V.shape[0] == 0:
-        raise MeshError(f"{source}: the mesh has no vertices")
-    bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
-    if bad.size:
-        raise MeshError(f"{source}: vertex {bad[0]} has a non-finite coordinate {V[bad[0]].tolist()}")
-    big = np.flatnonzero((np.abs(V) > MAX_COORDINATE).any(axis=1))
-    if big.size:
-        raise MeshError(f"{source}: vertex {big[0]} has a coordinate beyond {MAX_COORDINATE:g} "
-                        f"({V[big[0]].tolist()}): lengths and areas would overflow; rescale the mesh")
+    V = _vertex_array(vertices, source)
     S_raw = np.asarray(simplices)
     if S_raw.ndim != 2 or S_raw.shape[1] not in (2, 3):
         raise MeshError(
@@ -84,6 +70,55 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
         i = int(first[np.argmax(counts > 1)])
         dup = np.flatnonzero((Ss == Ss[i]).all(axis=1))
         raise MeshError(f"{source}: simplices {dup[0]} and {dup[1]} are duplicates: {S[i].tolist()}")
+    _check_positions(V, S, source)
+    return V, S
+
+
+def validate_vertices(vertices: object, simplices: np.ndarray, source: str) -> np.ndarray:
+    """The vertex checks of :func:`validate_arrays` for new positions of an already validated topology.
+
+    Parameters
+    ----------
+    vertices : array_like, (N, m)
+    simplices : (K, d + 1) int64 array, validated (by :func:`validate_arrays`) for N vertices in R^m
+    source : str
+
+    Returns
+    -------
+    V : (N, m) float64 array (a copy)
+    """
+    V = _vertex_array(vertices, source)
+    N = int(simplices.max()) + 1
+    if V.shape[0] != N or (simplices.shape[1] == 3 and V.shape[1] != 3):
+        raise MeshError(f"{source}: new vertices must have shape ({N}, {'3' if simplices.shape[1] == 3 else 'm'}) "
+                        f"for the same simplices, got {V.shape}")
+    _check_positions(V, simplices, source)
+    return V
+
+
+def _vertex_array(vertices: object, source: str) -> np.ndarray:
+    """(N, m) float copy of ``vertices``: shape, finiteness and size checked."""
+    try:
+        V = np.array(vertices, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise MeshError(f"{source}: vertices are not a numeric array ({exc})") from exc
+    if V.ndim != 2 or V.shape[1] not in (2, 3):
+        raise MeshError(f"{source}: vertices must have shape (N, 2) or (N, 3), got {V.shape}")
+    if V.shape[0] == 0:
+        raise MeshError(f"{source}: the mesh has no vertices")
+    bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
+    if bad.size:
+        raise MeshError(f"{source}: vertex {bad[0]} has a non-finite coordinate {V[bad[0]].tolist()}")
+    big = np.flatnonzero((np.abs(V) > MAX_COORDINATE).any(axis=1))
+    if big.size:
+        raise MeshError(f"{source}: vertex {big[0]} has a coordinate beyond {MAX_COORDINATE:g} "
+                        f"({V[big[0]].tolist()}): lengths and areas would overflow; rescale the mesh")
+    return V
+
+
+def _check_positions(V: np.ndarray, S: np.ndarray, source: str) -> None:
+    """Degenerate simplices and duplicate vertices at the positions ``V`` ((N, m)) of simplices ``S``."""
+    d = S.shape[1] - 1
     vol = simplex_volumes(V, S)
     scale = max(float(np.ptp(V, axis=0).max()), np.finfo(float).tiny)
     degenerate = np.flatnonzero(vol <= 1e-13 * scale**d)
@@ -100,7 +135,6 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
             + ("merge them, or perturb a curve that passes twice through a point" if d == 1
                else "merge them (unmerged copies split the surface along a seam)")
         )
-    return V, S
 
 
 MAX_COORDINATE = 1e150

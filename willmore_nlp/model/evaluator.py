@@ -242,8 +242,8 @@ class StepEvaluator:
         return self.inner_solve(X, p, Y0, tol, max_iter, linear_solve)[0]
 
     def inner_solve(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None, tol: float = 1e-12,
-                    max_iter: int = 100, linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, sp.csc_matrix]:
+                    max_iter: int = 100, linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None,
+                    min_steps: int = 0) -> tuple[np.ndarray, np.ndarray, sp.csc_matrix]:
         """Solve the inner equation g(X, Y) = 0 (only g: the outer constraints h play no part) by damped Newton.
 
         One Newton step (plus a refinement if rounding asks) for a linear inner equation. For
@@ -260,6 +260,12 @@ class StepEvaluator:
         linear_solve : callable (J_Y, r) -> J_Y^-1 r, optional
             Solver of the Newton systems (default :meth:`linear_solve`); the ``newton-krylov`` step
             solver passes its own (which keeps the factorisation for its adjoints).
+        min_steps : int
+            Newton steps taken (whole) even when Y0 already meets the tolerance. ``newton-krylov`` takes one
+            for a linear inner equation, where that step is exact: its
+            trial points differ from the last point by steps so small near convergence that Y0 passed the test
+            unchanged, and W^ at such a stale Y was off by up to 1e-7 of itself (a 10,242-vertex sphere:
+            W^(X + 1e-10 d) - W^(X - 1e-10 d) = 7.6e-8 for a random d whose derivative predicts 2.5e-13).
 
         Returns
         -------
@@ -275,10 +281,10 @@ class StepEvaluator:
         nXm = P.nX * m
         z = P.pack_z(X, Y)
         r, J = self.g_jac(z, p)
-        for _ in range(max_iter):
+        for it in range(max_iter):
             Jy = J[:, nXm:]
             scale = max(1.0, float(np.abs(Jy).max()) * float(np.abs(Y).max()))
-            if np.linalg.norm(r, np.inf) <= tol * scale:
+            if it >= min_steps and np.linalg.norm(r, np.inf) <= tol * scale:
                 return Y, z, J
             dy = (linear_solve or self.linear_solve)(Jy.tocsc(), -r).reshape(-1, m)
             rn = np.linalg.norm(r)
@@ -288,7 +294,7 @@ class StepEvaluator:
                 Yt[P.y_free] += alpha * dy
                 zt = P.pack_z(X, Yt)
                 rt, Jt = self.g_jac(zt, p)
-                if np.linalg.norm(rt) < rn or alpha < 1e-9:
+                if np.linalg.norm(rt) < rn or alpha < 1e-9 or it < min_steps:  # (a forced step is taken whole)
                     break
                 alpha *= 0.5
             Y, z, r, J = Yt, zt, rt, Jt

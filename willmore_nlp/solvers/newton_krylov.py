@@ -151,6 +151,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._gtol = 0.0  # the solve's stopping tolerance on |grad W^|_inf
         self._delta = self._delta_max = 0.0  # shift of the Newton systems
         self.should_stop = lambda: False
+        self._mesh: Mesh | None = None
 
     # -- bookkeeping ------------------------------------------------------------------
     @contextmanager
@@ -187,7 +188,8 @@ class NewtonKrylovSolver(ReducedSolver):
                 return last[0].solve(r)
 
         self._count("n_inner_solve")
-        _, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0, linear_solve=linear_solve)
+        _, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0, linear_solve=linear_solve,
+                                      min_steps=0 if P.nonlinear_inner else 1)  # (W^ exact at tiny steps)
         self._count("n_eval_jac_g")
         fact = last[0] if last and not P.nonlinear_inner else self._factor_jy(J[:, self.nxm :])
         with self._timed("eval"):
@@ -211,9 +213,10 @@ class NewtonKrylovSolver(ReducedSolver):
         with self._timed("factor"):
             X, _ = P.unpack_z(pt.z, P.params.xk(p))
             ml = lumped_mass(X, P.simplices, P.n_vertices)[P.y_free]
-            K = (pt.Jx + pt.Jy @ self._S) / tt
-            B = D + 2.0 * tau * (K.T @ sp.diags(np.repeat(1.0 / ml, m)) @ K)
-            self._pre.factor(B.tocsc())
+            K = (pt.Jx + pt.Jy @ self._S).tocsr()  # tt K
+            # K^T (row-scaled K): one sparse product instead of three (0.2 s instead of 0.53-0.75 s at 10,242 v)
+            w = np.repeat(2.0 * tau / (tt * tt * ml), m)
+            self._pre.factor((K.T @ K.multiply(w[:, None]).tocsr()).tocsc() + D)
         self._count("n_precond_builds")
 
     def _rebuild(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
@@ -316,7 +319,9 @@ class NewtonKrylovSolver(ReducedSolver):
         self._counts, self._times = {}, {}
         P = self.P
         Xk = P.params.xk(p)
-        h = Mesh(Xk, P.simplices).h  # mean edge of X^k, the scale of the preconditioner's rebuild rule
+        if self._mesh is None:  # the topology (and its edges) is fixed for this solver
+            self._mesh = Mesh(Xk, P.simplices)
+        h = float(np.mean(self._mesh.edge_lengths(Xk)))  # mean edge of X^k: the preconditioner's rebuild scale
         with self._timed("eval"):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
