@@ -239,11 +239,11 @@ class StepEvaluator:
                 max_iter: int = 100, linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None
                 ) -> np.ndarray:
         """Y[X]: solve the inner equation g(X, Y) = 0 for the free Y (:meth:`inner_solve`)."""
-        return self.inner_solve(X, p, Y0, tol, max_iter, linear_solve)[0]
+        return self.inner_solve(X, p, Y0, tol, max_iter, linear_solve, min_steps=0)[0]
 
     def inner_solve(self, X: np.ndarray, p: np.ndarray, Y0: np.ndarray | None = None, tol: float = 1e-12,
                     max_iter: int = 100, linear_solve: Callable[[sp.csc_matrix, np.ndarray], np.ndarray] | None = None,
-                    min_steps: int = 0) -> tuple[np.ndarray, np.ndarray, sp.csc_matrix]:
+                    min_steps: int | None = None) -> tuple[np.ndarray, np.ndarray, sp.csc_matrix]:
         """Solve the inner equation g(X, Y) = 0 (only g: the outer constraints h play no part) by damped Newton.
 
         One Newton step (plus a refinement if rounding asks) for a linear inner equation. For
@@ -260,11 +260,12 @@ class StepEvaluator:
         linear_solve : callable (J_Y, r) -> J_Y^-1 r, optional
             Solver of the Newton systems (default :meth:`linear_solve`); the ``newton-krylov`` step
             solver passes its own (which keeps the factorisation for its adjoints).
-        min_steps : int
-            Newton steps taken (whole) even when Y0 already meets the tolerance. ``newton-krylov`` takes one
-            for a linear inner equation, where that step is exact: its
-            trial points differ from the last point by steps so small near convergence that Y0 passed the test
-            unchanged, and W^ at such a stale Y was off by up to 1e-7 of itself (a 10,242-vertex sphere:
+        min_steps : int, optional
+            Newton steps taken (whole) even when Y0 already meets the tolerance. Default: one for a linear inner
+            equation, where that step is exact, none for a nonlinear one (the reduced step solvers' evaluations of
+            W^ use the default; :meth:`solve_y` takes none). The reduced solvers' trial points differ from the
+            last point by steps so small near convergence that Y0 passed the test unchanged, and W^ at such a
+            stale Y was off by up to 1e-7 of itself (a 10,242-vertex sphere:
             W^(X + 1e-10 d) - W^(X - 1e-10 d) = 7.6e-8 for a random d whose derivative predicts 2.5e-13).
 
         Returns
@@ -274,6 +275,8 @@ class StepEvaluator:
         J : (ng, nx) the inner Jacobian at z
         """
         P = self.problem
+        if min_steps is None:
+            min_steps = 0 if P.nonlinear_inner else 1
         m = P.m
         Xk = P.params.xk(p)
         Y = np.array(X if Y0 is None else Y0, float, copy=True)

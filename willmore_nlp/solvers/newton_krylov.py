@@ -188,8 +188,7 @@ class NewtonKrylovSolver(ReducedSolver):
                 return last[0].solve(r)
 
         self._count("n_inner_solve")
-        _, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0, linear_solve=linear_solve,
-                                      min_steps=0 if P.nonlinear_inner else 1)  # (W^ exact at tiny steps)
+        _, z, J = self.ev.inner_solve(P.unpack_x(x, P.params.xk(p)), p, Y0, linear_solve=linear_solve)
         self._count("n_eval_jac_g")
         fact = last[0] if last and not P.nonlinear_inner else self._factor_jy(J[:, self.nxm :])
         with self._timed("eval"):
