@@ -77,6 +77,30 @@ def test_budget_cut_is_retried_with_half_step_not_a_signal() -> None:
     np.testing.assert_array_equal(r.vertices, r2.vertices)
 
 
+def test_newton_krylov_honours_the_same_budget() -> None:
+    """newton-krylov gets the flow's budget like IPOPT: the second step, with a budget of 2 Newton
+    iterations, is cut (Iteration_Budget, counted in rejected_iterations) and retried at tau/2 without a
+    budget; its first step (budget 100 > max_iter) and the accepted retry equal, bit for bit, the steps of
+    a newton-krylov flow without a budget (the second one taking tau/2 from the same state)."""
+    mesh = _ellipsoid()
+    tau, tt = mesh.h, 0.01 * mesh.h**2
+    flow = WillmoreFlow(mesh, tau, tt, solver="newton-krylov", iteration_budget=0.1, iteration_budget_min=2,
+                        max_retries=1)
+    first = flow.step()
+    assert first.retries == 0 and first.iterations > 2
+    r = flow.step()
+    assert r.retries == 1 and r.tau == tau / 2
+    assert "Iteration_Budget, 2 iterations" in r.rejected[0]
+    assert r.stats["rejected_iterations"] == 2 and r.row()["rejected_iterations"] == 2
+    assert flow.solver.iteration_limit is None  # the last attempt has no budget
+    ref = WillmoreFlow(mesh, tau, tt, solver="newton-krylov", iteration_budget=0)
+    np.testing.assert_array_equal(ref.step().vertices, first.vertices)
+    ref.tau = tau / 2
+    r2 = ref.step()
+    assert r2.iterations > 2 and r2.retries == 0
+    np.testing.assert_array_equal(r.vertices, r2.vertices)
+
+
 def test_budget_follows_median_of_accepted_steps() -> None:
     """No budget before the first accepted step; then max(iteration_budget_min, iteration_budget x median)."""
     mesh = _ellipsoid()
