@@ -309,7 +309,7 @@ class FlowSettings(Settings):
         ``max_iter`` (measured: a 200-iteration attempt that fails costs 4 min on the 2,562-vertex
         ellipsoid, and the same step converges at tau/2 in 5 iterations). Not before the first
         accepted step (``first_step_budget`` then), nor on the last attempt of a step (``max_retries``
-        used up). IPOPT only.
+        used up). IPOPT and ``newton-krylov`` (Newton iterations, the same rule and status).
     iteration_budget_min : int
         Floor of that budget (default 30).
     first_step_budget : int
@@ -319,7 +319,7 @@ class FlowSettings(Settings):
         first steps that converge need 3-22 iterations on the registry's surfaces and the study's
         meshes, 57 on the bunny curve, 63 on the 2,562-vertex ellipsoid at tau = h; the noisy capsule
         of the mesh-quality study (578 v) spent 200 iterations in each attempt at tau, tau/2 and
-        tau/4 before tau/8 converged in 16 (docs/guide/mesh_quality.md). IPOPT only.
+        tau/4 before tau/8 converged in 16 (docs/guide/mesh_quality.md). IPOPT and ``newton-krylov``.
     stall_iterations : int
         Cut a solve (status ``"Stalled"``, then retried with tau/2) whose iterates are stuck: for
         ``stall_iterations`` iterations the objective stayed within 1e-8 (relative), the largest

@@ -68,6 +68,7 @@ from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.settings import integer, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
 from willmore_nlp.solvers.cholesky import BACKENDS, BLAS, FullFactor, KronFactor, SymmetricFactor
+from willmore_nlp.solvers.ipopt import SolveMonitor
 from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, _Point
 
 
@@ -122,10 +123,19 @@ class NewtonKrylovSolver(ReducedSolver):
     ----------
     evaluator : StepEvaluator
     settings : NewtonKrylovSettings
+
+    Attributes
+    ----------
+    iteration_limit : int or None
+        The flow's iteration budget of the next solve (set by the flow before each attempt, as for
+        IPOPT): a solve still unconverged after this many Newton iterations stops with status
+        ``"Iteration_Budget"`` (the same :class:`~willmore_nlp.solvers.ipopt.SolveMonitor` as IPOPT's);
+        None: ``max_iter`` only.
     """
 
     def __init__(self, evaluator: StepEvaluator, settings: NewtonKrylovSettings) -> None:
         super().__init__(evaluator, settings, "newton-krylov")
+        self.iteration_limit: int | None = None
         self.cg_max_iter = settings.cg_max_iter
         self.precond_move = settings.precond_move
         self.cg_rebuild = settings.cg_rebuild
@@ -351,6 +361,7 @@ class NewtonKrylovSolver(ReducedSolver):
         """Newton on W^ with Y = Y[X] at every iterate, Armijo line search on W^."""
         status = "maximum iterations"
         it = 0
+        monitor = SolveMonitor(self.iteration_limit)  # the flow's budget; no constraints left to violate
         for it in range(self.max_iter + 1):
             gmax = float(np.abs(pt.pgrad).max())
             if gmax <= gtol:
@@ -360,6 +371,9 @@ class NewtonKrylovSolver(ReducedSolver):
                 break
             if self.should_stop():
                 status = "stopped"
+                break
+            if monitor(pt.f, np.zeros(0)):  # called at iterate it: cut after iteration_limit iterations
+                status = monitor.cut
                 break
             with self._timed("eval"):
                 pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)  # (half the memory of the mirrored matrix)
