@@ -531,7 +531,7 @@ class WillmoreFlow:
                 except (RuntimeError, np.linalg.LinAlgError) as exc:
                     reason = str(exc)
             if reason is None and self.settings.conformal_gauge:
-                b, centre, scale = geometry.conformal_motion(self.X, X, self.mesh.simplices)
+                b, centre, scale = geometry.conformal_motion(self.mesh.with_vertices(self.X), X)
                 Xg = geometry.special_conformal_map(X, -b, centre, scale)
                 moved["conformal_gauge_shift"] = float(np.abs(Xg - X).max())
                 X = Xg

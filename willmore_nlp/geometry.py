@@ -75,9 +75,9 @@ def stereographic_reprojection(X: np.ndarray, centre: np.ndarray, rho: float, po
     return (Y @ Q[:, 1:4]) / (1 - Y @ p)[:, None]
 
 
-def conformal_motion(X0: np.ndarray, X1: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Special conformal part of the motion X0 -> X1 of a closed surface (same vertices, (N, 3); triangles S
-    of X0, (K, 3)).
+def conformal_motion(mesh0: Mesh, X1: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Special conformal part of the motion of a closed surface from ``mesh0`` (vertices X0, (N, 3)) to the
+    positions X1 ((N, 3)) of the same vertices.
 
     The normal displacement <X1 - X0, n> is fitted in the lumped L^2 inner product of X0 by the normal
     components of the ten conformal fields of R^3: translations, rotations, the dilation and the three
@@ -89,12 +89,11 @@ def conformal_motion(X0: np.ndarray, X1: np.ndarray, S: np.ndarray) -> tuple[np.
     least-norm fit, ignoring combinations of the ten fields whose normal components are below 1e-2 of the
     largest), so that :func:`special_conformal_map` with ``-b`` undoes that part of the motion to first order.
     """
-    X0 = np.asarray(X0, float)
-    mesh = Mesh(X0, S)
-    n = vertex_normals(mesh)
-    m = lumped_mass(X0, S)
+    X0 = mesh0.vertices
+    n = vertex_normals(mesh0)
+    m = lumped_mass(X0, mesh0.simplices)
     centre = X0.mean(axis=0)
-    scale = float(np.sqrt(measure(mesh) / (4 * np.pi)))
+    scale = float(np.sqrt(measure(mesh0) / (4 * np.pi)))
     y = (X0 - centre) / scale
     yn = np.einsum("ij,ij->i", y, n)
     y2 = np.einsum("ij,ij->i", y, y)
