@@ -92,9 +92,9 @@ class Mesh:
     @cached_property
     def edges(self) -> np.ndarray:
         """(E, 2) int array of unique edges (sorted vertex pairs)."""
-        S = self.simplices
-        e = S if self.d == 1 else np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
-        return np.unique(np.sort(e, axis=1), axis=0)
+        from willmore_nlp.mesh.topology import unique_edges
+
+        return unique_edges(self.simplices)
 
     def edge_lengths(self, vertices: np.ndarray | None = None) -> np.ndarray:
         """(E,) lengths of :attr:`edges` at ``vertices`` (default: the mesh's own)."""

@@ -14,6 +14,12 @@ if TYPE_CHECKING:
     from willmore_nlp.mesh.core import Mesh
 
 
+def unique_edges(S: np.ndarray) -> np.ndarray:
+    """(E, 2) int array of the unique edges (sorted vertex pairs) of the simplices ``S`` ((K, d + 1))."""
+    e = S if S.shape[1] == 2 else np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
 def simplex_facets(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Directed facets of every simplex and the simplex each belongs to.
 

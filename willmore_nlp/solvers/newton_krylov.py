@@ -63,7 +63,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from willmore_nlp.fem.assembly import lumped_mass
-from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.topology import unique_edges
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.settings import integer, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
@@ -161,7 +161,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._gtol = 0.0  # the solve's stopping tolerance on |grad W^|_inf
         self._delta = self._delta_max = 0.0  # shift of the Newton systems
         self.should_stop = lambda: False
-        self._mesh: Mesh | None = None
+        self._edges: np.ndarray | None = None
 
     # -- bookkeeping ------------------------------------------------------------------
     @contextmanager
@@ -328,9 +328,10 @@ class NewtonKrylovSolver(ReducedSolver):
         self._counts, self._times = {}, {}
         P = self.P
         Xk = P.params.xk(p)
-        if self._mesh is None:  # the topology (and its edges) is fixed for this solver
-            self._mesh = Mesh(Xk, P.simplices)
-        h = float(np.mean(self._mesh.edge_lengths(Xk)))  # mean edge of X^k: the preconditioner's rebuild scale
+        if self._edges is None:  # the topology is fixed for this solver (its simplices need not cover every node:
+            self._edges = unique_edges(P.simplices)  # a co-normal blend's step has only the patch and its ring)
+        e = self._edges
+        h = float(np.mean(np.linalg.norm(Xk[e[:, 1]] - Xk[e[:, 0]], axis=1)))  # the preconditioner's rebuild scale
         with self._timed("eval"):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
