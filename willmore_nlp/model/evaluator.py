@@ -45,6 +45,7 @@ class StepEvaluator:
         self.fn = functions
         self.kernels = functions.kernels
         self._buffers: dict[str, tuple[Any, ...]] = {}
+        self._xe = np.zeros(problem.gather.size)  # the element inputs, shared by every kernel's buffer
         self.cholesky: str | None = None  # backend of the inner solves' Cholesky (:meth:`linear_solve`); None: LU
         self._emaps: dict[str, np.ndarray] = {}
         self._sym: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # full pattern, source in the upper
@@ -52,40 +53,47 @@ class StepEvaluator:
     def _kernel(self, name: str, E: np.ndarray, p: np.ndarray, *rest: Any) -> list[np.ndarray]:
         """Nonzeros of every output of kernel ``name`` mapped over the elements (element-major order).
 
-        ``E`` (K, nin) are the element inputs and ``p`` the parameter vector, whose scalar block all
-        elements share (copied to each); ``rest`` are the Hessian kernel's multiplier inputs: ``lf``
-        (shared), ``lg`` ((K, nl), per element) and ``lh`` (shared). Uses CasADi's function buffers (inputs and outputs
-        bound once to numpy arrays): no conversion of inputs to DM nor of outputs to Python lists.
-        Structural zeros of an output (AD knows some entries vanish) are not stored: :meth:`_dense`,
-        :meth:`_sum` place the nonzeros.
+        ``E`` (K, nin) are the element inputs (:meth:`_elements`: the buffer all kernels share) and ``p`` the
+        parameter vector, whose scalar block all elements share (copied to each); ``rest`` are the Hessian
+        kernel's multiplier inputs: ``lf`` (shared), ``lg`` ((K, nl), per element) and ``lh`` (shared). Uses
+        CasADi's function buffers (inputs and outputs bound once to numpy arrays): no conversion of inputs to
+        DM nor of outputs to Python lists. Structural zeros of an output (AD knows some entries vanish) are not
+        stored: :meth:`_dense`, :meth:`_sum` place the nonzeros.
         """
         P = self.problem
         if name not in self._buffers:
             mapped = self.kernels[name].map(P.K)  # (with shared inputs declared, CasADi wraps the map in an MX
             buf, run = mapped.buffer()            # function that buffers every output once more)
-            ins = [np.zeros(mapped.sparsity_in(i).nnz()) for i in range(mapped.n_in())]
+            ins = [self._xe] + [np.zeros(mapped.sparsity_in(i).nnz()) for i in range(1, mapped.n_in())]
             outs = [np.zeros(mapped.sparsity_out(i).nnz()) for i in range(mapped.n_out())]
             for i, a in enumerate(ins):
                 buf.set_arg(i, memoryview(a))
             for i, a in enumerate(outs):
                 buf.set_res(i, memoryview(a))
-            pos = [None if mapped.sparsity_out(i).is_dense() else np.asarray(mapped.sparsity_out(i).find(), np.int64)
-                   for i in range(mapped.n_out())]  # dense element-major position of each nonzero
-            self._buffers[name] = (buf, run, ins, outs, pos)
+            self._buffers[name] = (buf, run, ins, outs, mapped)
         _, run, ins, outs, _ = self._buffers[name]
-        for i, (a, v) in enumerate(zip(ins, (E, P.params.scalar_block(p), *rest), strict=True)):
+        if not np.shares_memory(E, self._xe):
+            self._xe.reshape(P.K, -1)[:] = E
+        for i, (a, v) in enumerate(zip(ins[1:], (P.params.scalar_block(p), *rest), strict=True), start=1):
             v = np.asarray(v, float)
             if i == 3:  # lg, per element
                 a[:] = v.ravel()
-            else:  # xe (per element) or an input all elements share
-                a.reshape(P.K, -1)[:] = v if i == 0 else v.ravel()
+            else:  # an input all elements share
+                a.reshape(P.K, -1)[:] = v.ravel()
         if run():
             raise RuntimeError(f"evaluation of the element kernel {name} failed")
         return list(outs)
 
+    def _positions(self, name: str, i: int) -> np.ndarray | None:
+        """Dense element-major position of each nonzero of output ``i`` of kernel ``name`` (None: dense output).
+        Computed when asked (only the vector outputs need it: the matrices go through their patterns, and the
+        positions of the Hessian's and Jacobian's nonzeros were 160 MB at 40,962 vertices)."""
+        spy = self._buffers[name][4].sparsity_out(i)
+        return None if spy.is_dense() else np.asarray(spy.find(), np.int64)
+
     def _dense(self, name: str, i: int, values: np.ndarray) -> np.ndarray:
         """(K, width) output ``i`` of kernel ``name`` from its nonzeros ``values``."""
-        pos = self._buffers[name][4][i]
+        pos = self._positions(name, i)
         if pos is None:
             return values.reshape(self.problem.K, -1)
         out = np.zeros(self.kernels[name].sparsity_out(i).numel() * self.problem.K)
@@ -97,7 +105,7 @@ class StepEvaluator:
         whose entries go to ``emap`` ((K, width); n = dropped)): the scatter-add of the assembly."""
         key = f"{name}:{i}"
         if key not in self._emaps:
-            pos = self._buffers[name][4][i]
+            pos = self._positions(name, i)
             self._emaps[key] = emap.ravel() if pos is None else emap.ravel()[pos]
         return np.bincount(self._emaps[key], weights=values, minlength=n + 1)[:n]
 
@@ -109,10 +117,11 @@ class StepEvaluator:
         return sp.csc_matrix((data, pattern.row, pattern.colind), shape=pattern.shape)
 
     def _elements(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """(K, nin) element inputs [X_T, Y_T, Xk_T, Q_T, c_T] gathered from [z; p; consts]."""
+        """(K, nin) element inputs [X_T, Y_T, Xk_T, Q_T, c_T] gathered from [z; p; consts] into the input
+        buffer all kernels share (one (K, nin) array instead of one per kernel and a temporary)."""
         P = self.problem
         v = np.concatenate([np.asarray(z, float).ravel(), np.asarray(p, float).ravel(), P.const_values.ravel()])
-        return v[P.gather]
+        return np.take(v, P.gather, out=self._xe.reshape(P.gather.shape))
 
     def _vectors(self, g: np.ndarray, p: np.ndarray) -> np.ndarray:
         """g - tt b on the free-Y rows for every nodal vector b of the terms."""

@@ -158,6 +158,12 @@ class Pattern:
 _CHUNK = 4096  # elements per block of the pattern computation (bounds its temporary memory)
 
 
+def _index_dtype(bound: int) -> type[np.signedinteger]:
+    """int32 for indices up to ``bound`` below 2^31 (half the memory of int64, and scipy's own index type, so
+    that matrices built on a pattern keep its arrays), else int64."""
+    return np.int32 if bound < 2**31 - 1 else np.int64
+
+
 def _pattern(entries: Callable[[slice], tuple[np.ndarray, np.ndarray]], width: int, K: int,
              shape: tuple[int, int]) -> Pattern:
     """Compressed-column pattern of the element entries and their map into it.
@@ -178,12 +184,13 @@ def _pattern(entries: Callable[[slice], tuple[np.ndarray, np.ndarray]], width: i
 
     uk = np.unique(np.concatenate([np.unique(keys(b)) for b in blocks] or [np.zeros(0, np.int64)]))
     uk = uk[uk >= 0]
-    emap = np.empty((K, width), np.int64)
+    dtype = _index_dtype(max(uk.size, *shape))
+    emap = np.empty((K, width), dtype)
     for b in blocks:
         key = keys(b)
         emap[b] = np.where(key >= 0, np.searchsorted(uk, key), uk.size)
-    colind = np.searchsorted(uk // nrow, np.arange(shape[1] + 1))
-    return Pattern(shape, uk % nrow, colind, emap)
+    colind = np.searchsorted(uk // nrow, np.arange(shape[1] + 1)).astype(dtype)
+    return Pattern(shape, (uk % nrow).astype(dtype), colind, emap)
 
 
 def _scatter_add(values: ca.MX, emap: np.ndarray, n: int) -> ca.MX:
@@ -304,13 +311,14 @@ class StepProblem:
         qidx = (self.nx + self.params.nodal_start + S[:, :, None] * q + np.arange(q)).reshape(K, (self.d + 1) * q)
         n_const = len(self.const_names)
         cidx = self.nx + self.np_ + np.arange(K * n_const).reshape(K, n_const)
-        self.gather = np.hstack([np.where(xfree_e, xvar, pk), np.where(yfree_e, yvar, pk), pk, qidx, cidx])
+        ix = _index_dtype(self.nx + self.np_ + K * n_const)
+        self.gather = np.hstack([np.where(xfree_e, xvar, pk), np.where(yfree_e, yvar, pk), pk, qidx, cidx]).astype(ix)
         # local z_T -> global variable (-1 when fixed)
-        self.zmap = np.hstack([np.where(xfree_e, xvar, -1), np.where(yfree_e, yvar, -1)])  # K x 2nl
-        self.gmap = np.where(yfree_e, (self.y_index[S][:, :, None] * m + coord).reshape(K, nl), -1)
+        self.zmap = np.hstack([np.where(xfree_e, xvar, -1), np.where(yfree_e, yvar, -1)]).astype(ix)  # K x 2nl
+        self.gmap = np.where(yfree_e, (self.y_index[S][:, :, None] * m + coord).reshape(K, nl), -1).astype(ix)
         # gradient and constraint scatter maps (n = dropped)
-        self.grad_map = np.where(self.zmap >= 0, self.zmap, self.nx)
-        self.g_map = np.where(self.gmap >= 0, self.gmap, self.ng)
+        self.grad_map = np.where(self.zmap >= 0, self.zmap, self.nx).astype(ix)
+        self.g_map = np.where(self.gmap >= 0, self.gmap, self.ng).astype(ix)
         # Jacobians: vec(dg/dz) column-major, entry (a, b) at b * nl + a; likewise dh/dz (nh rows)
         zmap, gmap, nh = self.zmap, self.gmap, self.nh
 
