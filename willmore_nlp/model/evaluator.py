@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from willmore_nlp.model.step import GlobalFunctions, Pattern, StepProblem
+from willmore_nlp.model.step import ELEMENT_BLOCK, GlobalFunctions, Pattern, StepProblem
 
 
 def to_scipy(M: ca.DM) -> sp.csc_matrix:
@@ -22,12 +22,16 @@ def to_scipy(M: ca.DM) -> sp.csc_matrix:
     return sp.csc_matrix((data, row, colind), shape=M.shape)
 
 
+_MATRIX_OUTPUT = {"k_jac": (1, "jac_pattern"), "k_hjac": (1, "hjac_pattern"), "k_hess": (0, "hess_pattern")}
+"""Kernel -> (output, pattern attribute of the StepProblem) of the one output that is a sparse matrix's entries."""
+
+
 class StepEvaluator:
     """Numpy-facing evaluation of the global functions of a :class:`StepProblem`.
 
     Values and derivatives are assembled in numpy from the element kernels: the element inputs are
-    gathered with the problem's index maps, the kernel mapped over the K elements runs once (compiled
-    C or CasADi's virtual machine), and its element outputs are summed into the global vector or the
+    gathered with the problem's index maps, the kernel mapped over blocks of elements runs once per
+    block (compiled C or CasADi's virtual machine), and its element outputs are summed into the global vector or the
     nonzeros of the global sparse matrix by ``np.bincount`` over the element-entry map (the same sums,
     in the same order, as the scatter-add of the MX functions). The MX functions of ``functions``
     (for ``nlpsol``) are built only when a solver asks for them: the reduced solvers never do.
@@ -58,20 +62,32 @@ class StepEvaluator:
         kernel's multiplier inputs: ``lf`` (shared), ``lg`` ((K, nl), per element) and ``lh`` (shared). Uses
         CasADi's function buffers (inputs and outputs bound once to numpy arrays): no conversion of inputs to
         DM nor of outputs to Python lists. Structural zeros of an output (AD knows some entries vanish) are not
-        stored: :meth:`_dense`, :meth:`_sum` place the nonzeros.
+        stored: :meth:`_dense`, :meth:`_sum` place the nonzeros. The matrix output of a kernel
+        (:data:`_MATRIX_OUTPUT`) is returned assembled, as the nonzeros of its pattern: it is summed block by
+        block, so that its element values (K x 144 at 40,962 vertices for the Hessian, 94 MB) are never held.
         """
         P = self.problem
         if name not in self._buffers:
-            mapped = self.kernels[name].map(P.K)  # (with shared inputs declared, CasADi wraps the map in an MX
-            buf, run = mapped.buffer()            # function that buffers every output once more)
-            ins = [self._xe] + [np.zeros(mapped.sparsity_in(i).nnz()) for i in range(1, mapped.n_in())]
-            outs = [np.zeros(mapped.sparsity_out(i).nnz()) for i in range(mapped.n_out())]
-            for i, a in enumerate(ins):
-                buf.set_arg(i, memoryview(a))
-            for i, a in enumerate(outs):
-                buf.set_res(i, memoryview(a))
-            self._buffers[name] = (buf, run, ins, outs, mapped)
-        _, run, ins, outs, _ = self._buffers[name]
+            f = self.kernels[name]
+            mat, pattern = _MATRIX_OUTPUT.get(name, (-1, ""))
+            ins = [self._xe] + [np.zeros(P.K * f.sparsity_in(i).nnz()) for i in range(1, f.n_in())]
+            outs = [np.zeros((min(ELEMENT_BLOCK, P.K) if i == mat else P.K) * f.sparsity_out(i).nnz())
+                    for i in range(f.n_out())]
+            maps: dict[int, ca.Function] = {}
+            runs = []
+            for start in range(0, P.K, ELEMENT_BLOCK):  # the map in element blocks: a map over all K elements
+                n = min(ELEMENT_BLOCK, P.K - start)  # kept sparsities of K x (entries) int64 in CasADi (0.3 GB
+                buf, run = maps.setdefault(n, f.map(n)).buffer()  # at 40,962 vertices); the values are the same
+                for i, a in enumerate(ins):
+                    w = f.sparsity_in(i).nnz()
+                    buf.set_arg(i, memoryview(a)[start * w : (start + n) * w])
+                for i, a in enumerate(outs):
+                    w = f.sparsity_out(i).nnz()
+                    at = 0 if i == mat else start  # the matrix output: the block's values, assembled at once
+                    buf.set_res(i, memoryview(a)[at * w : (at + n) * w])
+                runs.append((start, n, buf, run))  # (the buffer must outlive its run)
+            self._buffers[name] = (runs, ins, outs, mat, pattern)
+        runs, ins, outs, mat, pattern = self._buffers[name]
         if not np.shares_memory(E, self._xe):
             self._xe.reshape(P.K, -1)[:] = E
         for i, (a, v) in enumerate(zip(ins[1:], (P.params.scalar_block(p), *rest), strict=True), start=1):
@@ -80,16 +96,27 @@ class StepEvaluator:
                 a[:] = v.ravel()
             else:  # an input all elements share
                 a.reshape(P.K, -1)[:] = v.ravel()
-        if run():
-            raise RuntimeError(f"evaluation of the element kernel {name} failed")
-        return list(outs)
+        result = list(outs)
+        if mat >= 0:
+            emap = getattr(P, pattern).emap
+            result[mat] = data = np.zeros(getattr(P, pattern).nnz + 1)
+        for start, n, _, run in runs:
+            if run():
+                raise RuntimeError(f"evaluation of the element kernel {name} failed")
+            if mat >= 0:  # in element order, as one bincount over all elements would add (bitwise the same sums)
+                np.add.at(data, emap[start : start + n].ravel(), outs[mat][: emap[start : start + n].size])
+        if mat >= 0:
+            result[mat] = data[:-1]
+        return result
 
     def _positions(self, name: str, i: int) -> np.ndarray | None:
         """Dense element-major position of each nonzero of output ``i`` of kernel ``name`` (None: dense output).
         Computed when asked (only the vector outputs need it: the matrices go through their patterns, and the
         positions of the Hessian's and Jacobian's nonzeros were 160 MB at 40,962 vertices)."""
-        spy = self._buffers[name][4].sparsity_out(i)
-        return None if spy.is_dense() else np.asarray(spy.find(), np.int64)
+        spy = self.kernels[name].sparsity_out(i)
+        if spy.is_dense():
+            return None
+        return (np.arange(self.problem.K)[:, None] * spy.numel() + np.asarray(spy.find(), np.int64)).ravel()
 
     def _dense(self, name: str, i: int, values: np.ndarray) -> np.ndarray:
         """(K, width) output ``i`` of kernel ``name`` from its nonzeros ``values``."""
@@ -110,10 +137,8 @@ class StepEvaluator:
         return np.bincount(self._emaps[key], weights=values, minlength=n + 1)[:n]
 
     @staticmethod
-    def _matrix(values: np.ndarray, pattern: Pattern) -> sp.csc_matrix:
-        """Sparse matrix of ``pattern`` assembled from the nonzeros ``values`` of a kernel output (the
-        pattern's element entries are those nonzeros)."""
-        data = np.bincount(pattern.emap.ravel(), weights=values, minlength=pattern.nnz + 1)[: pattern.nnz]
+    def _matrix(data: np.ndarray, pattern: Pattern) -> sp.csc_matrix:
+        """Sparse matrix of ``pattern`` with the nonzeros ``data`` (an assembled kernel output)."""
         return sp.csc_matrix((data, pattern.row, pattern.colind), shape=pattern.shape)
 
     def _elements(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -187,8 +212,7 @@ class StepEvaluator:
         lam = np.asarray(lam_g, float).ravel()
         LG = np.append(lam[: P.ng], 0.0)[P.g_map]  # 0 on dropped rows
         rest = [float(lam_f), LG] + ([lam[P.ng :]] if P.nh else [])
-        hl = self._kernel("k_hess", self._elements(z, p), p, *rest)[0]
-        return self._matrix(hl, P.hess_pattern).data
+        return self._kernel("k_hess", self._elements(z, p), p, *rest)[0]
 
     def hess_lag_upper(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> sp.csc_matrix:
         """(nx, nx) upper triangle of the Hessian of lam_f W + lam_c . c; ``lam_c`` is (nc,) = [lam_g; lam_h]."""

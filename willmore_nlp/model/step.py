@@ -155,7 +155,8 @@ class Pattern:
         return ca.Sparsity.triplet(self.shape[0], self.shape[1], self.row.tolist(), col.tolist())
 
 
-_CHUNK = 4096  # elements per block of the pattern computation (bounds its temporary memory)
+ELEMENT_BLOCK = 4096
+"""Elements per block of the pattern computation and of the numeric kernel evaluations (bounds their memory)."""
 
 
 def _index_dtype(bound: int) -> type[np.signedinteger]:
@@ -174,7 +175,7 @@ def _pattern(entries: Callable[[slice], tuple[np.ndarray, np.ndarray]], width: i
     vertices).
     """
     nrow = max(shape[0], 1)
-    blocks = [slice(i, min(i + _CHUNK, K)) for i in range(0, K, _CHUNK)]
+    blocks = [slice(i, min(i + ELEMENT_BLOCK, K)) for i in range(0, K, ELEMENT_BLOCK)]
 
     def keys(block: slice) -> np.ndarray:
         rows, cols = entries(block)
