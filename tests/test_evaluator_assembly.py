@@ -85,6 +85,31 @@ def test_numpy_assembly_equals_the_mx_functions(name: str) -> None:
                                atol=1e-13 * abs(H).max() * np.abs(v).max())
 
 
+@pytest.mark.parametrize("name", ["volume-area", "cap-conormal"])
+def test_assembly_in_element_blocks_is_bitwise_the_whole_map(name: str, monkeypatch) -> None:
+    """The kernels run in blocks of ELEMENT_BLOCK elements and the matrices are summed block by block: with
+    blocks of 7 elements (many blocks and a remainder) every value, vector and matrix is bit for bit the one of
+    a single block over all elements."""
+    from willmore_nlp.model import evaluator as evaluator_module
+
+    setup, mesh = _problem(name)
+    P = setup.problem
+    z, p, lam = _point(setup, mesh)
+
+    def values(ev: StepEvaluator) -> list[np.ndarray]:
+        c, Jc = ev.c_jac(z, p)
+        f, grad = ev.f_grad(z, p)
+        return [np.array([ev.f(z, p), f]), ev.g(z, p), ev.h(z, p), grad, c, Jc.toarray(),
+                ev.hess_lag_upper(z, p, 0.7, lam).toarray()]
+
+    monkeypatch.setattr(evaluator_module, "ELEMENT_BLOCK", P.K)
+    whole = values(StepEvaluator(P, P.functions()))
+    monkeypatch.setattr(evaluator_module, "ELEMENT_BLOCK", 7)
+    assert P.K % 7 and P.K > 14
+    for a, b in zip(whole, values(StepEvaluator(P, P.functions())), strict=True):
+        assert np.array_equal(a, b)
+
+
 def test_functions_are_built_only_when_asked() -> None:
     """A newton-krylov flow never builds an MX function (the evaluator assembles in numpy); an IPOPT flow builds
     the ones nlpsol takes and nothing it does not use (g, h)."""
