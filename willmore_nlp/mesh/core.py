@@ -98,9 +98,9 @@ class Mesh:
 
     def edge_lengths(self, vertices: np.ndarray | None = None) -> np.ndarray:
         """(E,) lengths of :attr:`edges` at ``vertices`` (default: the mesh's own)."""
-        V = self.vertices if vertices is None else np.asarray(vertices)
-        e = self.edges
-        return np.linalg.norm(V[e[:, 1]] - V[e[:, 0]], axis=1)
+        from willmore_nlp.mesh.topology import edge_lengths
+
+        return edge_lengths(self.vertices if vertices is None else np.asarray(vertices), self.edges)
 
     @property
     def h(self) -> float:

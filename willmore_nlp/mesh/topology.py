@@ -20,6 +20,11 @@ def unique_edges(S: np.ndarray) -> np.ndarray:
     return np.unique(np.sort(e, axis=1), axis=0)
 
 
+def edge_lengths(V: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(E,) lengths of the edges ``edges`` ((E, 2)) at the positions ``V`` ((N, m))."""
+    return np.linalg.norm(V[edges[:, 1]] - V[edges[:, 0]], axis=1)
+
+
 def simplex_facets(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Directed facets of every simplex and the simplex each belongs to.
 

@@ -54,17 +54,18 @@ class StepEvaluator:
         self._emaps: dict[str, np.ndarray] = {}
         self._sym: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # full pattern, source in the upper
 
-    def _kernel(self, name: str, E: np.ndarray, p: np.ndarray, *rest: Any) -> list[np.ndarray]:
-        """Nonzeros of every output of kernel ``name`` mapped over the elements (element-major order).
+    def _kernel(self, name: str, z: np.ndarray, p: np.ndarray, *rest: Any) -> list[np.ndarray]:
+        """Nonzeros of every output of kernel ``name`` mapped over the elements (element-major order) at ``z``.
 
-        ``E`` (K, nin) are the element inputs (:meth:`_elements`: the buffer all kernels share) and ``p`` the
-        parameter vector, whose scalar block all elements share (copied to each); ``rest`` are the Hessian
-        kernel's multiplier inputs: ``lf`` (shared), ``lg`` ((K, nl), per element) and ``lh`` (shared). Uses
-        CasADi's function buffers (inputs and outputs bound once to numpy arrays): no conversion of inputs to
-        DM nor of outputs to Python lists. Structural zeros of an output (AD knows some entries vanish) are not
-        stored: :meth:`_dense`, :meth:`_sum` place the nonzeros. The matrix output of a kernel
-        (:data:`_MATRIX_OUTPUT`) is returned assembled, as the nonzeros of its pattern: it is summed block by
-        block, so that its element values (K x 144 at 40,962 vertices for the Hessian, 94 MB) are never held.
+        The element inputs are gathered from ``z`` and ``p`` (:meth:`_elements`) into the buffer all kernels
+        share; ``p`` is the parameter vector, whose scalar block all elements share (copied to each); ``rest``
+        are the Hessian kernel's multiplier inputs: ``lf`` (shared), ``lg`` ((K, nl), per element) and ``lh``
+        (shared). Uses CasADi's function buffers (inputs and outputs bound once to numpy arrays): no
+        conversion of inputs to DM nor of outputs to Python lists. Structural zeros of an output (AD knows
+        some entries vanish) are not stored: :meth:`_dense`, :meth:`_sum` place the nonzeros. The matrix
+        output of a kernel (:data:`_MATRIX_OUTPUT`) is returned assembled, as the nonzeros of its pattern: it
+        is summed block by block, so that its element values (K x 144 at 40,962 vertices for the Hessian,
+        94 MB) are never held.
         """
         P = self.problem
         if name not in self._buffers:
@@ -88,26 +89,23 @@ class StepEvaluator:
                 runs.append((start, n, buf, run))  # (the buffer must outlive its run)
             self._buffers[name] = (runs, ins, outs, mat, pattern)
         runs, ins, outs, mat, pattern = self._buffers[name]
-        if not np.shares_memory(E, self._xe):
-            self._xe.reshape(P.K, -1)[:] = E
+        self._elements(z, p)
         for i, (a, v) in enumerate(zip(ins[1:], (P.params.scalar_block(p), *rest), strict=True), start=1):
             v = np.asarray(v, float)
             if i == 3:  # lg, per element
                 a[:] = v.ravel()
             else:  # an input all elements share
                 a.reshape(P.K, -1)[:] = v.ravel()
-        result = list(outs)
         if mat >= 0:
             emap = getattr(P, pattern).emap
-            result[mat] = data = np.zeros(getattr(P, pattern).nnz + 1)
+            data = np.zeros(getattr(P, pattern).nnz + 1)  # the last entry takes the dropped element entries
         for start, n, _, run in runs:
             if run():
                 raise RuntimeError(f"evaluation of the element kernel {name} failed")
             if mat >= 0:  # in element order, as one bincount over all elements would add (bitwise the same sums)
-                np.add.at(data, emap[start : start + n].ravel(), outs[mat][: emap[start : start + n].size])
-        if mat >= 0:
-            result[mat] = data[:-1]
-        return result
+                block = emap[start : start + n].ravel()
+                np.add.at(data, block, outs[mat][: block.size])
+        return [data[:-1] if i == mat else a for i, a in enumerate(outs)]
 
     def _positions(self, name: str, i: int) -> np.ndarray | None:
         """Dense element-major position of each nonzero of output ``i`` of kernel ``name`` (None: dense output).
@@ -141,12 +139,12 @@ class StepEvaluator:
         """Sparse matrix of ``pattern`` with the nonzeros ``data`` (an assembled kernel output)."""
         return sp.csc_matrix((data, pattern.row, pattern.colind), shape=pattern.shape)
 
-    def _elements(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """(K, nin) element inputs [X_T, Y_T, Xk_T, Q_T, c_T] gathered from [z; p; consts] into the input
+    def _elements(self, z: np.ndarray, p: np.ndarray) -> None:
+        """Gather the (K, nin) element inputs [X_T, Y_T, Xk_T, Q_T, c_T] from [z; p; consts] into the input
         buffer all kernels share (one (K, nin) array instead of one per kernel and a temporary)."""
         P = self.problem
         v = np.concatenate([np.asarray(z, float).ravel(), np.asarray(p, float).ravel(), P.const_values.ravel()])
-        return np.take(v, P.gather, out=self._xe.reshape(P.gather.shape))
+        np.take(v, P.gather, out=self._xe.reshape(P.gather.shape))
 
     def _vectors(self, g: np.ndarray, p: np.ndarray) -> np.ndarray:
         """g - tt b on the free-Y rows for every nodal vector b of the terms."""
@@ -161,18 +159,18 @@ class StepEvaluator:
 
     def f(self, z: np.ndarray, p: np.ndarray) -> float:
         """Objective W."""
-        return float(self._kernel("k_f", self._elements(z, p), p)[0].sum())
+        return float(self._kernel("k_f", z, p)[0].sum())
 
     def g(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
         """(ng,) constraint residual g = 1/2 dE/dY."""
         P = self.problem
-        return self._vectors(self._sum("k_g", 0, self._kernel("k_g", self._elements(z, p), p)[0], P.g_map, P.ng), p)
+        return self._vectors(self._sum("k_g", 0, self._kernel("k_g", z, p)[0], P.g_map, P.ng), p)
 
     def h(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
         """(nh,) outer constraint residual (empty without outer constraints)."""
         if not self.problem.nh:
             return np.zeros(0)
-        hv = self._dense("k_h", 0, self._kernel("k_h", self._elements(z, p), p)[0])
+        hv = self._dense("k_h", 0, self._kernel("k_h", z, p)[0])
         return hv.sum(axis=0) - self._targets(p)
 
     def c_jac(self, z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, sp.csc_matrix]:
@@ -181,7 +179,7 @@ class StepEvaluator:
         P = self.problem
         if not P.nh:
             return gv, J
-        hv, hl = self._kernel("k_hjac", self._elements(z, p), p)
+        hv, hl = self._kernel("k_hjac", z, p)
         Jh = self._matrix(hl, P.hjac_pattern)
         hv = self._dense("k_hjac", 0, hv).sum(axis=0) - self._targets(p)
         return np.concatenate([gv, hv]), sp.vstack([J, Jh], format="csc")
@@ -189,7 +187,7 @@ class StepEvaluator:
     def f_grad(self, z: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray]:
         """W and its (nx,) gradient from one evaluation."""
         P = self.problem
-        w, gl = self._kernel("k_grad", self._elements(z, p), p)
+        w, gl = self._kernel("k_grad", z, p)
         return float(w.sum()), self._sum("k_grad", 1, gl, P.grad_map, P.nx)
 
     def grad_f(self, z: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -199,7 +197,7 @@ class StepEvaluator:
     def g_jac(self, z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, sp.csc_matrix]:
         """(ng,) constraint residual and (ng, nx) Jacobian from one evaluation."""
         P = self.problem
-        gl, jl = self._kernel("k_jac", self._elements(z, p), p)
+        gl, jl = self._kernel("k_jac", z, p)
         return self._vectors(self._sum("k_jac", 0, gl, P.g_map, P.ng), p), self._matrix(jl, P.jac_pattern)
 
     def jac_g(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
@@ -212,7 +210,7 @@ class StepEvaluator:
         lam = np.asarray(lam_g, float).ravel()
         LG = np.append(lam[: P.ng], 0.0)[P.g_map]  # 0 on dropped rows
         rest = [float(lam_f), LG] + ([lam[P.ng :]] if P.nh else [])
-        return self._kernel("k_hess", self._elements(z, p), p, *rest)[0]
+        return self._kernel("k_hess", z, p, *rest)[0]
 
     def hess_lag_upper(self, z: np.ndarray, p: np.ndarray, lam_f: float, lam_g: np.ndarray) -> sp.csc_matrix:
         """(nx, nx) upper triangle of the Hessian of lam_f W + lam_c . c; ``lam_c`` is (nc,) = [lam_g; lam_h]."""

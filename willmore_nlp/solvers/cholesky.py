@@ -131,9 +131,8 @@ class SymmetricFactor:
             self._solver = spla.splu(A, permc_spec="COLAMD")
         else:
             A.sort_indices()
-            i32 = np.int32
-            self._solver = _Cholmod(self._n, A.indptr.astype(i32, copy=False), A.indices.astype(i32, copy=False),
-                                    np.ascontiguousarray(A.data, dtype=float))
+            indptr, indices = (a.astype(np.int32, copy=False) for a in (A.indptr, A.indices))
+            self._solver = _Cholmod(self._n, indptr, indices, np.ascontiguousarray(A.data, dtype=float))
             if self.simplicial:  # supernodal factorisation, simplicial LL' solves (module docstring)
                 self._solver.change_factor(True, False)
         self.n_numeric += 1

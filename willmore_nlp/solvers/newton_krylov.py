@@ -63,7 +63,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from willmore_nlp.fem.assembly import lumped_mass
-from willmore_nlp.mesh.topology import unique_edges
+from willmore_nlp.mesh.topology import edge_lengths, unique_edges
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.settings import integer, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
@@ -330,8 +330,7 @@ class NewtonKrylovSolver(ReducedSolver):
         Xk = P.params.xk(p)
         if self._edges is None:  # the topology is fixed for this solver (its simplices need not cover every node:
             self._edges = unique_edges(P.simplices)  # a co-normal blend's step has only the patch and its ring)
-        e = self._edges
-        h = float(np.mean(np.linalg.norm(Xk[e[:, 1]] - Xk[e[:, 0]], axis=1)))  # the preconditioner's rebuild scale
+        h = float(np.mean(edge_lengths(Xk, self._edges)))  # mean edge of X^k: the preconditioner's rebuild scale
         with self._timed("eval"):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
