@@ -55,7 +55,7 @@ def test_first_step_budget_leaves_converging_first_steps_alone() -> None:
     r_off = off.step()
     assert r_off.retries == 0 and r_off.iterations > 2
     c = WillmoreFlow(mesh, tau, tt, first_step_budget=1)
-    c.restart(ra.vertices, ra.Y, ra.t, ra.step, a.lam_g)
+    c.restart(ra.vertices, ra.Y, ra.t, ra.step, a.lam_g, simplices=ra.simplices)  # the control's repair flips
     assert c._first_step_limit() is None and c._iteration_limit() is None
     rc = c.step()  # k = 1 and no recorded iterations: neither budget applies
     assert rc.retries == 0 and rc.iterations > 1

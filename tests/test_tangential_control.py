@@ -172,17 +172,63 @@ def test_control_changes_the_nodes_not_the_curve(weight: float, curves_agree_bef
 
 def test_bad_control_options_are_refused(tmp_path) -> None:
     mesh = shapes.ellipse(16, 1.0, 0.7)
-    with pytest.raises(ValueError, match="tangential_control must be 'off' or 'meanratio'"):
+    with pytest.raises(ValueError, match="tangential_control must be one of 'auto', 'off', 'meanratio', got 'smooth'"):
         WillmoreFlow(mesh, mesh.h, 0.1 * mesh.h**2, tangential_control="smooth")
     for bad in (0.0, -1.0, float("nan"), "x"):
         with pytest.raises(ValueError, match="tangential_control_weight must be a number > 0"):
             WillmoreFlow(mesh, mesh.h, 0.1 * mesh.h**2, tangential_control="meanratio", tangential_control_weight=bad)
     with pytest.raises(ValueError, match="semi-implicit: the baseline has no tangential control"):
         WillmoreFlow(mesh, mesh.h, 0.1 * mesh.h**2, tangential_control="meanratio", solver="semi-implicit")
-    for key, val, msg in (("tangential_control", "smooth", "tangential_control must be 'off' or 'meanratio'"),
+    for key, val, msg in (("tangential_control", "smooth", "must be one of 'auto', 'off', 'meanratio'"),
                           ("tangential_control_weight", "-2", "tangential_control_weight must be a number > 0")):
         cmd = [sys.executable, "-m", "willmore_nlp.cli", "run", "circle", "--set", f"{key}={val}", "--steps", "1",
                "--out", str(tmp_path / "bad")]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
         assert r.returncode == 2 and msg in r.stderr, r.stderr
         assert not (tmp_path / "bad").exists()
+
+
+def _stretched_sphere() -> Mesh:
+    s = shapes.icosphere(2)
+    V = np.array(s.vertices)
+    V[:, 2] *= 2.0
+    return Mesh(V, s.simplices, "ellipsoid 1:1:2 (162 v)")
+
+
+def test_auto_is_the_meanratio_control_on_surfaces_and_off_elsewhere() -> None:
+    """The default ``tangential_control = "auto"``: on a surface in R^3 the flow is that of "meanratio" at weight 1
+    bit for bit; the paper's scheme on curves, with ``mesh_control = "off"`` and with the semi-implicit baseline
+    (which refuses an explicit "meanratio")."""
+    ell = _stretched_sphere()
+    tau, tt = ell.h, 0.01 * ell.h**2
+    auto = WillmoreFlow(ell, tau, tt)
+    explicit = WillmoreFlow(ell, tau, tt, tangential_control="meanratio", tangential_control_weight=1.0)
+    assert auto.settings.tangential_control == "auto" and auto._control == explicit._control
+    a, b = auto.step(), explicit.step()
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    off = WillmoreFlow(ell, tau, tt, tangential_control="off").step()
+    assert np.abs(off.vertices - a.vertices).max() > 1e-3 * ell.h
+    assert WillmoreFlow(ell, tau, tt, mesh_control="off")._control.method == "off"
+    assert WillmoreFlow(ell, tau, tt, solver="semi-implicit")._control.method == "off"
+    curve = shapes.ellipse(32, 1.0, 0.7)
+    c_auto = WillmoreFlow(curve, curve.h, 0.1 * curve.h**2)
+    c_off = WillmoreFlow(curve, curve.h, 0.1 * curve.h**2, tangential_control="off")
+    assert c_auto._control.method == "off"
+    np.testing.assert_array_equal(c_auto.step().vertices, c_off.step().vertices)
+
+
+def test_discrete_energy_leaves_the_control_term_out() -> None:
+    """e(X) = 1/(2 tt^2) M (Y[X] - X).(Y[X] - X) is the scheme's energy whether or not the step carries the control:
+    W at X^k = X still contains beta_c sum_i m_i |P_i S_i|^2 (S the mean-ratio target, not 0 on an ellipsoid),
+    which e must not (it did: a flat clamped disk reported e = 3e-5 instead of 1e-9)."""
+    ell = _stretched_sphere()
+    tau, tt = ell.h, 0.01 * ell.h**2
+    on = WillmoreFlow(ell, tau, tt, tangential_control="meanratio")
+    off = WillmoreFlow(ell, tau, tt, tangential_control="off")
+    X = ell.vertices
+    Y = off.evaluator.solve_y(X, off.params(X, 1.0))
+    e_off = off.evaluator.f(off.problem.pack_z(X, Y), off.params(X, 1.0)) / 2
+    with_term = on.evaluator.f(on.problem.pack_z(X, Y), on.params(X, 1.0)) / 2
+    assert with_term - e_off > 1e-5 * e_off  # measured 7.3e-5
+    np.testing.assert_allclose(on.discrete_energy(X), e_off, rtol=1e-12)
+    np.testing.assert_allclose(off.discrete_energy(X), e_off, rtol=1e-12)

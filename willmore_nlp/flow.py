@@ -19,8 +19,8 @@ from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.settings import FlowSettings, check_run_value
-from willmore_nlp.solvers import make_solver
-from willmore_nlp.tangential import TangentialControl
+from willmore_nlp.solvers import make_solver, solver_capabilities
+from willmore_nlp.tangential import TangentialControl, resolve_method
 
 
 class FlowError(RuntimeError):
@@ -304,8 +304,9 @@ class WillmoreFlow:
         self.relaxed = False
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
-        self._control = TangentialControl(s.tangential_control, s.tangential_control_weight,
-                                          s.tangential_control_time)
+        variational = "variational" in solver_capabilities(s.solver)
+        method = resolve_method(s.tangential_control, mesh.d, mesh.m, s.mesh_control, variational)
+        self._control = TangentialControl(method, s.tangential_control_weight, s.tangential_control_time)
         self._targets = {"volume": _target(s.volume, "volume", mesh), "area": _target(s.area, "area", mesh)}
         self.codegen_info: dict[str, Any] = {"enabled": False}
         codegen = s.codegen
@@ -375,6 +376,11 @@ class WillmoreFlow:
             self.solver.stall_iterations = self.settings.stall_iterations
 
     @property
+    def tangential_control(self) -> TangentialControl:
+        """The in-step tangential control this flow runs (``tangential_control = "auto"`` resolved)."""
+        return self._control
+
+    @property
     def free(self) -> np.ndarray | None:
         """(N,) free-vertex mask of the current connectivity (None without clamped boundary)."""
         return None if self.setup.boundary is None else self.setup.boundary.free
@@ -411,8 +417,11 @@ class WillmoreFlow:
 
     def discrete_energy(self, X: np.ndarray, Y: np.ndarray | None = None) -> float:
         """``e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X]``, the energy the scheme decreases (with ``c0``:
-        ``1/2 int |(Y[X] - X)/tt + c0 n|^2 + lam A[X]``)."""
+        ``1/2 int |(Y[X] - X)/tt + c0 n|^2 + lam A[X]``): W at X^k = X, where the distance term vanishes and the
+        tangential control's term (which does not: its target S is not 0) is left out."""
         p = self.params(X, 1.0)
+        if "control_weight" in self.problem.params.scalars:
+            p = self.problem.params.replace(p, control_weight=0.0)
         Y = self.evaluator.solve_y(X, p) if Y is None else Y
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0
 

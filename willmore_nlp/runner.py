@@ -252,6 +252,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     cfg = spec.config()
     cfg["cwd"] = os.getcwd()
     cfg["environment"] = thread_environment()
+    cfg["tangential_control"] = {"method": flow.tangential_control.method, "weight": flow.tangential_control.weight}
     with SignalGuard(ignore_late_signals) as guard:
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
         try:
@@ -262,6 +263,18 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
             return _abandoned(writer, guard)
         finally:
             writer.close()
+
+
+def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
+    """The tangential control a run directory's flow ran with, as flow options (a resumed run keeps it even when the
+    library's default changed): ``config.json``'s ``tangential_control`` entry, or, for runs written before it
+    existed (when the default was "off" at weight 0.3), the options they gave."""
+    stored = cfg.get("tangential_control")
+    if stored is None:
+        given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
+        stored = {"method": given.get("tangential_control", "off"),
+                  "weight": given.get("tangential_control_weight", 0.3)}
+    return {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"]}
 
 
 @contextlib.contextmanager
@@ -330,7 +343,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
         if cfg.get(k) != getattr(pb, k):
             raise RunError(f"{where}: cannot resume: {k} = {cfg.get(k)!r} but the problem now gives "
                            f"{getattr(pb, k)!r}")
-    flow = pb.make_flow(**spec.flow_options)
+    flow = pb.make_flow(**{**spec.flow_options, **stored_control(cfg)})
     with SignalGuard(ignore_late_signals) as guard:
         writer, _, ck, notes = RunWriter.resume(d)
         try:

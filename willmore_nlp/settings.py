@@ -269,16 +269,19 @@ class FlowSettings(Settings):
     area : "initial", float or None
         Likewise for the total area (length of a closed curve).
     tangential_control : str
-        Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "off" (default, the
-        paper's scheme) or "meanratio": W gains ``beta_c sum_i m_i |P_i (X_i - X^k_i - S_i)|^2`` with P_i
-        the vertex tangent projector of X^k and S_i the tangential part of a mean-ratio mesh-improving
-        step of X^k, so that the nodes follow a mesh-improving tangential motion while the normal
-        component of every nodal equation, hence the geometric flow as h -> 0, is unchanged. Fixed
-        (boundary) nodes never move. The discrete energy may rise by at most
-        ``beta_c sum_i m_i |S_i|^2 / (2 tau)`` in a step (the energy check uses the full W).
+        Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "auto" (default), "off" (the paper's
+        scheme) or "meanratio". "auto" is "meanratio" for surfaces in R^3 when ``mesh_control`` is "auto" and
+        the solver minimises W (not the semi-implicit baseline), else "off" (curves keep the paper's scheme;
+        :func:`willmore_nlp.tangential.resolve_method`). "meanratio": W gains ``beta_c sum_i m_i |P_i (X_i -
+        X^k_i - S_i)|^2`` with P_i the vertex tangent projector of X^k and S_i the tangential part of a
+        mean-ratio mesh-improving step of X^k, so that the nodes follow a mesh-improving tangential motion while
+        the normal component of every nodal equation, hence the geometric flow as h -> 0, is unchanged. Fixed
+        (boundary) nodes never move. The discrete energy may rise by at most ``beta_c sum_i m_i |S_i|^2 / (2
+        tau)`` in a step (the energy check uses the full W).
     tangential_control_weight : float
-        beta_c > 0 of ``tangential_control = "meanratio"`` (default 0.3): the tangential motion is about
-        beta_c / (1 + beta_c) of S plus 1 / (1 + beta_c) of what the energy asks for.
+        beta_c > 0 of the mean-ratio control (default 1, measured: docs/guide/mesh_quality.md, "Rest
+        means rest"): the tangential motion is about beta_c / (1 + beta_c) of S plus 1 / (1 + beta_c)
+        of what the energy asks for.
     tangential_control_time : float
         T_c >= 0: a step of size tau targets the fraction min(1, tau / T_c) of the mesh-improving
         step (a tangential velocity of at most 1/T_c steps per unit time, consistent as tau -> 0);
@@ -349,8 +352,8 @@ class FlowSettings(Settings):
     relax_max_tau : float, optional
         Largest step size of a relaxation (default 100 tau).
     mesh_control : {"auto", "off"}
-        Master switch of the mesh-quality control of surfaces ("off": the paper's scheme, no
-        mesh control whatever the other options say).
+        Master switch of the mesh-quality control of surfaces ("off": the paper's scheme: no repair
+        between steps and ``tangential_control = "auto"`` is "off"; an explicit "meanratio" is kept).
     remesh : {"auto", "off"}
         Surfaces in R^3 only (curves ignore it): mesh repair between steps (:mod:`willmore_nlp.remesh`,
         docs/guide/mesh_quality.md). After every step the light repair (``remesh_repair``); when the
@@ -416,7 +419,7 @@ class FlowSettings(Settings):
     c0: float = option(0.0, real())
     volume: float | str | None = option(None, TARGET)
     area: float | str | None = option(None, TARGET)
-    tangential_control: str = option("off", one_of(*CONTROL_METHODS))
+    tangential_control: str = option("auto", one_of(*CONTROL_METHODS))
     tangential_control_weight: float = option(DEFAULT_CONTROL_WEIGHT, real(0, lo_open=True))
     tangential_control_time: float = option(0.0, real(0))
     redistribute: bool = option(False, BOOL)

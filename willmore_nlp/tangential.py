@@ -27,11 +27,27 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 
-CONTROL_METHODS = ("off", "meanratio")
-"""Values of the ``tangential_control`` option: "off" is the paper's scheme."""
+CONTROL_METHODS = ("auto", "off", "meanratio")
+"""Values of the ``tangential_control`` option: "off" is the paper's scheme, "auto" (the default) is "meanratio" on
+surfaces in R^3 and "off" otherwise (:func:`resolve_method`)."""
 
-DEFAULT_CONTROL_WEIGHT = 0.3
-"""Default beta of ``tangential_control = "meanratio"`` (``tangential_control_weight``)."""
+DEFAULT_CONTROL_WEIGHT = 1.0
+"""Default beta of the mean-ratio control (``tangential_control_weight``). Measured against 0.3 and 3 on the
+mesh-quality study's surfaces (docs/guide/mesh_quality.md, "Rest means rest"): 1 was at least as good as the
+repair alone in every case (the 642-v vesicle cup rests with 1 and not with 0.3; 3 slows the blends' rest)."""
+
+
+def resolve_method(method: str, d: int, m: int, mesh_control: str, variational: bool) -> str:
+    """The control a flow runs: ``method`` itself unless it is "auto".
+
+    "auto" is "meanratio" for triangle surfaces in R^3 (``d == 2``, ``m == 3``; closed or with a clamped
+    boundary, isotropic or anisotropic) when the mesh control is on (``mesh_control == "auto"``) and the step solver
+    minimises W (``variational``; the semi-implicit baseline does not), else "off": curves keep the paper's scheme.
+    """
+    if method != "auto":
+        return method
+    on = d == 2 and m == 3 and mesh_control == "auto" and variational
+    return "meanratio" if on else "off"
 
 
 @dataclass(frozen=True)
@@ -40,7 +56,7 @@ class TangentialControl:
 
     Attributes
     ----------
-    method : "off" or "meanratio"
+    method : "off" or "meanratio" ("auto" is resolved before, :func:`resolve_method`)
     weight : beta > 0, the weight of the tangential target term relative to the distance term
     time : relaxation time T_c >= 0 of the mesh: a step of size tau takes the fraction
         ``min(1, tau / T_c)`` of the mesh-improving step as its target (:meth:`fraction`); 0 takes all of it
@@ -51,9 +67,9 @@ class TangentialControl:
     time: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.method not in CONTROL_METHODS:
-            raise UserInputError(f"tangential_control must be one of {', '.join(map(repr, CONTROL_METHODS))}, "
-                             f"got {self.method!r}")
+        if self.method not in CONTROL_METHODS[1:]:
+            raise UserInputError(f"tangential_control must be one of {', '.join(map(repr, CONTROL_METHODS[1:]))}, "
+                                 f"got {self.method!r}")
         w = self.weight
         if isinstance(w, bool) or not isinstance(w, (int, float)) or not (np.isfinite(w) and w > 0):
             raise UserInputError(f"tangential_control_weight must be a number > 0, got {w!r}")

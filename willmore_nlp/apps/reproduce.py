@@ -440,11 +440,14 @@ def fig67_overrides(power: int) -> dict[str, str]:
     """``willmore-nlp run torus`` parameters of the Figs. 6-7 run with tau = h^power (``--set KEY=VALUE``).
 
     tau = h runs with adaptive steps (``adaptive = true``, steps <= h): at fixed tau = h the first attempt of
-    every step failed (steps 1-3 taken at h/2, h/8, h/8 after 1, 3, 3 retries, 39, 50 and 202 s).
+    every step failed (steps 1-3 taken at h/2, h/8, h/8 after 1, 3, 3 retries, 39, 50 and 202 s). The cached runs
+    were made before the in-step tangential control became a surface default (``tangential_control = "auto"``);
+    ``tangential_control = "off"`` keeps a rerun equal to them.
     """
     h = shapes.torus(1.0, 0.5, *FIG67_GRID).h
     return {"n_major": str(FIG67_GRID[0]), "n_minor": str(FIG67_GRID[1]), "tau": repr(h**power),
-            "solver": FIG67_SOLVER, "t_end": repr(FIG67_T), **({"adaptive": "true"} if power == 1 else {})}
+            "solver": FIG67_SOLVER, "t_end": repr(FIG67_T), "tangential_control": "off",
+            **({"adaptive": "true"} if power == 1 else {})}
 
 
 def torus_run_summary(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -629,15 +632,16 @@ def fig6_7(fig_dir: Path) -> str:
         "fixed tau = h the first attempt of every step failed and was retried at h/2, h/4, ...), and the tau = h^2 "
         f"run continued to t = {FIG6_T_END}. Unlike the other sections these runs use today's surface defaults, not "
         "the paper's scheme: the mesh control (`mesh_control = auto`: flips, the light repair and, below 15 deg, "
-        "isotropic remeshing) and the torus problem's `tangential_weight = 10` (docs/guide/mesh_quality.md, \"The "
+        "isotropic remeshing) and the torus problem's `tangential_weight = 10`, without the in-step tangential control "
+        "(`tangential_control = off`: the runs predate its surface default) (docs/guide/mesh_quality.md, \"The "
         "torus at the paper's h\"); step solver `newton-krylov` (1.3-3.4 times faster per step than IPOPT over "
         f"the first four steps at tau = h^2). tau = h^4 = {h**4:.2g} would take {int(np.ceil(FIG67_T / h**4))} "
         "steps: at the measured "
         f"{s0['wall'] / s0['steps']:.1f} s per step of the tau = h^3 run "
         f"{np.ceil(FIG67_T / h**4) * s0['wall'] / s0['steps'] / 3600:.0f} h on this shared 2-core machine, so h^3 "
         "is the smallest step here. Runs: `willmore-nlp run torus --set n_major=96 --set n_minor=48 --set tau=TAU "
-        f"--set solver=newton-krylov --t-end {FIG67_T}` (`--set adaptive=true` for tau = h); cached in "
-        "`reports/studies/fig67/` (delete to rerun).", "",
+        f"--set solver=newton-krylov --set tangential_control=off --t-end {FIG67_T}` (`--set adaptive=true` for "
+        "tau = h); cached in `reports/studies/fig67/` (delete to rerun).", "",
         "W_ref is the Willmore energy of the same mesh moved onto the Clifford torus of the fitted tube radius "
         f"(`analysis.clifford_reference`); the Clifford torus on the {n} x {m} grid has W = {w_grid:.3f} "
         f"(4 pi^2 = {4 * np.pi**2:.3f}). 'min angle' is the smallest angle of any stepped state before its repair "

@@ -89,6 +89,12 @@ def solver_settings(name: str) -> type[SolverSettings]:
     return _SOLVERS[name][1]
 
 
+def solver_capabilities(name: str) -> frozenset[str]:
+    """What solver ``name`` can do (:data:`CAPABILITIES`; UserInputError naming the known solvers if there is none)."""
+    solver_settings(name)
+    return _CAPABILITIES[name][0]
+
+
 def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | None = None) -> StepSolver:
     """Build the solver ``name`` for a step problem; ``options`` are validated by its settings class."""
     settings = solver_settings(name).from_options(dict(options or {}))
