@@ -188,18 +188,12 @@ def test_bad_control_options_are_refused(tmp_path) -> None:
         assert not (tmp_path / "bad").exists()
 
 
-def _stretched_sphere() -> Mesh:
-    s = shapes.icosphere(2)
-    V = np.array(s.vertices)
-    V[:, 2] *= 2.0
-    return Mesh(V, s.simplices, "ellipsoid 1:1:2 (162 v)")
-
-
 def test_auto_is_the_meanratio_control_on_surfaces_and_off_elsewhere() -> None:
     """The default ``tangential_control = "auto"``: on a surface in R^3 the flow is that of "meanratio" at weight 1
     bit for bit; the paper's scheme on curves, with ``mesh_control = "off"`` and with the semi-implicit baseline
     (which refuses an explicit "meanratio")."""
-    ell = _stretched_sphere()
+    ico = shapes.icosphere(2)
+    ell = ico.with_vertices(ico.vertices * [1.0, 1.0, 2.0])  # ellipsoid 1:1:2, 162 v
     tau, tt = ell.h, 0.01 * ell.h**2
     auto = WillmoreFlow(ell, tau, tt)
     explicit = WillmoreFlow(ell, tau, tt, tangential_control="meanratio", tangential_control_weight=1.0)
@@ -221,7 +215,8 @@ def test_discrete_energy_leaves_the_control_term_out() -> None:
     """e(X) = 1/(2 tt^2) M (Y[X] - X).(Y[X] - X) is the scheme's energy whether or not the step carries the control:
     W at X^k = X still contains beta_c sum_i m_i |P_i S_i|^2 (S the mean-ratio target, not 0 on an ellipsoid),
     which e must not (it did: a flat clamped disk reported e = 3e-5 instead of 1e-9)."""
-    ell = _stretched_sphere()
+    ico = shapes.icosphere(2)
+    ell = ico.with_vertices(ico.vertices * [1.0, 1.0, 2.0])  # ellipsoid 1:1:2, 162 v
     tau, tt = ell.h, 0.01 * ell.h**2
     on = WillmoreFlow(ell, tau, tt, tangential_control="meanratio")
     off = WillmoreFlow(ell, tau, tt, tangential_control="off")
