@@ -113,6 +113,9 @@ class NewtonKrylovSettings(ReducedSettings):
     cg_stale: int = option(25, integer(1))
     cg_forcing: float = option(0.1, real(0, 1, lo_open=True))
     max_shift: float = option(1e3, real(0, lo_open=True))
+    first_shift: float = option(30.0, real(0))
+    first_cg_tol: float = option(1e-6, real(0, 1, lo_open=True))
+    carry: str = option("shifted", one_of("off", "first", "shifted", "always"))
 
 
 @register_solver("newton-krylov", NewtonKrylovSettings)
@@ -142,6 +145,9 @@ class NewtonKrylovSolver(ReducedSolver):
         self.cg_stale = settings.cg_stale
         self.cg_forcing = settings.cg_forcing
         self.max_shift = settings.max_shift
+        self.first_shift = settings.first_shift
+        self.first_cg_tol = settings.first_cg_tol
+        self.carry = settings.carry
         self._jy = SymmetricFactor(settings.cholesky, simplicial=True)  # (N x N: simplicial solves faster)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
@@ -362,6 +368,8 @@ class NewtonKrylovSolver(ReducedSolver):
         status = "maximum iterations"
         it = 0
         monitor = SolveMonitor(self.iteration_limit)  # the flow's budget; no constraints left to violate
+        P = self.P
+        lam_c: np.ndarray | None = None  # carried (SQP) multiplier of the Hessian; None: the adjoint of X
         for it in range(self.max_iter + 1):
             gmax = float(np.abs(pt.pgrad).max())
             if gmax <= gtol:
@@ -375,21 +383,78 @@ class NewtonKrylovSolver(ReducedSolver):
             if monitor(pt.f, np.zeros(0)):  # called at iterate it: cut after iteration_limit iterations
                 status = monitor.cut
                 break
+            lam_h = pt.lam if lam_c is None else lam_c
             with self._timed("eval"):
-                pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)  # (half the memory of the mirrored matrix)
+                pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, lam_h)  # (half the memory of the mirrored matrix)
             self._count("n_eval_hess")
-            d = self._direction(pt, p, D, h)
+            shifted_first = False
+            if it == 0 and self.carry != "off" and not P.nh:
+                d, shifted_first = self._first_direction(pt, p, D, h)
+            else:
+                d = self._direction(pt, p, D, h)
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
-            new = self._line_search(pt, p, d)
+            new, alpha, d = self._line_search(pt, p, d)
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
                 break
+            if not P.nh and self.carry != "first" and (shifted_first or lam_c is not None or (it == 0 and self.carry == "always")):
+                # SQP multiplier of the step: lam+ = -J_Y^-T (f_Y + (H dz)_Y), dz = (d, -J_Y^-1 J_X d)
+                lam_plus = pt.lam + self._lam_correction(pt, d)
+                lam_c = lam_h + alpha * (lam_plus - lam_h)
+                self._count("n_carried")
+            import os
+            if os.environ.get("NK_TRACE"):
+                print(f"  it{it} f={pt.f:.10g} g={gmax:.2e} delta={self._delta_max:.0e}/{self._delta:.0e} a={alpha:.3g} "
+                      f"|d|/h={np.abs(d).max()/h:.3f} cg={self._counts.get('n_cg')} B={self._counts.get('n_precond_builds')} "
+                      f"|lamc-adj|={0 if lam_c is None else np.abs(lam_c-new.lam).max()/np.abs(new.lam).max():.2e}", flush=True)
             pt = new
         with self._timed("eval"):
             inf_pr = float(np.abs(np.concatenate([self.ev.g(pt.z, p), self.ev.h(pt.z, p)])).max())
         return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.pgrad).max()), "inf_pr": inf_pr}
+
+    def _lam_correction(self, pt: _Point, d: np.ndarray) -> np.ndarray:
+        """-J_Y^-T (H dz)_Y with dz = (d, -J_Y^-1 J_X d): the step's change of the SQP multiplier at a feasible point."""
+        vy = -pt.lu.solve(pt.Jx @ d)
+        w = pt.H @ np.concatenate([d, vy])
+        self._count("n_linear_solves", 2)
+        return pt.lu.solve(-w[self.nxm :], trans="T")
+
+    def _first_direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix,
+                         h: float) -> tuple[np.ndarray | None, bool]:
+        """The first Newton direction: unshifted as :meth:`_direction` when CG meets no negative curvature,
+        else (Hess + s D) d = -grad solved accurately (CG to ``first_cg_tol``), s = ``first_shift`` (x10 while
+        CG meets negative curvature). Returns the direction and whether it was shifted."""
+        tau = self.P.params.scalar(p, "tau")
+        if (self._pre_x is None or self._pre_tau != tau or self._cg_since_build >= self.cg_rebuild
+                or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
+            self._rebuild(pt, p, D)
+        gmax = float(np.abs(pt.pgrad).max())
+        rel = float(np.sqrt(gmax / self._g0))
+        if rel * gmax <= 10 * self._gtol:
+            rel = min(rel, 0.1 * self._gtol / gmax)
+        delta = 0.0
+        for _ in range(12):
+            fresh = np.array_equal(pt.x, self._pre_x)
+            eta = min(self.cg_forcing, rel) if not delta else self.first_cg_tol
+            limit = self.cg_max_iter if fresh else self.cg_stale
+            with self._timed("cg"):
+                d, k, state = self._pcg(pt, p, D, delta, eta, limit)
+            self._count("n_cg", k)
+            self._cg_since_build += k
+            if limit < self.cg_max_iter and state == "limit":
+                self._rebuild(pt, p, D)
+                continue
+            if state != "negative":
+                break
+            delta = self.first_shift if not delta else 10 * delta
+            if delta > self.max_shift:
+                self._delta_max = delta
+                return None, True
+        self._delta = 0.0
+        self._delta_max = max(self._delta_max, delta)
+        return d, bool(delta)
 
     def _line_search(self, pt: _Point, p: np.ndarray, d: np.ndarray) -> _Point | None:
         """Backtracking from the full step: Armijo on W^ (module docstring); None when it fails."""
@@ -407,9 +472,9 @@ class NewtonKrylovSolver(ReducedSolver):
                 new = None
             if new is not None and np.isfinite(new.f):
                 if new.f <= pt.f + self.armijo * alpha * gd:
-                    return new
+                    return new, alpha, d
                 if -alpha * gd <= rounding and np.abs(new.pgrad).max() < gmax:  # f is rounding noise there
-                    return new
+                    return new, alpha, d
             alpha *= 0.5
-        return None
+        return None, 0.0, d
 
