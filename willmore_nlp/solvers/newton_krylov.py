@@ -116,6 +116,7 @@ class NewtonKrylovSettings(ReducedSettings):
     first_shift: float = option(30.0, real(0))
     first_cg_tol: float = option(1e-6, real(0, 1, lo_open=True))
     carry: str = option("shifted", one_of("off", "first", "shifted", "always"))
+    iteration: str = option("full-space", one_of("full-space", "reduced"))
 
 
 @register_solver("newton-krylov", NewtonKrylovSettings)
@@ -148,6 +149,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self.first_shift = settings.first_shift
         self.first_cg_tol = settings.first_cg_tol
         self.carry = settings.carry
+        self.iteration = settings.iteration
         self._jy = SymmetricFactor(settings.cholesky, simplicial=True)  # (N x N: simplicial solves faster)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
@@ -345,8 +347,11 @@ class NewtonKrylovSolver(ReducedSolver):
         D = self._distance_hessian(pt.z, p)
         self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
         self._delta = self._delta_max = 0.0
-        z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
-        stats: dict[str, Any] = dict(self._counts)
+        stats: dict[str, Any] = {}
+        full = self.iteration == "full-space" and not (P.nh or P.nonlinear_inner)
+        z, f, lam, it, status, res = (self._iterate_full if full else self._iterate)(pt, p, D, h, gtol)
+        stats["iteration"] = "full-space" if full else "reduced"
+        stats.update(self._counts)
         stats["newton_iterations"] = it
         stats.setdefault("n_cg", 0)
         stats["cholesky"] = self.backend
@@ -478,3 +483,132 @@ class NewtonKrylovSolver(ReducedSolver):
             alpha *= 0.5
         return None, 0.0, d
 
+
+    # -- full-space (SQP) iteration ---------------------------------------------------
+    def _full_point(self, z: np.ndarray, p: np.ndarray, lam: np.ndarray) -> _Point:
+        """Everything the full-space iteration needs at a (possibly infeasible) z: W, its gradient, g, J,
+        the factorised J_Y, the reduced gradient Z^T grad W (adjoint at z) and the Hessian multipliers ``lam``."""
+        n = self.nxm
+        with self._timed("eval"):
+            f, gf = self.ev.f_grad(z, p)
+            gv, J = self.ev.g_jac(z, p)
+        self._count("n_eval_grad_f")
+        self._count("n_eval_jac_g")
+        lu = self._factor_jy(J[:, n:])
+        with self._timed("cg"):
+            adj = lu.solve(-gf[n:], trans="T")
+        Jx = J[:, :n]
+        grad = gf[:n] + Jx.T @ adj
+        return _Point(z[:n].copy(), z, f, grad, lam, Jx, lu, Jy=J[:, n:], pgrad=grad, gf=gf, gv=gv)
+
+    def _iterate_full(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float,
+                      gtol: float) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
+        """Full-space Newton on the KKT system of min W s.t. g = 0, each system in reduced form (module docstring)."""
+        P, n = self.P, self.nxm
+        Xk = P.params.xk(p)
+        status = "maximum iterations"
+        monitor = SolveMonitor(self.iteration_limit)
+        with self._timed("eval"):
+            pt.gv = self.ev.g(pt.z, p)
+        rho = 0.0
+        it = 0
+        for it in range(self.max_iter + 1):
+            gmax = float(np.abs(pt.grad).max())
+            if gmax <= gtol:  # final test at the restored point Y = Y[X] (the reduced iteration's test)
+                q = self._at(pt.x, p, P.unpack_z(pt.z, Xk)[1])
+                self._count("n_restoration")
+                with self._timed("eval"):
+                    q.gv = self.ev.g(q.z, p)
+                if float(np.abs(q.pgrad).max()) <= gtol:
+                    pt = q
+                    status = "converged"
+                    break
+                q.lam = pt.lam
+                pt = q
+            if it == self.max_iter:
+                break
+            if self.should_stop():
+                status = "stopped"
+                break
+            if monitor(pt.f, pt.gv):
+                status = monitor.cut
+                break
+            with self._timed("eval"):
+                pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)
+            self._count("n_eval_hess")
+            with self._timed("cg"):
+                dyp = -pt.lu.solve(pt.gv)
+                v = pt.gf + pt.H @ np.concatenate([np.zeros(n), dyp])
+                pt.pgrad = v[:n] + pt.Jx.T @ pt.lu.solve(-v[n:], trans="T")  # Z^T (grad W + H dz_p)
+            if it == 0 and self.carry != "off":
+                d, _ = self._first_direction(pt, p, D, h)
+            else:
+                d = self._direction(pt, p, D, h)
+            if d is None:
+                status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
+                break
+            with self._timed("cg"):
+                dz = np.concatenate([d, dyp - pt.lu.solve(pt.Jx @ d)])
+                Hdz = pt.H @ dz
+                lam_new = pt.lu.solve(-(pt.gf[n:] + Hdz[n:]), trans="T")
+            new = self._merit_search(pt, p, dz, Hdz, lam_new, rho)
+            if new is None:
+                status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
+                break
+            import os
+            if os.environ.get("NK_TRACE"):
+                print(f"  F it{it} f={pt.f:.10g} g={gmax:.2e} |gv|={np.abs(pt.gv).max():.1e} rho={rho:.1e} "
+                      f"delta={self._delta_max:.0e}/{self._delta:.0e} |d|/h={np.abs(d).max()/h:.3f} "
+                      f"cg={self._counts.get('n_cg')} B={self._counts.get('n_precond_builds')} soc={self._counts.get('n_soc')}", flush=True)
+            pt, rho = new
+        with self._timed("eval"):
+            inf_pr = float(np.abs(self.ev.g(pt.z, p)).max())
+        return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.pgrad).max()), "inf_pr": inf_pr}
+
+    def _merit_search(self, pt: _Point, p: np.ndarray, dz: np.ndarray, Hdz: np.ndarray, lam_new: np.ndarray,
+                      rho: float) -> tuple[_Point, float] | None:
+        """Backtracking on the augmented Lagrangian W + lam . g + rho/2 |g|^2 along (dz, lam_new - lam), with a
+        second-order correction (Y = Y[X]) of the full step."""
+        n = self.nxm
+        P = self.P
+        g, lam = pt.gv, pt.lam
+        gdz = float(pt.gf @ dz)
+        gg = float(g @ g)
+        curv = max(float(dz @ Hdz), 0.0)
+        slope = gdz + float((lam_new - 2 * lam) @ g)  # the slope without the rho term
+        if gg > 0 and slope - rho * gg > -0.5 * curv:
+            rho = max(rho, 2 * (slope + 0.5 * curv) / gg)
+        dphi = slope - rho * gg
+        phi0 = pt.f + float(lam @ g) + 0.5 * rho * gg
+        if not dphi < 0:
+            return None
+        rounding = 100 * np.finfo(float).eps * max(abs(pt.f), abs(phi0))
+        gmax = float(np.abs(pt.grad).max())
+        Xk = P.params.xk(p)
+        alpha = 1.0
+        for _ in range(40):
+            zt = pt.z + alpha * dz
+            lt = lam + alpha * (lam_new - lam)
+            with self._timed("eval"):
+                ft, gt = self.ev.f(zt, p), self.ev.g(zt, p)
+            phi = ft + float(lt @ gt) + 0.5 * rho * float(gt @ gt)
+            if np.isfinite(phi) and phi <= phi0 + self.armijo * alpha * dphi:
+                return self._full_point(zt, p, lt), rho
+            if alpha == 1.0:  # second-order correction: Y = Y[X] at the full step's X
+                try:
+                    q = self._at(zt[:n], p, P.unpack_z(zt, Xk)[1])
+                except RuntimeError:
+                    q = None
+                self._count("n_soc")
+                if q is not None and np.isfinite(q.f):
+                    with self._timed("eval"):
+                        q.gv = self.ev.g(q.z, p)
+                    if q.f + float(lt @ q.gv) + 0.5 * rho * float(q.gv @ q.gv) <= phi0 + self.armijo * dphi:
+                        q.lam = lt
+                        return q, rho
+            if -alpha * dphi <= rounding and np.isfinite(phi):
+                q = self._full_point(zt, p, lt)
+                if float(np.abs(q.grad).max()) < gmax:
+                    return q, rho
+            alpha *= 0.5
+        return None
