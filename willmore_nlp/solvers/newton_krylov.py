@@ -113,10 +113,8 @@ class NewtonKrylovSettings(ReducedSettings):
     cg_stale: int = option(25, integer(1))
     cg_forcing: float = option(0.1, real(0, 1, lo_open=True))
     max_shift: float = option(1e3, real(0, lo_open=True))
-    first_shift: float = option(30.0, real(0))
-    first_cg_tol: float = option(1e-6, real(0, 1, lo_open=True))
-    carry: str = option("shifted", one_of("off", "first", "shifted", "always"))
-    iteration: str = option("full-space", one_of("full-space", "reduced"))
+    first_shift: float = option(300.0, real(0, lo_open=True))
+    first_cg_tol: float = option(1e-3, real(0, 1, lo_open=True))
 
 
 @register_solver("newton-krylov", NewtonKrylovSettings)
@@ -148,8 +146,6 @@ class NewtonKrylovSolver(ReducedSolver):
         self.max_shift = settings.max_shift
         self.first_shift = settings.first_shift
         self.first_cg_tol = settings.first_cg_tol
-        self.carry = settings.carry
-        self.iteration = settings.iteration
         self._jy = SymmetricFactor(settings.cholesky, simplicial=True)  # (N x N: simplicial solves faster)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
@@ -293,9 +289,17 @@ class NewtonKrylovSolver(ReducedSolver):
             pt.CBC = pt.C @ pt.BC
         return s - pt.BC @ np.linalg.solve(pt.CBC, pt.C @ s)
 
-    def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray | None:
+    def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float,
+                   first: bool = False) -> tuple[np.ndarray | None, bool]:
         """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed;
-        None when the shift would exceed ``max_shift``.
+        None when the shift would exceed ``max_shift``. ``first``: the first system of a solve, whose shift
+        (when CG meets negative curvature) starts at ``first_shift`` and is solved to ``first_cg_tol``; the
+        next system starts unshifted (module docstring).
+
+        Returns
+        -------
+        d : (nX m,) or None
+        shifted : whether d solves a shifted system
 
         ``pt.H`` (the Lagrangian Hessian at ``pt.z`` with multipliers ``pt.lam``) must be set. Solver state
         across iterations: ``_pre_x`` (where B was built), ``_delta``, ``_g0`` (first gradient size).
@@ -311,7 +315,8 @@ class NewtonKrylovSolver(ReducedSolver):
             rel = min(rel, 0.1 * self._gtol / gmax)
         for _ in range(12):
             fresh = np.array_equal(pt.x, self._pre_x)
-            eta = min(0.5 if delta else self.cg_forcing, rel)  # a shifted system is only a safeguard
+            # a shifted system is only a safeguard, except the first one (its multiplier matters)
+            eta = self.first_cg_tol if first and delta else min(0.5 if delta else self.cg_forcing, rel)
             limit = self.cg_max_iter if fresh else self.cg_stale
             with self._timed("cg"):
                 d, k, state = self._pcg(pt, p, D, delta, eta, limit)
@@ -322,13 +327,13 @@ class NewtonKrylovSolver(ReducedSolver):
                 continue
             if state != "negative":
                 break
-            delta = max(1.0, 10 * delta)
+            delta = self.first_shift if first and not delta else max(1.0, 10 * delta)
             if delta > self.max_shift:
                 self._delta_max = delta
-                return None
-        self._delta = delta
+                return None, True
+        self._delta = 0.0 if first else delta
         self._delta_max = max(self._delta_max, delta)
-        return d
+        return d, bool(delta)
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used)."""
@@ -348,9 +353,8 @@ class NewtonKrylovSolver(ReducedSolver):
         self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
         self._delta = self._delta_max = 0.0
         stats: dict[str, Any] = {}
-        full = self.iteration == "full-space" and not (P.nh or P.nonlinear_inner)
-        z, f, lam, it, status, res = (self._iterate_full if full else self._iterate)(pt, p, D, h, gtol)
-        stats["iteration"] = "full-space" if full else "reduced"
+        z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
+        stats["iteration"] = "full-space" if self._counts.get("n_full_space") else "reduced"
         stats.update(self._counts)
         stats["newton_iterations"] = it
         stats.setdefault("n_cg", 0)
@@ -374,7 +378,6 @@ class NewtonKrylovSolver(ReducedSolver):
         it = 0
         monitor = SolveMonitor(self.iteration_limit)  # the flow's budget; no constraints left to violate
         P = self.P
-        lam_c: np.ndarray | None = None  # carried (SQP) multiplier of the Hessian; None: the adjoint of X
         for it in range(self.max_iter + 1):
             gmax = float(np.abs(pt.pgrad).max())
             if gmax <= gtol:
@@ -388,78 +391,24 @@ class NewtonKrylovSolver(ReducedSolver):
             if monitor(pt.f, np.zeros(0)):  # called at iterate it: cut after iteration_limit iterations
                 status = monitor.cut
                 break
-            lam_h = pt.lam if lam_c is None else lam_c
             with self._timed("eval"):
-                pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, lam_h)  # (half the memory of the mirrored matrix)
+                pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)  # (half the memory of the mirrored matrix)
             self._count("n_eval_hess")
-            shifted_first = False
-            if it == 0 and self.carry != "off" and not P.nh:
-                d, shifted_first = self._first_direction(pt, p, D, h)
-            else:
-                d = self._direction(pt, p, D, h)
+            first = it == 0 and not (P.nh or P.nonlinear_inner)
+            d, shifted = self._direction(pt, p, D, h, first)
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
-            new, alpha, d = self._line_search(pt, p, d)
+            if shifted and first:  # indefinite at X^k: SQP from the accurately shifted first step on
+                return self._iterate_full(pt, p, D, h, gtol, monitor, d)
+            new = self._line_search(pt, p, d)
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
                 break
-            if not P.nh and self.carry != "first" and (shifted_first or lam_c is not None or (it == 0 and self.carry == "always")):
-                # SQP multiplier of the step: lam+ = -J_Y^-T (f_Y + (H dz)_Y), dz = (d, -J_Y^-1 J_X d)
-                lam_plus = pt.lam + self._lam_correction(pt, d)
-                lam_c = lam_h + alpha * (lam_plus - lam_h)
-                self._count("n_carried")
-            import os
-            if os.environ.get("NK_TRACE"):
-                print(f"  it{it} f={pt.f:.10g} g={gmax:.2e} delta={self._delta_max:.0e}/{self._delta:.0e} a={alpha:.3g} "
-                      f"|d|/h={np.abs(d).max()/h:.3f} cg={self._counts.get('n_cg')} B={self._counts.get('n_precond_builds')} "
-                      f"|lamc-adj|={0 if lam_c is None else np.abs(lam_c-new.lam).max()/np.abs(new.lam).max():.2e}", flush=True)
             pt = new
         with self._timed("eval"):
             inf_pr = float(np.abs(np.concatenate([self.ev.g(pt.z, p), self.ev.h(pt.z, p)])).max())
         return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.pgrad).max()), "inf_pr": inf_pr}
-
-    def _lam_correction(self, pt: _Point, d: np.ndarray) -> np.ndarray:
-        """-J_Y^-T (H dz)_Y with dz = (d, -J_Y^-1 J_X d): the step's change of the SQP multiplier at a feasible point."""
-        vy = -pt.lu.solve(pt.Jx @ d)
-        w = pt.H @ np.concatenate([d, vy])
-        self._count("n_linear_solves", 2)
-        return pt.lu.solve(-w[self.nxm :], trans="T")
-
-    def _first_direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix,
-                         h: float) -> tuple[np.ndarray | None, bool]:
-        """The first Newton direction: unshifted as :meth:`_direction` when CG meets no negative curvature,
-        else (Hess + s D) d = -grad solved accurately (CG to ``first_cg_tol``), s = ``first_shift`` (x10 while
-        CG meets negative curvature). Returns the direction and whether it was shifted."""
-        tau = self.P.params.scalar(p, "tau")
-        if (self._pre_x is None or self._pre_tau != tau or self._cg_since_build >= self.cg_rebuild
-                or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
-            self._rebuild(pt, p, D)
-        gmax = float(np.abs(pt.pgrad).max())
-        rel = float(np.sqrt(gmax / self._g0))
-        if rel * gmax <= 10 * self._gtol:
-            rel = min(rel, 0.1 * self._gtol / gmax)
-        delta = 0.0
-        for _ in range(12):
-            fresh = np.array_equal(pt.x, self._pre_x)
-            eta = min(self.cg_forcing, rel) if not delta else self.first_cg_tol
-            limit = self.cg_max_iter if fresh else self.cg_stale
-            with self._timed("cg"):
-                d, k, state = self._pcg(pt, p, D, delta, eta, limit)
-            self._count("n_cg", k)
-            self._cg_since_build += k
-            if limit < self.cg_max_iter and state == "limit":
-                self._rebuild(pt, p, D)
-                continue
-            if state != "negative":
-                break
-            delta = self.first_shift if not delta else 10 * delta
-            if delta > self.max_shift:
-                self._delta_max = delta
-                return None, True
-        self._delta = 0.0
-        self._delta_max = max(self._delta_max, delta)
-        return d, bool(delta)
 
     def _line_search(self, pt: _Point, p: np.ndarray, d: np.ndarray) -> _Point | None:
         """Backtracking from the full step: Armijo on W^ (module docstring); None when it fails."""
@@ -477,11 +426,11 @@ class NewtonKrylovSolver(ReducedSolver):
                 new = None
             if new is not None and np.isfinite(new.f):
                 if new.f <= pt.f + self.armijo * alpha * gd:
-                    return new, alpha, d
+                    return new
                 if -alpha * gd <= rounding and np.abs(new.pgrad).max() < gmax:  # f is rounding noise there
-                    return new, alpha, d
+                    return new
             alpha *= 0.5
-        return None, 0.0, d
+        return None
 
 
     # -- full-space (SQP) iteration ---------------------------------------------------
@@ -501,49 +450,54 @@ class NewtonKrylovSolver(ReducedSolver):
         grad = gf[:n] + Jx.T @ adj
         return _Point(z[:n].copy(), z, f, grad, lam, Jx, lu, Jy=J[:, n:], pgrad=grad, gf=gf, gv=gv)
 
-    def _iterate_full(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float,
-                      gtol: float) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
-        """Full-space Newton on the KKT system of min W s.t. g = 0, each system in reduced form (module docstring)."""
+    def _iterate_full(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float, gtol: float,
+                      monitor: SolveMonitor,
+                      d0: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
+        """Full-space Newton (SQP) on the KKT system of min W s.t. g = 0, each system in reduced form, from the
+        feasible first iterate ``pt`` of :meth:`_iterate` (its Hessian ``pt.H`` set, its checks done) and that
+        iterate's Newton direction ``d0`` (module docstring)."""
         P, n = self.P, self.nxm
         Xk = P.params.xk(p)
         status = "maximum iterations"
-        monitor = SolveMonitor(self.iteration_limit)
         with self._timed("eval"):
             pt.gv = self.ev.g(pt.z, p)
         rho = 0.0
         it = 0
         for it in range(self.max_iter + 1):
+            self._count("n_full_space")
             gmax = float(np.abs(pt.grad).max())
-            if gmax <= gtol:  # final test at the restored point Y = Y[X] (the reduced iteration's test)
-                q = self._at(pt.x, p, P.unpack_z(pt.z, Xk)[1])
-                self._count("n_restoration")
-                with self._timed("eval"):
-                    q.gv = self.ev.g(q.z, p)
-                if float(np.abs(q.pgrad).max()) <= gtol:
-                    pt = q
-                    status = "converged"
-                    break
-                q.lam = pt.lam
-                pt = q
-            if it == self.max_iter:
-                break
-            if self.should_stop():
-                status = "stopped"
-                break
-            if monitor(pt.f, pt.gv):
-                status = monitor.cut
-                break
-            with self._timed("eval"):
-                pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)
-            self._count("n_eval_hess")
-            with self._timed("cg"):
-                dyp = -pt.lu.solve(pt.gv)
-                v = pt.gf + pt.H @ np.concatenate([np.zeros(n), dyp])
-                pt.pgrad = v[:n] + pt.Jx.T @ pt.lu.solve(-v[n:], trans="T")  # Z^T (grad W + H dz_p)
-            if it == 0 and self.carry != "off":
-                d, _ = self._first_direction(pt, p, D, h)
+            if not it:  # iterate 0 was tested and its direction found by _iterate
+                with self._timed("cg"):
+                    dyp = -pt.lu.solve(pt.gv)
+                d: np.ndarray | None = d0
             else:
-                d = self._direction(pt, p, D, h)
+                if gmax <= gtol:  # final test at the restored point Y = Y[X] (the reduced iteration's test)
+                    q = self._at(pt.x, p, P.unpack_z(pt.z, Xk)[1])
+                    self._count("n_restoration")
+                    with self._timed("eval"):
+                        q.gv = self.ev.g(q.z, p)
+                    if float(np.abs(q.pgrad).max()) <= gtol:
+                        pt = q
+                        status = "converged"
+                        break
+                    q.lam = pt.lam
+                    pt = q
+                if it == self.max_iter:
+                    break
+                if self.should_stop():
+                    status = "stopped"
+                    break
+                if monitor(pt.f, pt.gv):
+                    status = monitor.cut
+                    break
+                with self._timed("eval"):
+                    pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)
+                self._count("n_eval_hess")
+                with self._timed("cg"):
+                    dyp = -pt.lu.solve(pt.gv)
+                    v = pt.gf + pt.H @ np.concatenate([np.zeros(n), dyp])
+                    pt.pgrad = v[:n] + pt.Jx.T @ pt.lu.solve(-v[n:], trans="T")  # Z^T (grad W + H dz_p)
+                d = self._direction(pt, p, D, h)[0]
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
@@ -555,11 +509,6 @@ class NewtonKrylovSolver(ReducedSolver):
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
                 break
-            import os
-            if os.environ.get("NK_TRACE"):
-                print(f"  F it{it} f={pt.f:.10g} g={gmax:.2e} |gv|={np.abs(pt.gv).max():.1e} rho={rho:.1e} "
-                      f"delta={self._delta_max:.0e}/{self._delta:.0e} |d|/h={np.abs(d).max()/h:.3f} "
-                      f"cg={self._counts.get('n_cg')} B={self._counts.get('n_precond_builds')} soc={self._counts.get('n_soc')}", flush=True)
             pt, rho = new
         with self._timed("eval"):
             inf_pr = float(np.abs(self.ev.g(pt.z, p)).max())
