@@ -33,7 +33,21 @@ differs is the linear algebra and the globalisation:
   solve unconverged: the steps of the measured convergent solves needed at most 10, while the
   first step of the genus-2 surface at tau = h needed 1e4-1e6 and crawled through its 50 iterations
   (both solvers converge there only at tau <= h/512).
-* Globalisation. Backtracking (halving) line search with the Armijo condition on W^. A step whose
+* First step of an indefinite solve. When CG meets negative curvature in the first Newton system of a
+  solve (a first step from an initial mesh: the reduced Hessian at X^0 is indefinite with the adjoint
+  multiplier), that system is solved accurately (CG to ``first_cg_tol``) with the shift ``first_shift`` D
+  (300; x10 while CG still meets negative curvature) and the solve continues by the full-space (SQP)
+  iteration: Newton on the KKT system of min W s.t. g = 0, each system reduced as above with
+  dz_p = [0; -J_Y^-1 g], (Z^T H Z + delta D) dx = -Z^T (grad W + H dz_p), dy = -J_Y^-1 (g + J_X dx), the
+  Hessian H with the multiplier of the previous KKT step lam+ = -J_Y^-T (f_Y + (H dz)_Y) instead of the
+  adjoint multiplier of the current X, backtracking on the augmented Lagrangian W + lam . g + rho/2 |g|^2
+  (Armijo along (dz, lam+ - lam), rho raised where the slope needs it; a second-order correction Y = Y[X]
+  of a rejected full step) and the reduced gradient at Y = Y[X] as the final test. The first step's
+  multiplier makes H positive definite on the constraint's tangent space where the adjoint one is not
+  (tested densely): step 1 of the benchmark spheres took 7 / 6 / 7 Newton iterations at 642 / 2,562 /
+  10,242 vertices instead of 8 / 11 / 13 (IPOPT 6 / 6 / 5). A first system without negative curvature
+  (a flow's later steps) is the reduced iteration's, unchanged.
+* Globalisation (reduced iteration). Backtracking (halving) line search with the Armijo condition on W^. A step whose
   predicted decrease is below the rounding level of W^ (100 eps |W^|) is accepted when it reduces
   |grad W^|_inf instead, whatever W^ does there (the last, quadratically convergent iterations:
   at 40,962 vertices the evaluation noise of W^ exceeded 100 eps |W^| and full Newton steps were
@@ -101,6 +115,14 @@ class NewtonKrylovSettings(ReducedSettings):
         The solve stops (not converged) when the shift of a Newton system would exceed ``max_shift`` D: the
         step problem is then far from convex at X^k (a tau too large for the shape), and the flow retries
         with tau/2 at once instead of after ``max_iter`` damped iterations.
+    first_shift : float
+        Shift (in units of D) of the first Newton system of a solve when CG meets negative curvature in it
+        unshifted; that system is then solved to ``first_cg_tol`` and the solve continues by the full-space
+        (SQP) iteration with its multiplier (module docstring). Measured on the benchmark spheres (step 1,
+        Newton iterations at 642 / 2,562 / 10,242 vertices): 30: 7 / 10 / -, 100: 6 / 6 / 11, 300: 7 / 6 / 7,
+        1000: 8 / 7 / 9.
+    first_cg_tol : float
+        CG relative residual of that shifted first system.
     """
 
     solver = "newton-krylov"
@@ -464,7 +486,6 @@ class NewtonKrylovSolver(ReducedSolver):
         rho = 0.0
         it = 0
         for it in range(self.max_iter + 1):
-            self._count("n_full_space")
             gmax = float(np.abs(pt.grad).max())
             if not it:  # iterate 0 was tested and its direction found by _iterate
                 with self._timed("cg"):
@@ -501,18 +522,29 @@ class NewtonKrylovSolver(ReducedSolver):
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
-            with self._timed("cg"):
-                dz = np.concatenate([d, dyp - pt.lu.solve(pt.Jx @ d)])
-                Hdz = pt.H @ dz
-                lam_new = pt.lu.solve(-(pt.gf[n:] + Hdz[n:]), trans="T")
+            dz, Hdz, lam_new = self._kkt_step(pt, d, dyp)
             new = self._merit_search(pt, p, dz, Hdz, lam_new, rho)
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
                 break
             pt, rho = new
+            self._count("n_full_space")  # Newton iterations of the full-space iteration
         with self._timed("eval"):
             inf_pr = float(np.abs(self.ev.g(pt.z, p)).max())
         return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.pgrad).max()), "inf_pr": inf_pr}
+
+    def _kkt_step(self, pt: _Point, d: np.ndarray, dyp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The KKT step from the X step ``d`` ((nX m,), from the reduced system) at ``pt`` (``pt.H``, ``pt.gf`` set):
+        dz = (d, dyp - J_Y^-1 J_X d) ((nx,), ``dyp`` = -J_Y^-1 g the step onto g = 0), H dz, and the new multiplier
+        lam+ = -J_Y^-T (f_Y + (H dz)_Y) ((ng,)): the Y rows of the KKT system (a shift in X leaves them as they are).
+        """
+        n = self.nxm
+        with self._timed("cg"):
+            dz = np.concatenate([d, dyp - pt.lu.solve(pt.Jx @ d)])
+            Hdz = pt.H @ dz
+            lam_new = pt.lu.solve(-(pt.gf[n:] + Hdz[n:]), trans="T")
+        self._count("n_linear_solves", 2)
+        return dz, Hdz, lam_new
 
     def _merit_search(self, pt: _Point, p: np.ndarray, dz: np.ndarray, Hdz: np.ndarray, lam_new: np.ndarray,
                       rho: float) -> tuple[_Point, float] | None:
