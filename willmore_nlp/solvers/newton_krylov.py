@@ -123,6 +123,9 @@ class NewtonKrylovSettings(ReducedSettings):
         1000: 8 / 7 / 9.
     first_cg_tol : float
         CG relative residual of that shifted first system.
+    step_cap : float
+        Largest step in X of the full-space iteration, in units of the mean edge length h of X^k (a longer
+        Newton step is scaled down to it before the line search).
     """
 
     solver = "newton-krylov"
@@ -137,6 +140,7 @@ class NewtonKrylovSettings(ReducedSettings):
     max_shift: float = option(1e3, real(0, lo_open=True))
     first_shift: float = option(300.0, real(0, lo_open=True))
     first_cg_tol: float = option(1e-3, real(0, 1, lo_open=True))
+    step_cap: float = option(1.0, real(0, lo_open=True))
 
 
 @register_solver("newton-krylov", NewtonKrylovSettings)
@@ -168,6 +172,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self.max_shift = settings.max_shift
         self.first_shift = settings.first_shift
         self.first_cg_tol = settings.first_cg_tol
+        self.step_cap = settings.step_cap
         self._jy = SymmetricFactor(settings.cholesky, simplicial=True)  # (N x N: simplicial solves faster)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
@@ -523,7 +528,7 @@ class NewtonKrylovSolver(ReducedSolver):
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
             dz, Hdz, lam_new = self._kkt_step(pt, d, dyp)
-            new = self._merit_search(pt, p, dz, Hdz, lam_new, rho)
+            new = self._merit_search(pt, p, dz, Hdz, lam_new, rho, min(1.0, self.step_cap * h / np.abs(d).max()))
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
                 break
@@ -547,9 +552,9 @@ class NewtonKrylovSolver(ReducedSolver):
         return dz, Hdz, lam_new
 
     def _merit_search(self, pt: _Point, p: np.ndarray, dz: np.ndarray, Hdz: np.ndarray, lam_new: np.ndarray,
-                      rho: float) -> tuple[_Point, float] | None:
-        """Backtracking on the augmented Lagrangian W + lam . g + rho/2 |g|^2 along (dz, lam_new - lam), with a
-        second-order correction (Y = Y[X]) of the full step."""
+                      rho: float, alpha: float) -> tuple[_Point, float] | None:
+        """Backtracking from ``alpha`` (the step cap) on the augmented Lagrangian W + lam . g + rho/2 |g|^2 along
+        (dz, lam_new - lam), with a second-order correction (Y = Y[X]) of the full step."""
         n = self.nxm
         P = self.P
         g, lam = pt.gv, pt.lam
@@ -566,7 +571,6 @@ class NewtonKrylovSolver(ReducedSolver):
         rounding = 100 * np.finfo(float).eps * max(abs(pt.f), abs(phi0))
         gmax = float(np.abs(pt.grad).max())
         Xk = P.params.xk(p)
-        alpha = 1.0
         for _ in range(40):
             zt = pt.z + alpha * dz
             lt = lam + alpha * (lam_new - lam)
