@@ -398,14 +398,17 @@ class NewtonKrylovSolver(ReducedSolver):
         return SolveResult(z=z, f=f, lam_g=lam, converged=status == "converged", status=status,
                            iterations=it, stats=stats)
 
-    def _iterate(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float,
-                         gtol: float) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
-        """Newton on W^ with Y = Y[X] at every iterate, Armijo line search on W^."""
+    def _iterate(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float, gtol: float,
+                 monitor: SolveMonitor | None = None,
+                 start: int = 0) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
+        """Newton on W^ with Y = Y[X] at every iterate, Armijo line search on W^; from iterate ``start`` with the
+        ``monitor`` of the solve when the full-space iteration hands back (it polled the monitor there)."""
         status = "maximum iterations"
-        it = 0
-        monitor = SolveMonitor(self.iteration_limit)  # the flow's budget; no constraints left to violate
+        it = start
+        handed_back = monitor is not None
+        monitor = monitor or SolveMonitor(self.iteration_limit)  # the flow's budget; no constraints left to violate
         P = self.P
-        for it in range(self.max_iter + 1):
+        for it in range(start, self.max_iter + 1):
             gmax = float(np.abs(pt.pgrad).max())
             if gmax <= gtol:
                 status = "converged"
@@ -415,7 +418,7 @@ class NewtonKrylovSolver(ReducedSolver):
             if self.should_stop():
                 status = "stopped"
                 break
-            if monitor(pt.f, np.zeros(0)):  # called at iterate it: cut after iteration_limit iterations
+            if not (handed_back and it == start) and monitor(pt.f, np.zeros(0)):  # cut after iteration_limit its
                 status = monitor.cut
                 break
             with self._timed("eval"):
@@ -523,7 +526,11 @@ class NewtonKrylovSolver(ReducedSolver):
                     dyp = -pt.lu.solve(pt.gv)
                     v = pt.gf + pt.H @ np.concatenate([np.zeros(n), dyp])
                     pt.pgrad = v[:n] + pt.Jx.T @ pt.lu.solve(-v[n:], trans="T")  # Z^T (grad W + H dz_p)
-                d = self._direction(pt, p, D, h)[0]
+                d, shifted = self._direction(pt, p, D, h)
+                if shifted:  # negative curvature again: back to the reduced iteration, from Y = Y[X]
+                    q = self._at(pt.x, p, P.unpack_z(pt.z, Xk)[1])
+                    self._count("n_restoration")
+                    return self._iterate(q, p, D, h, gtol, monitor, it)
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
