@@ -312,3 +312,48 @@ def test_reduced_energy_is_exact_at_tiny_steps(min_steps: int, monkeypatch) -> N
         assert err <= 0.2
     else:
         assert err > 100
+
+
+def test_first_step_of_an_indefinite_solve_is_the_dense_shifted_kkt_step() -> None:
+    """On the ellipsoid the reduced Hessian at X^0 with the adjoint multiplier is indefinite (measured: 29
+    negative eigenvalues relative to D, the smallest -0.71). The solver's first step (CG to 1e-12) equals
+    the dense solve of the KKT system with H + first_shift D in the X block (measured 1.3e-12 of the step in
+    z, 4e-14 in the multiplier), and that step's multiplier - the one the full-space iteration uses next -
+    makes the Hessian of the Lagrangian positive definite on the constraint's tangent space at X^0 and at
+    X^1 (measured: no negative eigenvalue, the smallest +0.64 and +0.63)."""
+    mesh = _ellipsoid()
+    h = mesh.h
+    setup = build_step(mesh)
+    P = setup.problem
+    ev = StepEvaluator(P, P.functions())
+    p = setup.params(mesh.vertices, 0.2 * h, h * h / 100, 0.0)
+    z0 = P.pack_z(mesh.vertices, ev.solve_y(mesh.vertices, p))
+    n, ng = P.nX * P.m, P.ng
+    res = make_solver("newton-krylov", ev, {"max_iter": 1, "first_cg_tol": 1e-12}).solve(z0, p)
+    assert res.stats["iteration"] == "full-space" and res.stats["n_full_space"] == 1
+    shift = res.stats["delta_max"]
+    assert shift == 300.0  # the default first_shift: CG met negative curvature in the unshifted system
+
+    _, gf = ev.f_grad(z0, p)
+    J = ev.jac_g(z0, p).toarray()
+    lam0 = np.linalg.solve(J[:, n:].T, -gf[n:])  # the adjoint multiplier at X^0
+    D = ev.hess_lag(z0, P.params.replace(p, tau=0.0), 1.0, np.zeros(ng)).toarray()[:n, :n]
+    L = np.linalg.cholesky(D)
+
+    def tangent_eigenvalues(z: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """Eigenvalues of Z^T H(z, lam) Z relative to D, Z = [I; -J_Y^-1 J_X] (dense)."""
+        Jz = ev.jac_g(z, p).toarray()
+        Z = np.vstack([np.eye(n), -np.linalg.solve(Jz[:, n:], Jz[:, :n])])
+        A = Z.T @ ev.hess_lag(z, p, 1.0, lam).toarray() @ Z
+        return np.linalg.eigvalsh(np.linalg.solve(L, np.linalg.solve(L, 0.5 * (A + A.T)).T))
+
+    assert tangent_eigenvalues(z0, lam0).min() < -0.1
+    K = np.block([[ev.hess_lag(z0, p, 1.0, lam0).toarray(), J.T], [J, np.zeros((ng, ng))]])
+    K[:n, :n] += shift * D
+    sol = np.linalg.solve(K, -np.concatenate([gf, ev.g(z0, p)]))
+    dz, lam1 = sol[: n + ng], sol[n + ng :]
+    assert np.abs(np.asarray(res.z) - (z0 + dz)).max() <= 1e-9 * np.abs(dz).max()
+    assert np.abs(np.asarray(res.lam_g)[:ng] - lam1).max() <= 1e-9 * np.abs(lam1).max()
+    assert np.abs(lam1 - lam0).max() > 1e-2 * np.abs(lam0).max()  # not the adjoint multiplier
+    assert tangent_eigenvalues(z0, lam1).min() > 0.1
+    assert tangent_eigenvalues(z0 + dz, lam1).min() > 0.1

@@ -33,7 +33,24 @@ differs is the linear algebra and the globalisation:
   solve unconverged: the steps of the measured convergent solves needed at most 10, while the
   first step of the genus-2 surface at tau = h needed 1e4-1e6 and crawled through its 50 iterations
   (both solvers converge there only at tau <= h/512).
-* Globalisation. Backtracking (halving) line search with the Armijo condition on W^. A step whose
+* First step of an indefinite solve. When CG meets negative curvature in the first Newton system of a
+  solve (a first step from an initial mesh: the reduced Hessian at X^0 is indefinite with the adjoint
+  multiplier), that system is solved accurately (CG to ``first_cg_tol``) with the shift ``first_shift`` D
+  (300; x10 while CG still meets negative curvature) and the solve continues by the full-space (SQP)
+  iteration: Newton on the KKT system of min W s.t. g = 0, each system reduced as above with
+  dz_p = [0; -J_Y^-1 g], (Z^T H Z + delta D) dx = -Z^T (grad W + H dz_p), dy = -J_Y^-1 (g + J_X dx), the
+  Hessian H with the multiplier of the previous KKT step lam+ = -J_Y^-T (f_Y + (H dz)_Y) instead of the
+  adjoint multiplier of the current X, backtracking on the augmented Lagrangian W + lam . g + rho/2 |g|^2
+  (Armijo along (dz, lam+ - lam), rho raised where the slope needs it; a second-order correction Y = Y[X]
+  of a rejected full step, a step cap of ``step_cap`` h) and the reduced gradient at Y = Y[X] as the final
+  test. When a later system meets negative curvature again, the multiplier did not help: the reduced iteration
+  restarts from X^0 with the preconditioner's state of the start (its path as without the attempt, the
+  attempt's iterations later; flattened caps). The first step's
+  multiplier makes H positive definite on the constraint's tangent space where the adjoint one is not
+  (tested densely): step 1 of the benchmark spheres took 7 / 6 / 7 Newton iterations at 642 / 2,562 /
+  10,242 vertices instead of 8 / 11 / 13 (IPOPT 6 / 6 / 5). A first system without negative curvature
+  (a flow's later steps) is the reduced iteration's, unchanged.
+* Globalisation (reduced iteration). Backtracking (halving) line search with the Armijo condition on W^. A step whose
   predicted decrease is below the rounding level of W^ (100 eps |W^|) is accepted when it reduces
   |grad W^|_inf instead, whatever W^ does there (the last, quadratically convergent iterations:
   at 40,962 vertices the evaluation noise of W^ exceeded 100 eps |W^| and full Newton steps were
@@ -101,6 +118,17 @@ class NewtonKrylovSettings(ReducedSettings):
         The solve stops (not converged) when the shift of a Newton system would exceed ``max_shift`` D: the
         step problem is then far from convex at X^k (a tau too large for the shape), and the flow retries
         with tau/2 at once instead of after ``max_iter`` damped iterations.
+    first_shift : float
+        Shift (in units of D) of the first Newton system of a solve when CG meets negative curvature in it
+        unshifted; that system is then solved to ``first_cg_tol`` and the solve continues by the full-space
+        (SQP) iteration with its multiplier (module docstring). Measured on the benchmark spheres (step 1,
+        Newton iterations at 642 / 2,562 / 10,242 vertices): 30: 7 / 10 / -, 100: 6 / 6 / 11, 300: 7 / 6 / 7,
+        1000: 8 / 7 / 9.
+    first_cg_tol : float
+        CG relative residual of that shifted first system.
+    step_cap : float
+        Largest step in X of the full-space iteration, in units of the mean edge length h of X^k (a longer
+        Newton step is scaled down to it before the line search).
     """
 
     solver = "newton-krylov"
@@ -113,6 +141,9 @@ class NewtonKrylovSettings(ReducedSettings):
     cg_stale: int = option(25, integer(1))
     cg_forcing: float = option(0.1, real(0, 1, lo_open=True))
     max_shift: float = option(1e3, real(0, lo_open=True))
+    first_shift: float = option(300.0, real(0, lo_open=True))
+    first_cg_tol: float = option(1e-3, real(0, 1, lo_open=True))
+    step_cap: float = option(1.0, real(0, lo_open=True))
 
 
 @register_solver("newton-krylov", NewtonKrylovSettings)
@@ -142,6 +173,9 @@ class NewtonKrylovSolver(ReducedSolver):
         self.cg_stale = settings.cg_stale
         self.cg_forcing = settings.cg_forcing
         self.max_shift = settings.max_shift
+        self.first_shift = settings.first_shift
+        self.first_cg_tol = settings.first_cg_tol
+        self.step_cap = settings.step_cap
         self._jy = SymmetricFactor(settings.cholesky, simplicial=True)  # (N x N: simplicial solves faster)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
@@ -162,6 +196,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._delta = self._delta_max = 0.0  # shift of the Newton systems
         self.should_stop = lambda: False
         self._edges: np.ndarray | None = None
+        self._first_state: tuple[np.ndarray | None, int] = (None, 0)
 
     # -- bookkeeping ------------------------------------------------------------------
     @contextmanager
@@ -285,9 +320,17 @@ class NewtonKrylovSolver(ReducedSolver):
             pt.CBC = pt.C @ pt.BC
         return s - pt.BC @ np.linalg.solve(pt.CBC, pt.C @ s)
 
-    def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float) -> np.ndarray | None:
+    def _direction(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float,
+                   first: bool = False) -> tuple[np.ndarray | None, bool]:
         """Newton direction from PCG on (Z^T H Z + delta D) d = -pt.grad, rebuilding B and shifting as needed;
-        None when the shift would exceed ``max_shift``.
+        None when the shift would exceed ``max_shift``. ``first``: the first system of a solve, whose shift
+        (when CG meets negative curvature) starts at ``first_shift`` and is solved to ``first_cg_tol``; the
+        next system starts unshifted (module docstring).
+
+        Returns
+        -------
+        d : (nX m,) or None
+        shifted : whether d solves a shifted system
 
         ``pt.H`` (the Lagrangian Hessian at ``pt.z`` with multipliers ``pt.lam``) must be set. Solver state
         across iterations: ``_pre_x`` (where B was built), ``_delta``, ``_g0`` (first gradient size).
@@ -296,6 +339,8 @@ class NewtonKrylovSolver(ReducedSolver):
         if (self._pre_x is None or self._pre_tau != tau or self._cg_since_build >= self.cg_rebuild
                 or np.abs(pt.x - self._pre_x).max() > self.precond_move * h):
             self._rebuild(pt, p, D)
+        if first:  # the preconditioner's state before the first system (a replay from X^0 restores it)
+            self._first_state = (self._pre_x, self._cg_since_build)
         gmax = float(np.abs(pt.pgrad).max())
         delta = self._delta / 10 if self._delta >= 1e-3 else 0.0
         rel = float(np.sqrt(gmax / self._g0))  # superlinear forcing
@@ -303,7 +348,8 @@ class NewtonKrylovSolver(ReducedSolver):
             rel = min(rel, 0.1 * self._gtol / gmax)
         for _ in range(12):
             fresh = np.array_equal(pt.x, self._pre_x)
-            eta = min(0.5 if delta else self.cg_forcing, rel)  # a shifted system is only a safeguard
+            # a shifted system is only a safeguard, except the first one (its multiplier matters)
+            eta = self.first_cg_tol if first and delta else min(0.5 if delta else self.cg_forcing, rel)
             limit = self.cg_max_iter if fresh else self.cg_stale
             with self._timed("cg"):
                 d, k, state = self._pcg(pt, p, D, delta, eta, limit)
@@ -314,13 +360,14 @@ class NewtonKrylovSolver(ReducedSolver):
                 continue
             if state != "negative":
                 break
-            delta = max(1.0, 10 * delta)
+            raised = self.first_shift if first and not delta else max(1.0, 10 * delta)
+            delta = self.max_shift if 0 < delta < self.max_shift < raised else raised  # the cap itself is tried
             if delta > self.max_shift:
                 self._delta_max = delta
-                return None
-        self._delta = delta
+                return None, True
+        self._delta = 0.0 if first else delta
         self._delta_max = max(self._delta_max, delta)
-        return d
+        return d, bool(delta)
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used)."""
@@ -339,8 +386,10 @@ class NewtonKrylovSolver(ReducedSolver):
         D = self._distance_hessian(pt.z, p)
         self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
         self._delta = self._delta_max = 0.0
+        stats: dict[str, Any] = {}
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
-        stats: dict[str, Any] = dict(self._counts)
+        stats["iteration"] = "full-space" if self._counts.get("n_full_space") else "reduced"
+        stats.update(self._counts)
         stats["newton_iterations"] = it
         stats.setdefault("n_cg", 0)
         stats["cholesky"] = self.backend
@@ -356,13 +405,17 @@ class NewtonKrylovSolver(ReducedSolver):
         return SolveResult(z=z, f=f, lam_g=lam, converged=status == "converged", status=status,
                            iterations=it, stats=stats)
 
-    def _iterate(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float,
-                         gtol: float) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
-        """Newton on W^ with Y = Y[X] at every iterate, Armijo line search on W^."""
+    def _iterate(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float, gtol: float,
+                 monitor: SolveMonitor | None = None,
+                 start: int = 0) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
+        """Newton on W^ with Y = Y[X] at every iterate, Armijo line search on W^; from iterate ``start`` with the
+        ``monitor`` of the solve when the full-space iteration hands back (it polled the monitor there)."""
         status = "maximum iterations"
-        it = 0
-        monitor = SolveMonitor(self.iteration_limit)  # the flow's budget; no constraints left to violate
-        for it in range(self.max_iter + 1):
+        it = start
+        handed_back = monitor is not None
+        monitor = monitor or SolveMonitor(self.iteration_limit)  # the flow's budget; no constraints left to violate
+        P = self.P
+        for it in range(start, self.max_iter + 1):
             gmax = float(np.abs(pt.pgrad).max())
             if gmax <= gtol:
                 status = "converged"
@@ -372,16 +425,19 @@ class NewtonKrylovSolver(ReducedSolver):
             if self.should_stop():
                 status = "stopped"
                 break
-            if monitor(pt.f, np.zeros(0)):  # called at iterate it: cut after iteration_limit iterations
+            if not (handed_back and it == start) and monitor(pt.f, np.zeros(0)):  # cut after iteration_limit its
                 status = monitor.cut
                 break
             with self._timed("eval"):
                 pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)  # (half the memory of the mirrored matrix)
             self._count("n_eval_hess")
-            d = self._direction(pt, p, D, h)
+            first = it == 0 and not (P.nh or P.nonlinear_inner)
+            d, shifted = self._direction(pt, p, D, h, first)
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
+            if shifted and first:  # indefinite at X^k: SQP from the accurately shifted first step on
+                return self._iterate_full(pt, p, D, h, gtol, monitor, d)
             new = self._line_search(pt, p, d)
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
@@ -413,3 +469,153 @@ class NewtonKrylovSolver(ReducedSolver):
             alpha *= 0.5
         return None
 
+
+    # -- full-space (SQP) iteration ---------------------------------------------------
+    def _full_point(self, z: np.ndarray, p: np.ndarray, lam: np.ndarray) -> _Point:
+        """Everything the full-space iteration needs at a (possibly infeasible) z: W, its gradient, g, J,
+        the factorised J_Y, the reduced gradient Z^T grad W (adjoint at z) and the Hessian multipliers ``lam``."""
+        n = self.nxm
+        with self._timed("eval"):
+            f, gf = self.ev.f_grad(z, p)
+            gv, J = self.ev.g_jac(z, p)
+        self._count("n_eval_grad_f")
+        self._count("n_eval_jac_g")
+        lu = self._factor_jy(J[:, n:])
+        with self._timed("cg"):
+            adj = lu.solve(-gf[n:], trans="T")
+        Jx = J[:, :n]
+        grad = gf[:n] + Jx.T @ adj
+        return _Point(z[:n].copy(), z, f, grad, lam, Jx, lu, Jy=J[:, n:], pgrad=grad, gf=gf, gv=gv)
+
+    def _iterate_full(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float, gtol: float,
+                      monitor: SolveMonitor,
+                      d0: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, int, str, dict[str, float]]:
+        """Full-space Newton (SQP) on the KKT system of min W s.t. g = 0, each system in reduced form, from the
+        feasible first iterate ``pt`` of :meth:`_iterate` (its Hessian ``pt.H`` set, its checks done) and that
+        iterate's Newton direction ``d0`` (module docstring)."""
+        P, n = self.P, self.nxm
+        Xk = P.params.xk(p)
+        status = "maximum iterations"
+        with self._timed("eval"):
+            pt.gv = self.ev.g(pt.z, p)
+        rho = 0.0
+        it = 0
+        pt0 = pt
+        for it in range(self.max_iter + 1):
+            gmax = float(np.abs(pt.grad).max())
+            if not it:  # iterate 0 was tested and its direction found by _iterate
+                with self._timed("cg"):
+                    dyp = -pt.lu.solve(pt.gv)
+                d: np.ndarray | None = d0
+            else:
+                if gmax <= gtol:  # final test at the restored point Y = Y[X] (the reduced iteration's test)
+                    q = self._at(pt.x, p, P.unpack_z(pt.z, Xk)[1])
+                    self._count("n_restoration")
+                    with self._timed("eval"):
+                        q.gv = self.ev.g(q.z, p)
+                    if float(np.abs(q.pgrad).max()) <= gtol:
+                        pt = q
+                        status = "converged"
+                        break
+                    q.lam = pt.lam
+                    pt = q
+                if it == self.max_iter:
+                    break
+                if self.should_stop():
+                    status = "stopped"
+                    break
+                if monitor(pt.f, pt.gv):
+                    status = monitor.cut
+                    break
+                with self._timed("eval"):
+                    pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)
+                self._count("n_eval_hess")
+                with self._timed("cg"):
+                    dyp = -pt.lu.solve(pt.gv)
+                    v = pt.gf + pt.H @ np.concatenate([np.zeros(n), dyp])
+                    pt.pgrad = v[:n] + pt.Jx.T @ pt.lu.solve(-v[n:], trans="T")  # Z^T (grad W + H dz_p)
+                d, shifted = self._direction(pt, p, D, h)
+                if shifted:  # negative curvature again: the first multiplier did not help. The reduced
+                    # iteration from X^0 with the preconditioner's state of the start: its path as without
+                    # the full-space attempt, two iterations later
+                    pre_x, cg = self._first_state
+                    if self._pre_x is pre_x:
+                        self._cg_since_build = cg
+                    else:
+                        self._rebuild(pt0, p, D)
+                    self._delta = 0.0
+                    self._count("n_replay")  # (J_Y's factorisation is refactorised in place: X^0 evaluated again)
+                    return self._iterate(self._at(pt0.x, p, P.unpack_z(pt0.z, Xk)[1]), p, D, h, gtol, monitor, it)
+            if d is None:
+                status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
+                break
+            dz, Hdz, lam_new = self._kkt_step(pt, d, dyp)
+            new = self._merit_search(pt, p, dz, Hdz, lam_new, rho, min(1.0, self.step_cap * h / np.abs(d).max()))
+            if new is None:
+                status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
+                break
+            pt, rho = new
+            self._count("n_full_space")  # Newton iterations of the full-space iteration
+        with self._timed("eval"):
+            inf_pr = float(np.abs(self.ev.g(pt.z, p)).max())
+        return pt.z, pt.f, pt.lam, it, status, {"inf_du": float(np.abs(pt.pgrad).max()), "inf_pr": inf_pr}
+
+    def _kkt_step(self, pt: _Point, d: np.ndarray, dyp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The KKT step from the X step ``d`` ((nX m,), from the reduced system) at ``pt`` (``pt.H``, ``pt.gf`` set):
+        dz = (d, dyp - J_Y^-1 J_X d) ((nx,), ``dyp`` = -J_Y^-1 g the step onto g = 0), H dz, and the new multiplier
+        lam+ = -J_Y^-T (f_Y + (H dz)_Y) ((ng,)): the Y rows of the KKT system (a shift in X leaves them as they are).
+        """
+        n = self.nxm
+        with self._timed("cg"):
+            dz = np.concatenate([d, dyp - pt.lu.solve(pt.Jx @ d)])
+            Hdz = pt.H @ dz
+            lam_new = pt.lu.solve(-(pt.gf[n:] + Hdz[n:]), trans="T")
+        self._count("n_linear_solves", 2)
+        return dz, Hdz, lam_new
+
+    def _merit_search(self, pt: _Point, p: np.ndarray, dz: np.ndarray, Hdz: np.ndarray, lam_new: np.ndarray,
+                      rho: float, alpha: float) -> tuple[_Point, float] | None:
+        """Backtracking from ``alpha`` (the step cap) on the augmented Lagrangian W + lam . g + rho/2 |g|^2 along
+        (dz, lam_new - lam), with a second-order correction (Y = Y[X]) of the full step."""
+        n = self.nxm
+        P = self.P
+        g, lam = pt.gv, pt.lam
+        gdz = float(pt.gf @ dz)
+        gg = float(g @ g)
+        curv = max(float(dz @ Hdz), 0.0)
+        slope = gdz + float((lam_new - 2 * lam) @ g)  # the slope without the rho term
+        if gg > 0 and slope - rho * gg > -0.5 * curv:
+            rho = max(rho, 2 * (slope + 0.5 * curv) / gg)
+        dphi = slope - rho * gg
+        phi0 = pt.f + float(lam @ g) + 0.5 * rho * gg
+        if not dphi < 0:
+            return None
+        rounding = 100 * np.finfo(float).eps * max(abs(pt.f), abs(phi0))
+        gmax = float(np.abs(pt.grad).max())
+        Xk = P.params.xk(p)
+        for _ in range(40):
+            zt = pt.z + alpha * dz
+            lt = lam + alpha * (lam_new - lam)
+            with self._timed("eval"):
+                ft, gt = self.ev.f(zt, p), self.ev.g(zt, p)
+            phi = ft + float(lt @ gt) + 0.5 * rho * float(gt @ gt)
+            if np.isfinite(phi) and phi <= phi0 + self.armijo * alpha * dphi:
+                return self._full_point(zt, p, lt), rho
+            if alpha == 1.0:  # second-order correction: Y = Y[X] at the full step's X
+                try:
+                    q = self._at(zt[:n], p, P.unpack_z(zt, Xk)[1])
+                except RuntimeError:
+                    q = None
+                self._count("n_soc")
+                if q is not None and np.isfinite(q.f):
+                    with self._timed("eval"):
+                        q.gv = self.ev.g(q.z, p)
+                    if q.f + float(lt @ q.gv) + 0.5 * rho * float(q.gv @ q.gv) <= phi0 + self.armijo * dphi:
+                        q.lam = lt
+                        return q, rho
+            if -alpha * dphi <= rounding and np.isfinite(phi):
+                q = self._full_point(zt, p, lt)
+                if float(np.abs(q.grad).max()) < gmax:
+                    return q, rho
+            alpha *= 0.5
+        return None

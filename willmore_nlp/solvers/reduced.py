@@ -80,6 +80,8 @@ class _Point:
     C: Any = None  # (nh, nX m) reduced outer constraint Jacobian
     BC: Any = None  # B^-1 C^T and C B^-1 C^T of a preconditioner B (newton-krylov)
     CBC: Any = None
+    gf: Any = None  # (nx,) objective gradient at z
+    gv: Any = None  # (ng,) inner constraint residual at z (newton-krylov's full-space iteration)
 
 
 class ReducedSolver:
@@ -128,7 +130,7 @@ class ReducedSolver:
         self._count("n_linear_solves")
         Jx = J[:, : self.nxm]
         grad = gf[: self.nxm] + Jx.T @ lam
-        pt = _Point(x.copy(), z, f, grad, lam, Jx, lu, Jy=J[:, self.nxm :], pgrad=grad)
+        pt = _Point(x.copy(), z, f, grad, lam, Jx, lu, Jy=J[:, self.nxm :], pgrad=grad, gf=gf)
         if self.P.nh:
             c, Jc = self.ev.c_jac(z, p)
             Jh = Jc.tocsr()[self.P.ng :]
