@@ -155,24 +155,23 @@ def test_resume_export_and_load_across_a_remesh(tmp_path) -> None:
 
 
 def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> None:
-    """config.json records the resolved control ("auto" -> "meanratio", weight 1 on this torus); a run directory
+    """config.json records the resolved control ("auto" -> "meanratio", weight 1 on a sphere); a run directory
     written before that record existed (when the default was "off") resumes with the control off: 2 + 2 steps of it
     equal 4 uninterrupted steps with ``tangential_control=off`` bit for bit."""
     from willmore_nlp.runner import stored_control
 
-    off, part = tmp_path / "off", tmp_path / "part"
-    for out, steps, extra in ((off, "4", ["--set", "tangential_control=off"]), (part, "2", [])):
-        r = subprocess.run([*CLI, "run", *TORUS, *extra, "--steps", steps, "--out", str(out)], capture_output=True,
+    sphere = ["sphere", "--set", "subdivisions=2", "--set", "tau=0.05", "--quiet"]
+    off, auto, old = tmp_path / "off", tmp_path / "auto", tmp_path / "old"
+    for out, steps, extra in ((off, "4", ["--set", "tangential_control=off"]), (auto, "2", []),
+                              (old, "2", ["--set", "tangential_control=off"])):
+        r = subprocess.run([*CLI, "run", *sphere, *extra, "--steps", steps, "--out", str(out)], capture_output=True,
                            text=True, timeout=600)
         assert r.returncode == 0, r.stderr
-    cfg = json.loads((part / "config.json").read_text())
-    assert cfg["tangential_control"] == {"method": "meanratio", "weight": 1.0}
+    recorded = json.loads((auto / "config.json").read_text())["tangential_control"]
+    assert recorded == {"method": "meanratio", "weight": 1.0}
+    assert np.abs(load_run(auto).states[2].vertices - load_run(off).states[2].vertices).max() > 1e-6
     assert stored_control(json.loads((off / "config.json").read_text()))["tangential_control"] == "off"
-    # the same run as written before the record: its first two steps are the "off" run's
-    old = tmp_path / "old"
-    r = subprocess.run([*CLI, "run", *TORUS, "--set", "tangential_control=off", "--steps", "2", "--out", str(old)],
-                       capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr
+    # the "off" run as written before the record existed
     cfg = json.loads((old / "config.json").read_text())
     del cfg["tangential_control"], cfg["flow_options"]["tangential_control"]
     del cfg["effective_flow_options"]["tangential_control"]
@@ -181,8 +180,7 @@ def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> N
     r = subprocess.run([*CLI, "run", "--resume", str(old), "--steps", "4", "--quiet"], capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr
-    a, b = load_run(off), load_run(old)
-    for sa, sb in zip(a.states, b.states, strict=True):
+    for sa, sb in zip(load_run(off).states, load_run(old).states, strict=True):
         assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)
 
 

@@ -26,10 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from willmore_nlp.errors import UserInputError
+from willmore_nlp.mesh.core import Mesh
 
 CONTROL_METHODS = ("auto", "off", "meanratio")
 """Values of the ``tangential_control`` option: "off" is the paper's scheme, "auto" (the default) is "meanratio" on
-surfaces in R^3 and "off" otherwise (:func:`resolve_method`)."""
+surfaces in R^3 with a boundary or of genus 0 and "off" otherwise (:func:`resolve_method`)."""
 
 DEFAULT_CONTROL_WEIGHT = 1.0
 """Default beta of the mean-ratio control (``tangential_control_weight``). Measured against 0.3 and 3 on the
@@ -37,17 +38,25 @@ mesh-quality study's surfaces (docs/guide/mesh_quality.md, "Rest means rest"): 1
 repair alone in every case (the 642-v vesicle cup rests with 1 and not with 0.3; 3 slows the blends' rest)."""
 
 
-def resolve_method(method: str, d: int, m: int, mesh_control: str, variational: bool) -> str:
+def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool) -> str:
     """The control a flow runs: ``method`` itself unless it is "auto".
 
-    "auto" is "meanratio" for triangle surfaces in R^3 (``d == 2``, ``m == 3``; closed or with a clamped
-    boundary, isotropic or anisotropic) when the mesh control is on (``mesh_control == "auto"``) and the step solver
-    minimises W (``variational``; the semi-implicit baseline does not), else "off": curves keep the paper's scheme.
+    "auto" is "meanratio" for triangle surfaces in R^3 with a boundary or of genus 0 (every component of a closed
+    one a sphere; isotropic or anisotropic) when the mesh control is on (``mesh_control == "auto"``) and the step
+    solver minimises W (``variational``; the semi-implicit baseline does not), else "off": curves keep the paper's
+    scheme, and so do closed surfaces of genus >= 1, whose discrete energy falls below the Clifford torus's faster
+    with the control (a trimesh torus R/r = 2.5, 512 v: 3.7 % below the grid Clifford torus at t = 0.14 with it, on
+    it without; docs/guide/tangential_control.md).
     """
     if method != "auto":
         return method
-    on = d == 2 and m == 3 and mesh_control == "auto" and variational
-    return "meanratio" if on else "off"
+    if not (mesh.d == 2 and mesh.m == 3 and mesh_control == "auto" and variational):
+        return "off"
+    if not mesh.is_closed:
+        return "meanratio"
+    from willmore_nlp.mesh.topology import components, euler_characteristic
+
+    return "meanratio" if euler_characteristic(mesh) == 2 * components(mesh)[0] else "off"
 
 
 @dataclass(frozen=True)
@@ -245,6 +254,34 @@ def _capped_step(V: np.ndarray, S: np.ndarray, P: np.ndarray, fraction: float) -
     return T * (fraction * np.minimum(1.0, cap))[:, None]
 
 
+FEATURE_ANGLES = (35.0, 45.0)
+"""Angles (degrees) between a node's unit vertex normal and the normals of its triangles over which the control's
+weight at the node fades from 1 to 0 (:func:`feature_weights`): where the mesh has no tangent plane (the edges and
+corners of a box, 45 and 55 degrees) the control would hold the node to a plane that is not there. Measured on a
+trimesh box subdivided three times (386 v, its edges and corners 92 nodes): with the control at full weight the first
+step failed at every tau from h to h/256 (IPOPT over its 100-iteration first-step budget, then edge ratio 4e3);
+without the target S at those nodes (the projector kept) it failed too; with the node's whole term faded it is taken
+at h/2 and the flow continues at 5-8 iterations per step. Resolved smooth meshes are untouched: the largest angle is
+11 deg on icosphere(2), 21 on icosphere(1), 18 on the 24x12 torus, 13 on a 32x16 trimesh torus."""
+
+
+def feature_weights(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(N,) weight in [0, 1] of the control at each node of a triangle surface: 1 where every incident triangle's
+    normal is within ``FEATURE_ANGLES[0]`` of the (area-weighted) vertex normal, 0 from ``FEATURE_ANGLES[1]`` on,
+    linear in the cosine between (:data:`FEATURE_ANGLES`)."""
+    cr = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+    vn = np.zeros_like(V)
+    for a in range(3):
+        np.add.at(vn, S[:, a], cr)
+    vn /= np.maximum(np.linalg.norm(vn, axis=1), 1e-300)[:, None]
+    fn = cr / np.maximum(np.linalg.norm(cr, axis=1), 1e-300)[:, None]
+    c = np.ones(V.shape[0])
+    for a in range(3):
+        np.minimum.at(c, S[:, a], np.einsum("ij,ij->i", fn, vn[S[:, a]]))
+    hi, lo = np.cos(np.radians(FEATURE_ANGLES))
+    return np.clip((c - lo) / (hi - lo), 0.0, 1.0)
+
+
 def nodal_parameters(V: np.ndarray, S: np.ndarray, free: np.ndarray | None = None, fraction: float = 1.0,
                      substeps: int = 1) -> np.ndarray:
     """Per-node data ``[vec(P_i), S_i]`` of the control at Xk = V (module docstring).
@@ -263,7 +300,8 @@ def nodal_parameters(V: np.ndarray, S: np.ndarray, free: np.ndarray | None = Non
 
     Returns
     -------
-    (N, m*m + m) array, node-major; ``P_i`` row-major (it is symmetric)
+    (N, m*m + m) array, node-major; ``P_i`` row-major (it is symmetric); on surfaces ``P_i`` is scaled by the square
+    root of the node's :func:`feature_weights` (so its term by the weight; 1 on resolved smooth surfaces)
     """
     V = np.asarray(V, float)
     N, m = V.shape
@@ -274,6 +312,8 @@ def nodal_parameters(V: np.ndarray, S: np.ndarray, free: np.ndarray | None = Non
     for _ in range(parts - 1):  # each part from the state the earlier ones reached, fixed nodes kept
         Xs = Xs + keep[:, None] * _capped_step(Xs, S, vertex_projectors(Xs, S), fraction / parts)
     T = np.einsum("nab,nb->na", P, Xs - V)
+    if S.shape[1] == 3:  # the node's term beta m_i |P_i r_i|^2 scaled by its feature weight
+        P *= np.sqrt(feature_weights(V, S))[:, None, None]
     if free is not None:
         fixed = ~np.asarray(free, bool)
         P[fixed] = 0.0

@@ -154,6 +154,11 @@ def vertex_components(S: np.ndarray, N: int) -> tuple[int, np.ndarray]:
     return int(n), labels
 
 
+def euler_characteristic(mesh: Mesh) -> int:
+    """V - E + F of a triangle surface (2 - 2 g for a closed connected one of genus g)."""
+    return mesh.n_vertices - unique_edges(mesh.simplices).shape[0] + mesh.n_simplices
+
+
 def check_connected(mesh: Mesh, hint: str = "") -> None:
     """Raise :class:`MeshError` unless ``mesh`` is one connected curve or surface.
 
