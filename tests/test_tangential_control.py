@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from willmore_nlp import WillmoreFlow
+from willmore_nlp import WillmoreFlow, registry
 from willmore_nlp.boundary import Boundary
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import shapes
@@ -212,6 +212,9 @@ def test_auto_is_the_meanratio_control_on_surfaces_and_off_elsewhere() -> None:
     disk = shapes.disk(4)
     bd = Boundary(np.linalg.norm(disk.vertices[:, :2], axis=1) < 0.6)
     assert WillmoreFlow(disk, disk.h, 0.01 * disk.h**2, boundary=bd)._control.method == "meanratio"
+    # a clamped patch of a closed torus (torus_hole): the patch moves, the control is on
+    pb, _ = registry.build("torus_hole")
+    assert pb.make_flow()._control.method == "meanratio"
     assert WillmoreFlow(ell, tau, tt, solver="semi-implicit")._control.method == "off"
     curve = shapes.ellipse(32, 1.0, 0.7)
     c_auto = WillmoreFlow(curve, curve.h, 0.1 * curve.h**2)

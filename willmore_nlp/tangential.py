@@ -38,21 +38,22 @@ mesh-quality study's surfaces (docs/guide/mesh_quality.md, "Rest means rest"): 1
 repair alone in every case (the 642-v vesicle cup rests with 1 and not with 0.3; 3 slows the blends' rest)."""
 
 
-def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool) -> str:
+def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool, clamped: bool = False) -> str:
     """The control a flow runs: ``method`` itself unless it is "auto".
 
-    "auto" is "meanratio" for triangle surfaces in R^3 with a boundary or of genus 0 (every component of a closed
-    one a sphere; isotropic or anisotropic) when the mesh control is on (``mesh_control == "auto"``) and the step
-    solver minimises W (``variational``; the semi-implicit baseline does not), else "off": curves keep the paper's
-    scheme, and so do closed surfaces of genus >= 1, whose discrete energy falls below the Clifford torus's faster
-    with the control (a trimesh torus R/r = 2.5, 512 v: 3.7 % below the grid Clifford torus at t = 0.14 with it, on
-    it without; docs/guide/tangential_control.md).
+    "auto" is "meanratio" for triangle surfaces in R^3 that are clamped (``clamped``: a boundary condition holds
+    part of the mesh; the free patch is then what moves, whatever the genus of the whole mesh), have a boundary or
+    are of genus 0 (every component of a closed one a sphere; isotropic or anisotropic) when the mesh control is on
+    (``mesh_control == "auto"``) and the step solver minimises W (``variational``; the semi-implicit baseline does
+    not), else "off": curves keep the paper's scheme, and so do closed surfaces of genus >= 1, whose discrete energy
+    falls below the Clifford torus's faster with the control (a trimesh torus R/r = 2.5, 512 v: 3.7 % below the grid
+    Clifford torus at t = 0.14 with it, on it without; docs/guide/tangential_control.md).
     """
     if method != "auto":
         return method
     if not (mesh.d == 2 and mesh.m == 3 and mesh_control == "auto" and variational):
         return "off"
-    if not mesh.is_closed:
+    if clamped or not mesh.is_closed:
         return "meanratio"
     from willmore_nlp.mesh.topology import components, euler_characteristic
 
