@@ -47,6 +47,7 @@ from willmore_nlp.analysis import (
     minimal_s3_fit,
     sector_ratios,
     torus_fit,
+    torus_frame,
     torus_grid_asymmetry,
     torus_projection,
 )
@@ -142,6 +143,48 @@ def grid_table() -> list[str]:
         order = "" if prev is None else f"{np.log(prev[1] / d) / np.log(n / prev[0]):.2f}"
         out.append(f"| {n}x{n // 2} | {q:.5f} | {d:.5f} | {order} | {wmin:.4f} | {wc:.4f} | {4 * np.pi**2:.4f} |")
         prev = (n, d)
+    return out
+
+
+def frame_measures(t: float, V: np.ndarray, F: np.ndarray, W: float, h: float) -> list[float]:
+    """A torus state measured in the frame of its fitted torus of revolution (:func:`torus_frame`: free centre and
+    axis): [t, R/r, sector R/r min, max, conformal R/r min, max, W, W_ref (the mesh on the Clifford torus of that
+    frame and tube radius), distance of the fitted centre from the origin, tilt of the axis from x3 (deg), rms
+    distance of the vertices from the fitted torus / h]. The study's other measures take the axis x3 through the
+    origin (circle fit, W_ref) or the vertex centroid (sectors): a translation or tilt of the torus, or vertices
+    gathering on one side of it, reads there as a departure from the tori of revolution."""
+    U, c, a, R, r, d = torus_frame(V)
+    sec, conf = sector_ratios(U, centred=True), conformal_ratios(U, centred=True)
+    return [t, R / r, float(sec.min()), float(sec.max()), float(conf.min()), float(conf.max()), W,
+            clifford_reference(U, F), float(np.linalg.norm(c)), float(np.degrees(np.arccos(min(1.0, abs(a[2]))))),
+            float(np.sqrt(np.mean(d**2))) / h]
+
+
+def frame_from_states(directory: Path, names: list[str]) -> None:
+    """Add ``frame`` (:func:`frame_measures` at each saved time) to the cached torus cases ``names`` from the states
+    that ``--save-states`` wrote to ``directory`` (for runs made before the callback recorded it)."""
+    for key in names:
+        f = CACHE / f"{key}.json"
+        res = json.loads(f.read_text())
+        rows = []
+        for x in res["series"]:
+            st = np.load(directory / f"{res['name'].replace(' ', '_')}_t{x[0]:.4f}.npz")
+            rows.append(frame_measures(x[0], st["vertices"], st["simplices"], x[2], res["h"]))
+            print(f"  {key}: frame {rows[-1]}", flush=True)
+        res["frame"] = rows
+        f.write_text(json.dumps(res, indent=1))
+
+
+def frame_table(tor: list[dict[str, Any]]) -> list[str]:
+    """The torus cases' :func:`frame_measures` next to the fixed-axis circle fit and centroid sectors."""
+    out = ["| case | t | R/r, fixed axis (sectors about the centroid) | R/r in the torus's frame (sectors; conformal) "
+           "| W/W_ref - 1 (fixed axis / frame) | W/W_grid - 1 | centre moved, tilt | rms distance / h |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in tor:
+        for x, y in zip(r["series"], r.get("frame", []), strict=False):
+            out.append(f"| {r['name']} | {y[0]:.3g} | {x[1]:.3f} ({x[6]:.3f}-{x[7]:.3f}) | {y[1]:.4f} ({y[2]:.3f}-"
+                       f"{y[3]:.3f}; {y[4]:.3f}-{y[5]:.3f}) | {x[2] / x[5] - 1:+.2%} / {y[6] / y[7] - 1:+.2%} | "
+                       f"{y[6] / r['clifford_grid'] - 1:+.2%} | {y[8]:.3f}, {y[9]:.2f} deg | {y[10]:.3f} |")
     return out
 
 
@@ -257,11 +300,16 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     t0 = time.perf_counter()
 
     series: list[list[float]] = []
+    frame: list[list[float]] = []
     marks = [0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0]
+
+    gauge: list[float] = []  # conformal_gauge_shift of the steps since the last mark
 
     def cb(r: Any) -> None:
         rows.append(r.row())
         last[:] = [r]
+        if "conformal_gauge_shift" in r.stats:
+            gauge.append(r.stats["conformal_gauge_shift"])
         if name.startswith("torus ") and marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
             while marks and r.t >= marks[0] * (t_end or 1.0) - 1e-12:
                 marks.pop(0)
@@ -270,11 +318,17 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
             m = flow.mesh.with_vertices(r.vertices)
             sec, conf = sector_ratios(r.vertices), conformal_ratios(r.vertices)
             n = int(np.rint(np.sqrt(2 * mesh.n_vertices)))
+            frame.append(frame_measures(r.t, r.vertices, flow.mesh.simplices, r.willmore, mesh.h))
             series.append([r.t, R / rr, r.willmore, float(min(before)), float(min(x["q_min_angle"] for x in rows)),
                            float(reference(m, flow)), float(sec.min()), float(sec.max()), float(conf.min()),
                            float(conf.max()), torus_grid_asymmetry(r.vertices, n, n // 2) / rr,
                            time.perf_counter() - t0, float(np.mean([x["iterations"] for x in rows[1:]])),
-                           float(sum(x["retries"] for x in rows[1:]))])
+                           float(sum(x["retries"] for x in rows[1:])),
+                           abs(rows[-1]["willmore_energy"] / rows[-2]["willmore_energy"] - 1),
+                           float(sum("remesh" in x["remesh_action"].split("+") for x in rows[1:])),
+                           float(np.median(gauge)) / mesh.h if gauge else float("nan"),
+                           float(np.max(gauge)) / mesh.h if gauge else float("nan")])
+            gauge.clear()
             if STATES is not None:
                 STATES.mkdir(parents=True, exist_ok=True)
                 np.savez(STATES / f"{name.replace(' ', '_')}_t{r.t:.4f}.npz", vertices=r.vertices,
@@ -324,7 +378,7 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
         out.update({"R_over_r": R / r, "sector_R_over_r": sector_ratios(flow.X).tolist(),
                     "conformal_R_over_r": conformal_ratios(flow.X).tolist(),
                     "clifford_grid": geometry.willmore_energy(shapes.torus(np.sqrt(2), 1.0, n, n // 2)),
-                    "W_min": float(W.min()), "series": series,
+                    "W_min": float(W.min()), "series": series, "frame": frame,
                     "iterations": [int(x["iterations"]) for x in rows[1:]]})
     return out
 
@@ -346,7 +400,7 @@ def cases(scale: float) -> dict[str, Any]:
         mesh = shapes.torus(1.0, 0.5, n, n // 2)
         label = {(): "", ("mesh_control",): " (mesh control off)", ("remesh_repair",): " (threshold repair only)",
                  ("remesh",): " (no repair between steps)",
-                 ("tangential_weight",): ""}[tuple(kw)] + ("" if switch else ", tau = 1e-3") + note
+                 ("tangential_weight",): ""}.get(tuple(kw), "") + ("" if switch else ", tau = 1e-3") + note
         return lambda: run_case(f"torus {n}x{n // 2}" + label, mesh, 1e-3,
                                 0.01 * mesh.h**2, t_end=1.0 * scale, reference=clifford,
                                 switch=(0.1, 4e-3) if scale == 1.0 and switch else None, **kw)
@@ -445,6 +499,12 @@ def cases(scale: float) -> dict[str, Any]:
         "torus32_beta10": torus(32, switch=False, note=", tangential_weight 10", tangential_weight=10.0),
         "torus48_beta10": torus(48, switch=False, note=", tangential_weight 10", tangential_weight=10.0),
         "torus64_beta10": torus(64, switch=False, note=", tangential_weight 10", tangential_weight=10.0),
+        # every option explicit (the defaults of tangential_control may change)
+        **{f"torus{k}" + ("_gauge" if g else "") + ("_meanratio" if c == "meanratio" else ""):
+           torus(k, switch=False,
+                 note=(", conformal_gauge" if g else "") + (", meanratio 1" if c == "meanratio" else ""),
+                 tangential_weight=1.0, tangential_control=c, tangential_control_weight=1.0, conformal_gauge=g)
+           for k in (24, 48, 64) for c in ("off", "meanratio") for g in (False, True) if g or c == "meanratio"},
         "torus24_off": torus(24, mesh_control="off"),
         "torus64_off": torus(64, mesh_control="off"),
         "torus32_threshold": torus(32, remesh_repair=0),
@@ -694,7 +754,12 @@ def main() -> None:
     ap.add_argument("--lawson-start", action="store_true",
                     help="only make the stored surface of shapes.lawson_genus2 (about 5 min)")
     ap.add_argument("--save-states", type=Path, help="write the torus states of the series to this directory")
+    ap.add_argument("--frame-from-states", type=Path,
+                    help="add the frame measures to the cached --cases from the states saved in this directory")
     args = ap.parse_args()
+    if args.frame_from_states:
+        frame_from_states(args.frame_from_states, args.cases)
+        return
     global STATES
     STATES = args.save_states
     if args.diagnose:
@@ -784,6 +849,14 @@ def main() -> None:
                   "the grid's, the asymmetry (`analysis.torus_grid_asymmetry` / r: 0 for an exactly rotationally "
                   "symmetric state):", ""]
         lines += resolution_table(tor)
+        if any(r.get("frame") for r in tor):
+            lines += ["", "The same states in the frame of their fitted torus of revolution (`analysis.torus_frame`: "
+                      "free centre and axis; W_ref: the mesh on the Clifford torus of that frame; \"centre moved\": "
+                      "the fitted centre's distance from the origin; rms distance: of the vertices from the fitted "
+                      "torus, in initial mean edges). The fixed-axis measures above misread a translation or tilt of "
+                      "the torus, and sectors about the vertex centroid misread vertices gathering on one side, as a "
+                      "departure from the tori of revolution:", ""]
+            lines += frame_table([r for r in tor if r.get("frame")])
         lines += ["", "The discrete Willmore energy of the tori of revolution meshed on the n x n/2 grid (R/r varied, "
                   "`grid_minimum`): its minimiser lies below sqrt 2 by O(h^2):", ""]
         lines += grid_table()

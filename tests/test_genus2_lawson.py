@@ -88,3 +88,18 @@ def test_lawson_start_steps_with_the_gauge() -> None:
     assert results[-1].willmore < w0
     assert abs(results[-1].willmore / LAWSON_21 - 1) < 0.03
     assert all(np.isfinite(r.stats["conformal_gauge_shift"]) for r in results)
+
+
+def test_conformal_motion_on_a_torus_of_revolution_sees_the_cyclide_directions() -> None:
+    """On the Clifford torus (48x24) the special conformal fields V_x, V_y (which make cyclides) are found exactly
+    from a planted map; V_z's normal component is that of a translation along the axis (r^2 - R^2) sin(theta)
+    (the rest is tangential), a near-null direction of the fit that it leaves alone (docs/guide/mesh_quality.md,
+    "The 48x24 torus with the conformal gauge")."""
+    t = shapes.torus(np.sqrt(2), 1.0, 48, 24)
+    centre, scale = t.vertices.mean(0), float(np.sqrt(geometry.measure(t) / (4 * np.pi)))
+    for b in ([1e-3, 0.0, 0.0], [4e-4, -7e-4, 0.0]):
+        got = geometry.conformal_motion(t, geometry.special_conformal_map(t.vertices, np.array(b), centre, scale))[0]
+        assert np.allclose(got, b, rtol=1e-5, atol=1e-9)
+    got = geometry.conformal_motion(t, geometry.special_conformal_map(t.vertices, np.array([0, 0, 1e-3]), centre,
+                                                                      scale))[0]
+    assert np.abs(got[:2]).max() < 1e-12 and abs(got[2]) < 0.1e-3

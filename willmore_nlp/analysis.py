@@ -242,14 +242,53 @@ def torus_fit(V: np.ndarray) -> tuple[float, float]:
     return R, r
 
 
-def sector_circles(V: np.ndarray, sectors: int = 8) -> np.ndarray:
+def torus_frame(V: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray]:
+    """The torus of revolution nearest to the points V ((N, 3)) with free centre and axis, and V in its frame.
+
+    Least squares of the point-surface distance over the centre c, the axis a (two angles), R and r, started
+    from the vertex centroid, x3 and :func:`torus_fit`. Unlike :func:`torus_fit` (axis x3 through the origin) and
+    :func:`sector_circles` (centroid, principal axis), it is not biased by a translation or tilt of the surface
+    or by vertices gathering on one side of it.
+
+    Returns
+    -------
+    (W, c, a, R, r, d): W (N, 3) the points in the torus's frame (c at the origin, a along x3; pass it to
+    :func:`torus_fit`, :func:`clifford_reference` and, with ``centred=True``, :func:`sector_circles` and the
+    functions built on it), c (3,), a (3,) unit, R, r, d (N,) the signed distances from the fitted torus.
+    """
+    from scipy.optimize import least_squares
+
+    V = np.asarray(V, float)
+
+    def axis(p: np.ndarray) -> np.ndarray:
+        return np.array([np.sin(p[3]) * np.cos(p[4]), np.sin(p[3]) * np.sin(p[4]), np.cos(p[3])])
+
+    def dist(p: np.ndarray) -> np.ndarray:
+        q = V - p[:3]
+        z = q @ axis(p)
+        return np.hypot(np.linalg.norm(q - np.outer(z, axis(p)), axis=1) - p[5], z) - p[6]
+
+    # theta starts off 0, where the azimuth phi has no derivative
+    p = least_squares(dist, np.r_[V.mean(axis=0), 1e-3, 0.0, torus_fit(V)], xtol=1e-14, ftol=1e-14).x
+    a = axis(p)
+    e1 = np.cross(a, [0.0, 1.0, 0.0] if abs(a[1]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    W = (V - p[:3]) @ np.column_stack([e1, np.cross(a, e1), a])
+    return W, p[:3], a, float(p[5]), float(p[6]), dist(p)
+
+
+def sector_circles(V: np.ndarray, sectors: int = 8, centred: bool = False) -> np.ndarray:
     """(sectors, 3) cross-section circles (distance of the centre from the axis, its height, radius), fitted by
     least squares in each of ``sectors`` equal angular sectors about the principal axis (the direction of least
-    extent) through the centroid."""
-    c = V.mean(axis=0)
-    _, vec = np.linalg.eigh(np.cov((V - c).T))
-    axis, e1 = vec[:, 0], vec[:, 2]
-    Y = (V - c) @ np.column_stack([e1, np.cross(axis, e1), axis])
+    extent) through the centroid, or with ``centred`` about x3 through the origin (V in the frame of
+    :func:`torus_frame`)."""
+    if centred:
+        Y = np.asarray(V, float)
+    else:
+        c = V.mean(axis=0)
+        _, vec = np.linalg.eigh(np.cov((V - c).T))
+        axis, e1 = vec[:, 0], vec[:, 2]
+        Y = (V - c) @ np.column_stack([e1, np.cross(axis, e1), axis])
     k = np.floor((np.arctan2(Y[:, 1], Y[:, 0]) + np.pi) / (2 * np.pi / sectors)).astype(int) % sectors
     out = np.empty((sectors, 3))
     for i in range(sectors):
@@ -257,14 +296,14 @@ def sector_circles(V: np.ndarray, sectors: int = 8) -> np.ndarray:
     return out
 
 
-def sector_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
+def sector_ratios(V: np.ndarray, sectors: int = 8, centred: bool = False) -> np.ndarray:
     """R/r of the :func:`sector_circles`: all equal on a torus of revolution; they spread when the flow leaves
     the rotational symmetry (a Moebius image of a torus, a cyclide, has the same smooth energy)."""
-    C = sector_circles(V, sectors)
+    C = sector_circles(V, sectors, centred)
     return C[:, 0] / C[:, 2]
 
 
-def conformal_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
+def conformal_ratios(V: np.ndarray, sectors: int = 8, centred: bool = False) -> np.ndarray:
     """(sectors/2,) R/r of the torus of revolution Moebius-equivalent to the shape, from opposite sector circles.
 
     Two circles of one meridian plane (radii r1, r2, centres d apart) have the Moebius-invariant inversive
@@ -272,7 +311,7 @@ def conformal_ratios(V: np.ndarray, sectors: int = 8) -> np.ndarray:
     64x32 Clifford torus inverted in spheres centred 3 and 4 away, where the circle fit gives R/r = 1.26 and
     1.76, these give 1.36-1.42 and 1.42-1.44 (sectors are wedges, not the cyclide's planes of circles).
     """
-    C = sector_circles(V, sectors)
+    C = sector_circles(V, sectors, centred)
     h = sectors // 2
     (Ra, za, ra), (Rb, zb, rb) = C[:h].T, C[h:].T
     delta = ((Ra + Rb) ** 2 + (za - zb) ** 2 - ra**2 - rb**2) / (2 * ra * rb)
