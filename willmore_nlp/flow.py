@@ -305,7 +305,8 @@ class WillmoreFlow:
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
         variational = "variational" in solver_capabilities(s.solver)
-        method = resolve_method(s.tangential_control, mesh, s.mesh_control, variational, boundary is not None)
+        method = resolve_method(s.tangential_control, mesh, s.mesh_control, variational,
+                                None if boundary is None else boundary.free)
         self._control = TangentialControl(method, s.tangential_control_weight, s.tangential_control_time)
         self._targets = {"volume": _target(s.volume, "volume", mesh), "area": _target(s.area, "area", mesh)}
         self.codegen_info: dict[str, Any] = {"enabled": False}

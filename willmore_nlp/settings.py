@@ -270,9 +270,10 @@ class FlowSettings(Settings):
         Likewise for the total area (length of a closed curve).
     tangential_control : str
         Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "auto" (default), "off" (the paper's
-        scheme) or "meanratio". "auto" is "meanratio" for surfaces in R^3 that are clamped, open or of genus 0
-        when ``mesh_control`` is "auto" and the solver minimises W (not the semi-implicit baseline), else "off"
-        (curves and unclamped closed surfaces of genus >= 1 keep the paper's scheme;
+        scheme) or "meanratio". "auto" is "meanratio" for surfaces in R^3 that are clamped, open or of genus 0,
+        whose initial mesh has a tangent plane at every moving node, when ``mesh_control`` is "auto" and the
+        solver minimises W (not the semi-implicit baseline), else "off" (curves, meshes with sharp edges or
+        spikes and unclamped closed surfaces of genus >= 1 keep the paper's scheme;
         :func:`willmore_nlp.tangential.resolve_method`). "meanratio": W gains ``beta_c sum_i m_i |P_i
         (X_i-X^k_i-S_i)|^2`` with P_i the vertex tangent projector of X^k and S_i the tangential part of a
         mean-ratio mesh-improving step of X^k, so that the nodes follow a mesh-improving tangential motion while

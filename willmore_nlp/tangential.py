@@ -38,22 +38,28 @@ mesh-quality study's surfaces (docs/guide/mesh_quality.md, "Rest means rest"): 1
 repair alone in every case (the 642-v vesicle cup rests with 1 and not with 0.3; 3 slows the blends' rest)."""
 
 
-def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool, clamped: bool = False) -> str:
+def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool,
+                   free: np.ndarray | None = None) -> str:
     """The control a flow runs: ``method`` itself unless it is "auto".
 
-    "auto" is "meanratio" for triangle surfaces in R^3 that are clamped (``clamped``: a boundary condition holds
-    part of the mesh; the free patch is then what moves, whatever the genus of the whole mesh), have a boundary or
-    are of genus 0 (every component of a closed one a sphere; isotropic or anisotropic) when the mesh control is on
-    (``mesh_control == "auto"``) and the step solver minimises W (``variational``; the semi-implicit baseline does
-    not), else "off": curves keep the paper's scheme, and so do closed surfaces of genus >= 1, whose discrete energy
-    falls below the Clifford torus's faster with the control (a trimesh torus R/r = 2.5, 512 v: 3.7 % below the grid
-    Clifford torus at t = 0.14 with it, on it without; docs/guide/tangential_control.md).
+    "auto" is "meanratio" for a triangle surface in R^3 when the mesh control is on (``mesh_control == "auto"``),
+    the step solver minimises W (``variational``; the semi-implicit baseline does not), the initial mesh resolves a
+    tangent plane at every moving node (no :func:`unresolved_nodes` among the ``free`` ones: all nodes when None),
+    and the surface is clamped (``free`` given: the patch moves, whatever the genus of the whole mesh), open, or
+    closed of genus 0. Otherwise "off", the paper's scheme. Measured reasons (docs/guide/tangential_control.md):
+    curves are accurate without it; on a trimesh box (386 v, sharp edges) the first step with it failed at every tau
+    from h to h/256, and fading the term at such nodes instead cost `torus_hole` (noisy fill) its rest and the
+    vesicle cup its run; on a trimesh torus (R/r = 2.5, 512 v) the energy fell 3.7 % below the grid's Clifford torus
+    by t = 0.14 with it, where the flow without it sits on it.
     """
     if method != "auto":
         return method
     if not (mesh.d == 2 and mesh.m == 3 and mesh_control == "auto" and variational):
         return "off"
-    if clamped or not mesh.is_closed:
+    moving = np.ones(mesh.n_vertices, bool) if free is None else np.asarray(free, bool)
+    if np.any(unresolved_nodes(mesh.vertices, mesh.simplices)[moving]):
+        return "off"
+    if free is not None or not mesh.is_closed:
         return "meanratio"
     from willmore_nlp.mesh.topology import components, euler_characteristic
 
@@ -255,21 +261,16 @@ def _capped_step(V: np.ndarray, S: np.ndarray, P: np.ndarray, fraction: float) -
     return T * (fraction * np.minimum(1.0, cap))[:, None]
 
 
-FEATURE_ANGLES = (35.0, 45.0)
-"""Angles (degrees) between a node's unit vertex normal and the normals of its triangles over which the control's
-weight at the node fades from 1 to 0 (:func:`feature_weights`): where the mesh has no tangent plane (the edges and
-corners of a box, 45 and 55 degrees) the control would hold the node to a plane that is not there. Measured on a
-trimesh box subdivided three times (386 v, its edges and corners 92 nodes): with the control at full weight the first
-step failed at every tau from h to h/256 (IPOPT over its 100-iteration first-step budget, then edge ratio 4e3);
-without the target S at those nodes (the projector kept) it failed too; with the node's whole term faded it is taken
-at h/2 and the flow continues at 5-8 iterations per step. Resolved smooth meshes are untouched: the largest angle is
-11 deg on icosphere(2), 21 on icosphere(1), 18 on the 24x12 torus, 13 on a 32x16 trimesh torus."""
+FEATURE_ANGLE = 35.0
+"""Largest angle (degrees) between a node's vertex normal and the normals of its triangles at which the mesh
+resolves a tangent plane there (:func:`unresolved_nodes`). Resolved smooth meshes stay well below it (11 deg on
+icosphere(2), 21 on icosphere(1), 18 on the 24x12 torus, 13 on a 32x16 trimesh torus, 8 on `surface_blending`); a
+box's edges and corners are at 45 and 55 deg, noise spikes of a 1 %-noisy trimesh capsule up to 86."""
 
 
-def feature_weights(V: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """(N,) weight in [0, 1] of the control at each node of a triangle surface: 1 where every incident triangle's
-    normal is within ``FEATURE_ANGLES[0]`` of the (area-weighted) vertex normal, 0 from ``FEATURE_ANGLES[1]`` on,
-    linear in the cosine between (:data:`FEATURE_ANGLES`)."""
+def unresolved_nodes(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(N,) True at the nodes of a triangle surface where some incident triangle's normal is more than
+    :data:`FEATURE_ANGLE` from the (area-weighted) vertex normal: the mesh has no tangent plane there."""
     cr = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
     vn = np.zeros_like(V)
     for a in range(3):
@@ -279,8 +280,7 @@ def feature_weights(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     c = np.ones(V.shape[0])
     for a in range(3):
         np.minimum.at(c, S[:, a], np.einsum("ij,ij->i", fn, vn[S[:, a]]))
-    hi, lo = np.cos(np.radians(FEATURE_ANGLES))
-    return np.clip((c - lo) / (hi - lo), 0.0, 1.0)
+    return c < np.cos(np.radians(FEATURE_ANGLE))
 
 
 def nodal_parameters(V: np.ndarray, S: np.ndarray, free: np.ndarray | None = None, fraction: float = 1.0,
@@ -301,8 +301,7 @@ def nodal_parameters(V: np.ndarray, S: np.ndarray, free: np.ndarray | None = Non
 
     Returns
     -------
-    (N, m*m + m) array, node-major; ``P_i`` row-major (it is symmetric); on surfaces ``P_i`` is scaled by the square
-    root of the node's :func:`feature_weights` (so its term by the weight; 1 on resolved smooth surfaces)
+    (N, m*m + m) array, node-major; ``P_i`` row-major (it is symmetric)
     """
     V = np.asarray(V, float)
     N, m = V.shape
@@ -313,8 +312,6 @@ def nodal_parameters(V: np.ndarray, S: np.ndarray, free: np.ndarray | None = Non
     for _ in range(parts - 1):  # each part from the state the earlier ones reached, fixed nodes kept
         Xs = Xs + keep[:, None] * _capped_step(Xs, S, vertex_projectors(Xs, S), fraction / parts)
     T = np.einsum("nab,nb->na", P, Xs - V)
-    if S.shape[1] == 3:  # the node's term beta m_i |P_i r_i|^2 scaled by its feature weight
-        P *= np.sqrt(feature_weights(V, S))[:, None, None]
     if free is not None:
         fixed = ~np.asarray(free, bool)
         P[fixed] = 0.0
