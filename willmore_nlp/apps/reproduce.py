@@ -975,7 +975,8 @@ def fig9_10(fig_dir: Path) -> str:
         "fill (15 free vertices on a coarse grid) is stopped by the mesh check within a few steps when the noise "
         "folds a triangle (see the note column).", "",
         "**With the library defaults** (mesh control on: the repair between steps and the in-step tangential "
-        "control, **not** the paper's scheme, and each problem's "
+        "control where `tangential_control = auto` turns it on, the blends and the flat fills, not the noisy fills, "
+        "whose spikes have no tangent plane; **not** the paper's scheme, and each problem's "
         "`tangential_weight`: 1 for `surface_blending`, 10 for `torus_hole`, whose weight-1 flow does not come to "
         "rest: docs/guide/mesh_quality.md, \"Restorations and blends at rest\"), the blends 400 steps and the "
         "restorations 100 steps at tau = h; 'undisturbed' is the torus_hole patch before the fill (`amp = 0`), "
