@@ -257,12 +257,12 @@ def test_auto_leaves_meshes_without_tangent_planes_to_the_papers_scheme() -> Non
     first-step budget, then edge ratio 4e3); fading the term at those nodes instead cost `torus_hole`'s noisy fill
     its rest (2.8e-5 per step at step 100, 8.8 deg) and the vesicle cup its run (failed at t = 0.21)."""
     box = _trimesh_box(2)
-    bad = unresolved_nodes(box.vertices, box.simplices)
+    bad = unresolved_nodes(box)
     on_edge = (np.isclose(np.abs(box.vertices), [0.5, 0.7, 0.4]).sum(axis=1)) >= 2
     assert on_edge.sum() == 44
     np.testing.assert_array_equal(bad, on_edge)
     for mesh in (shapes.icosphere(1), shapes.icosphere(3), shapes.torus(1.0, 0.5, 24, 12), shapes.disk(6)):
-        assert not unresolved_nodes(mesh.vertices, mesh.simplices).any()
+        assert not unresolved_nodes(mesh).any()
     assert WillmoreFlow(box, box.h, 0.01 * box.h**2)._control.method == "off"
     # a clamped patch counts only its free nodes: the box's bottom face clamped, the rest still has the edges
     free = box.vertices[:, 2] > -0.39

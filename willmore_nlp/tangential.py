@@ -29,8 +29,8 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
 
 CONTROL_METHODS = ("auto", "off", "meanratio")
-"""Values of the ``tangential_control`` option: "off" is the paper's scheme, "auto" (the default) is "meanratio" on
-surfaces in R^3 with a boundary or of genus 0 and "off" otherwise (:func:`resolve_method`)."""
+"""Values of the ``tangential_control`` option: "off" is the paper's scheme, "auto" (the default) is "meanratio" where
+it was measured to help and "off" elsewhere (:func:`resolve_method`)."""
 
 DEFAULT_CONTROL_WEIGHT = 1.0
 """Default beta of the mean-ratio control (``tangential_control_weight``). Measured against 0.3 and 3 on the
@@ -57,7 +57,7 @@ def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool
     if not (mesh.d == 2 and mesh.m == 3 and mesh_control == "auto" and variational):
         return "off"
     moving = np.ones(mesh.n_vertices, bool) if free is None else np.asarray(free, bool)
-    if np.any(unresolved_nodes(mesh.vertices, mesh.simplices)[moving]):
+    if np.any(unresolved_nodes(mesh)[moving]):
         return "off"
     if free is not None or not mesh.is_closed:
         return "meanratio"
@@ -268,14 +268,14 @@ icosphere(2), 21 on icosphere(1), 18 on the 24x12 torus, 13 on a 32x16 trimesh t
 box's edges and corners are at 45 and 55 deg, noise spikes of a 1 %-noisy trimesh capsule up to 86."""
 
 
-def unresolved_nodes(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+def unresolved_nodes(mesh: Mesh) -> np.ndarray:
     """(N,) True at the nodes of a triangle surface where some incident triangle's normal is more than
     :data:`FEATURE_ANGLE` from the (area-weighted) vertex normal: the mesh has no tangent plane there."""
+    from willmore_nlp.geometry import vertex_normals
+
+    V, S = mesh.vertices, mesh.simplices
+    vn = vertex_normals(mesh)
     cr = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
-    vn = np.zeros_like(V)
-    for a in range(3):
-        np.add.at(vn, S[:, a], cr)
-    vn /= np.maximum(np.linalg.norm(vn, axis=1), 1e-300)[:, None]
     fn = cr / np.maximum(np.linalg.norm(cr, axis=1), 1e-300)[:, None]
     c = np.ones(V.shape[0])
     for a in range(3):
