@@ -49,8 +49,8 @@ def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool
     closed of genus 0. Otherwise "off", the paper's scheme. Measured reasons (docs/guide/tangential_control.md):
     curves are accurate without it; on a trimesh box (386 v, sharp edges) the first step with it failed at every tau
     from h to h/256, and fading the term at such nodes instead cost `torus_hole` (noisy fill) its rest and the
-    vesicle cup its run; on a trimesh torus (R/r = 2.5, 512 v) the energy fell 3.7 % below the grid's Clifford torus
-    by t = 0.14 with it, where the flow without it sits on it.
+    vesicle cup its run; on a trimesh torus (R/r = 2.5, 512 v) the energy fell 3.6 % below the grid's Clifford torus
+    by t = 0.13 with it, where the flow without it sits on it.
     """
     if method != "auto":
         return method

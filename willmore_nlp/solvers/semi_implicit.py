@@ -55,8 +55,6 @@ class SemiImplicitSolver:
     """
 
     name = "semi-implicit"
-    variational = False
-    """Not a minimisation of W: the flow does not apply the nested scheme's energy inequality."""
 
     def __init__(self, evaluator: StepEvaluator, settings: SemiImplicitSettings) -> None:
         P = evaluator.problem
