@@ -473,19 +473,17 @@ class NewtonKrylovSolver(ReducedSolver):
     # -- full-space (SQP) iteration ---------------------------------------------------
     def _full_point(self, z: np.ndarray, p: np.ndarray, lam: np.ndarray) -> _Point:
         """Everything the full-space iteration needs at a (possibly infeasible) z: W, its gradient, g, J,
-        the factorised J_Y, the reduced gradient Z^T grad W (adjoint at z) and the Hessian multipliers ``lam``."""
+        the factorised J_Y, the reduced gradient Z^T grad W (:meth:`_point`: adjoint at z) and the Hessian
+        multipliers ``lam`` (not the adjoint one)."""
         n = self.nxm
         with self._timed("eval"):
             f, gf = self.ev.f_grad(z, p)
             gv, J = self.ev.g_jac(z, p)
         self._count("n_eval_grad_f")
         self._count("n_eval_jac_g")
-        lu = self._factor_jy(J[:, n:])
-        with self._timed("cg"):
-            adj = lu.solve(-gf[n:], trans="T")
-        Jx = J[:, :n]
-        grad = gf[:n] + Jx.T @ adj
-        return _Point(z[:n].copy(), z, f, grad, lam, Jx, lu, Jy=J[:, n:], pgrad=grad, gf=gf, gv=gv)
+        pt = self._point(z[:n], z, f, gf, J, self._factor_jy(J[:, n:]), p)  # the full-space iteration: no h
+        pt.lam, pt.gv = lam, gv
+        return pt
 
     def _iterate_full(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, h: float, gtol: float,
                       monitor: SolveMonitor,
