@@ -8,7 +8,7 @@ import sys
 import matplotlib.image as mpimg
 import pytest
 
-from willmore_nlp.apps.study import STUDY_FILE, Case, StudyError, make_grid, parse_tau, run_study, write_study
+from willmore_nlp.apps.study import STUDY_FILE, Case, StudyError, make_grid, parse_tau, run_case, run_study, write_study
 
 
 def test_tau_specs_and_grid_validation() -> None:
@@ -40,6 +40,7 @@ def test_study_on_a_local_cluster_writes_every_artefact_and_reruns_skip(tmp_path
     assert rec["status"] == "failed" and "n must be >= 3, got 2" in rec["error"]
     text = md.read_text()
     assert "| ipopt tau=h n=32 |" in text and "| failed |" in text
+    assert text.count("| off | ok |") == 4  # curves: the paper's scheme, no in-step control
     assert "largest stable tau" in text.lower()
     for name in ("energy.png", "cost.png", "stable_tau.png"):
         img = mpimg.imread(out / "figures" / name)
@@ -99,3 +100,11 @@ def test_surface_evolver_reference_or_clean_skip(tmp_path, monkeypatch) -> None:
     assert "not installed" in r["skipped"]
     with pytest.raises(ValueError, match="closed triangulated surface"):
         write_datafile(shapes.regular_polygon(8, m=3), tmp_path / "c.fe")
+
+
+def test_case_records_the_resolved_tangential_control(tmp_path) -> None:
+    """On a surface "auto" resolves per solver: meanratio for IPOPT, off for the semi-implicit baseline."""
+    recs = {s: run_case(Case("sphere", s, "h", {"subdivisions": 1}, 1), str(tmp_path))
+            for s in ("ipopt", "semi-implicit")}
+    assert {s: (r["status"], r["control"]) for s, r in recs.items()} == {"ipopt": ("ok", "meanratio 1"),
+                                                                         "semi-implicit": ("ok", "off")}

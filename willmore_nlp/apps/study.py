@@ -84,7 +84,8 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
 
     Returns
     -------
-    dict with ``case``, ``status`` ("ok" or "failed"), ``error``, ``h``, ``tau``, ``wall`` and
+    dict with ``case``, ``status`` ("ok" or "failed"), ``error``, ``h``, ``tau``, ``control`` (the resolved
+    in-step tangential control, e.g. "meanratio 1" or "off"; absent when the flow was not built), ``wall`` and
     ``rows`` (one dict per accepted step, step 0 first).
     """
     from willmore_nlp import registry
@@ -106,6 +107,8 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
         tau = parse_tau(case.tau, pb.mesh.h)
         rec["tau"] = tau
         flow = pb.make_flow(tau=tau, **case.options, solver=case.solver)
+        c = flow.tangential_control  # "auto" resolved: it depends on the solver (semi-implicit: off)
+        rec["control"] = c.method if c.method == "off" else f"{c.method} {c.weight:g}"
         keep(flow.state())
         steps, t_end = case.steps, case.t_end
         if steps is None and t_end is None:
@@ -283,15 +286,18 @@ def write_study(out: str | os.PathLike[str]) -> Path:
     lines = [f"# Solver comparison: {recs[0]['case']['problem'] if recs else '(no finished cases)'}", "",
              f"{len(recs)} finished case(s). Regenerate with `willmore-nlp report {out}`; rerun missing cases with "
              "`willmore-nlp compare` and the same options.", "",
-             "| case | h | tau | status | steps | mean iterations | mean s/step | final energy | final Willmore | "
-             "max KKT residual | max energy rise | error |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "In-step tangential control: the resolved `tangential_control` of each case (its weight).", "",
+             "| case | h | tau | control | status | steps | mean iterations | mean s/step | final energy | "
+             "final Willmore | max KKT residual | max energy rise | error |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for rec in recs:
         steps = rec["rows"][1:]
         it = np.mean([r["iterations"] for r in steps]) if steps else float("nan")
         wt = np.mean([r["wall_time"] for r in steps]) if steps else float("nan")
         kkt = max((r.get("kkt_residual", float("nan")) for r in steps), default=float("nan"))
         last = rec["rows"][-1] if rec["rows"] else {}
-        lines.append(f"| {_label(rec)} | {rec['h']:.4g} | {rec['tau']:.4g} | {rec['status']} | {len(steps)} | "
+        lines.append(f"| {_label(rec)} | {rec['h']:.4g} | {rec['tau']:.4g} | {rec.get('control', '')} | "
+                     f"{rec['status']} | {len(steps)} | "
                      f"{it:.1f} | {wt:.4f} | {last.get('energy', float('nan')):.6g} | "
                      f"{last.get('willmore_energy', float('nan')):.6g} | {kkt:.2e} | {_energy_rise(rec):.1e} | "
                      f"{rec['error'][:120]} |")
