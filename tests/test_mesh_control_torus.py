@@ -107,3 +107,22 @@ def test_torus_frame_undoes_a_rigid_motion_that_the_fixed_axis_measures_misread(
     lopsided = np.vstack([V, V[V[:, 0] > shift[0] + 0.3]])
     assert np.ptp(sector_ratios(lopsided)) > 0.1
     assert np.ptp(sector_ratios(torus_frame(lopsided)[0], centred=True)) < 1e-9
+
+
+def test_the_isotropic_remeshing_anticipates_the_fall_of_the_smallest_angle(monkeypatch) -> None:
+    """The 24x12 torus (tau = 4e-3 to t = 0.05): the grid's inner triangles flatten every step, and a remeshing
+    triggered only below remesh_min_angle comes after a stepped state of 12.4 deg; anticipating the step's fall of
+    the smallest angle remeshes while the stepped states are still above 15 deg."""
+    def stepped_angles(flow: WillmoreFlow) -> tuple[list[float], int]:
+        rows: list[dict] = []
+        flow.run(t_end=0.05, callback=lambda r: rows.append(r.row()))
+        remeshed = sum("remesh" in x["remesh_action"].split("+") for x in rows)
+        return [x["min_angle_before_remesh"] if x["remeshed"] else x["q_min_angle"] for x in rows], remeshed
+
+    mesh = shapes.torus(1.0, 0.5, 24, 12)
+    new, n_new = stepped_angles(WillmoreFlow(mesh, 4e-3, mesh.h ** 2 / 100))
+    assert n_new >= 1 and min(new) >= 15.0
+    plain = WillmoreFlow._needs_repair
+    monkeypatch.setattr(WillmoreFlow, "_needs_repair", lambda self, X, F, margin=0.0: plain(self, X, F))
+    old, n_old = stepped_angles(WillmoreFlow(mesh, 4e-3, mesh.h ** 2 / 100))
+    assert n_old >= 1 and min(old) < 15.0

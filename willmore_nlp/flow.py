@@ -614,10 +614,11 @@ class WillmoreFlow:
         """:func:`geometry.triangle_quality` of the triangles with a free vertex (all without boundary)."""
         return geometry.triangle_quality(X, F if free is None else F[free[F].any(axis=1)])
 
-    def _needs_repair(self, X: np.ndarray, F: np.ndarray) -> bool:
-        """Patch triangles below ``remesh_min_angle`` or patch edges above ``remesh_max_edge_ratio``."""
+    def _needs_repair(self, X: np.ndarray, F: np.ndarray, margin: float = 0.0) -> bool:
+        """Patch triangles below ``remesh_min_angle + margin`` or patch edges above ``remesh_max_edge_ratio``."""
         q = self._patch_quality(X, F, self.free)
-        return q["min_angle"] < self.settings.remesh_min_angle or q["edge_ratio"] > self.settings.remesh_max_edge_ratio
+        return (q["min_angle"] < self.settings.remesh_min_angle + margin
+                or q["edge_ratio"] > self.settings.remesh_max_edge_ratio)
 
     def _control_mesh(self, tau: float) -> tuple[str, dict[str, float]]:
         """Repair the mesh of the accepted state when its quality dropped (see ``remesh``).
@@ -631,6 +632,10 @@ class WillmoreFlow:
 
         X, F = self.X, self.mesh.simplices
         moved = np.linalg.norm(X - self._X_prev, axis=1) if self._X_prev.shape == X.shape else None
+        # the step's fall of the smallest patch angle: the isotropic remeshing comes when the next step at that
+        # rate would take the mesh below remesh_min_angle, so that stepped states stay above it too
+        drop = 0.0 if moved is None else max(0.0, self._patch_quality(self._X_prev, F, self.free)["min_angle"]
+                                             - self._patch_quality(X, F, self.free)["min_angle"])
         self._X_prev = X
         repair = self.settings.remesh_repair > 0
         needs = self._needs_repair(X, F)
@@ -661,7 +666,7 @@ class WillmoreFlow:
             F1, _ = rm.delaunay_flips(X1, F1, free)
             actions.append("smooth")
         explicit = boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
-        if self._needs_repair(X1, F1) and not explicit:
+        if self._needs_repair(X1, F1, drop) and not explicit:
             try:
                 target = self.settings.remesh_target or rm.equilateral_edge(X1, F1, free)
                 r = rm.isotropic_remesh(X1, F1, target, free)

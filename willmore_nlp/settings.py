@@ -367,7 +367,9 @@ class FlowSettings(Settings):
         never move. Changes the state (recorded: ``StepResult.remeshed``, ``stats`` energies before
         and after), so e(X^k) is not guaranteed to decrease across a repair.
     remesh_min_angle : float
-        Smallest patch angle (degrees) that triggers the stronger repairs (default 15).
+        Smallest patch angle (degrees) that triggers the stronger repairs (default 15). The isotropic
+        remeshing comes earlier, while the repaired patch's smallest angle is below this plus its fall in
+        the step just taken, so that stepped states stay above it where angles fall steadily.
     remesh_max_edge_ratio : float
         Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
     remesh_target : float, optional
