@@ -43,9 +43,12 @@ differs is the linear algebra and the globalisation:
   adjoint multiplier of the current X, backtracking on the augmented Lagrangian W + lam . g + rho/2 |g|^2
   (Armijo along (dz, lam+ - lam), rho raised where the slope needs it; a second-order correction Y = Y[X]
   of a rejected full step, a step cap of ``step_cap`` h) and the reduced gradient at Y = Y[X] as the final
-  test. When a later system meets negative curvature again, the multiplier did not help: the reduced iteration
-  restarts from X^0 with the preconditioner's state of the start (its path as without the attempt, the
-  attempt's iterations later; flattened caps). The first step's
+  test. When a later system meets negative curvature again, the multiplier did not help: right after the first
+  full-space step the reduced iteration restarts from X^0 with the preconditioner's state of the start (its path
+  as without the attempt, the attempt's iterations later; flattened caps, where going on from the full-space
+  iterate took 22 Newton iterations instead of 15); after ``HANDBACK_AFTER`` or more full-space steps it goes on
+  from the current iterate with Y = Y[X] (the 40,962-vertex sphere, whose fourth system meets it: 22 Newton
+  iterations with the restart). The first step's
   multiplier makes H positive definite on the constraint's tangent space where the adjoint one is not
   (tested densely): step 1 of the benchmark spheres took 7 / 6 / 7 Newton iterations at 642 / 2,562 /
   10,242 vertices instead of 8 / 11 / 13 (IPOPT 6 / 6 / 5). A first system without negative curvature
@@ -87,6 +90,10 @@ from willmore_nlp.solvers.base import SolveResult, register_solver
 from willmore_nlp.solvers.cholesky import BACKENDS, BLAS, FullFactor, KronFactor, SymmetricFactor
 from willmore_nlp.solvers.ipopt import SolveMonitor
 from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, _Point
+
+HANDBACK_AFTER = 2
+"""Full-space steps after which negative curvature hands the solve to the reduced iteration at the current iterate
+(fewer: it restarts from X^0; module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -533,7 +540,14 @@ class NewtonKrylovSolver(ReducedSolver):
                     v = pt.gf + pt.H @ np.concatenate([np.zeros(n), dyp])
                     pt.pgrad = v[:n] + pt.Jx.T @ pt.lu.solve(-v[n:], trans="T")  # Z^T (grad W + H dz_p)
                 d, shifted = self._direction(pt, p, D, h)
-                if shifted:  # negative curvature again: the first multiplier did not help. The reduced
+                if shifted and it >= HANDBACK_AFTER:  # negative curvature again after full-space progress:
+                    # the reduced iteration goes on from here, Y = Y[X] (40,962-v sphere: 13 Newton iterations
+                    # where the restart from X^0 below took 22)
+                    q = self._at(pt.x, p, P.unpack_z(pt.z, Xk)[1])
+                    self._count("n_restoration")
+                    self._count("n_handback")
+                    return self._iterate(q, p, D, h, gtol, monitor, it)
+                if shifted:  # negative curvature again at once: the first multiplier did not help. The reduced
                     # iteration from X^0 with the preconditioner's state of the start: its path as without
                     # the full-space attempt, two iterations later
                     pre_x, cg = self._first_state
