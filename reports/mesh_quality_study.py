@@ -256,7 +256,7 @@ def lawson_start(out: Path = shapes.LAWSON_GENUS2_DATA) -> None:
     U = np.linalg.eigh(np.cov(Z.T))[1]
     U[:, 0] *= np.sign(np.linalg.det(U))  # a rotation
     Z = Z @ U
-    rm = isotropic_remesh(Z, np.asarray(Fs, np.int64), 0.2)
+    rm = isotropic_remesh(Z, np.asarray(Fs, np.int64), 0.2, smooth=False)  # as the stored surface was made
     start = Mesh(rm.vertices, rm.simplices, "reprojected")
     if geometry.enclosed_volume(start) < 0:
         start = Mesh(rm.vertices, rm.simplices[:, ::-1].copy(), "reprojected")
