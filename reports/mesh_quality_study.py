@@ -507,11 +507,13 @@ def cases(scale: float) -> dict[str, Any]:
                  tangential_weight=1.0, tangential_control=c, tangential_control_weight=1.0, conformal_gauge=g)
            for k in (24, 48, 64) for c in ("off", "meanratio") for g in (False, True) if g or c == "meanratio"},
         # the same, run after the isotropic remeshing began to anticipate the step's fall of the smallest angle
-        **{f"torus48{'_gauge' if g else ''}_meanratio_early":
-           torus(48, switch=False, note=(", conformal_gauge" if g else "") + ", meanratio 1, anticipated remeshing",
+        # (_early: cached at c9c933b, new vertices on the old polyhedron; _smooth: cached after the smooth placement)
+        **{f"torus48{'_gauge' if g else ''}_meanratio_{v}":
+           torus(48, switch=False, note=(", conformal_gauge" if g else "") + ", meanratio 1, anticipated remeshing"
+                 + (", smooth placement" if v == "smooth" else ""),
                  tangential_weight=1.0, tangential_control="meanratio", tangential_control_weight=1.0,
                  conformal_gauge=g)
-           for g in (False, True)},
+           for g in (False, True) for v in ("early", "smooth")},
         "torus24_off": torus(24, mesh_control="off"),
         "torus64_off": torus(64, mesh_control="off"),
         "torus32_threshold": torus(32, remesh_repair=0),
