@@ -614,11 +614,15 @@ class WillmoreFlow:
         """:func:`geometry.triangle_quality` of the triangles with a free vertex (all without boundary)."""
         return geometry.triangle_quality(X, F if free is None else F[free[F].any(axis=1)])
 
-    def _needs_repair(self, X: np.ndarray, F: np.ndarray, margin: float = 0.0) -> bool:
-        """Patch triangles below ``remesh_min_angle + margin`` or patch edges above ``remesh_max_edge_ratio``."""
-        q = self._patch_quality(X, F, self.free)
+    def _below_thresholds(self, q: dict[str, float], margin: float = 0.0) -> bool:
+        """Patch quality ``q`` with an angle below ``remesh_min_angle + margin`` or an edge ratio above
+        ``remesh_max_edge_ratio``."""
         return (q["min_angle"] < self.settings.remesh_min_angle + margin
                 or q["edge_ratio"] > self.settings.remesh_max_edge_ratio)
+
+    def _needs_repair(self, X: np.ndarray, F: np.ndarray, margin: float = 0.0) -> bool:
+        """:meth:`_below_thresholds` of the patch of (X, F)."""
+        return self._below_thresholds(self._patch_quality(X, F, self.free), margin)
 
     def _control_mesh(self, tau: float) -> tuple[str, dict[str, float]]:
         """Repair the mesh of the accepted state when its quality dropped (see ``remesh``).
@@ -634,11 +638,12 @@ class WillmoreFlow:
         moved = np.linalg.norm(X - self._X_prev, axis=1) if self._X_prev.shape == X.shape else None
         # the step's fall of the smallest patch angle: the isotropic remeshing comes when the next step at that
         # rate would take the mesh below remesh_min_angle, so that stepped states stay above it too
+        q0 = self._patch_quality(X, F, self.free)
         drop = 0.0 if moved is None else max(0.0, self._patch_quality(self._X_prev, F, self.free)["min_angle"]
-                                             - self._patch_quality(X, F, self.free)["min_angle"])
+                                             - q0["min_angle"])
         self._X_prev = X
         repair = self.settings.remesh_repair > 0
-        needs = self._needs_repair(X, F)
+        needs = self._below_thresholds(q0)
         # the light repair moves each vertex by at most REPAIR_SPEED times what the step moved it: the mesh
         # follows the surface at its own speed, and a state that the flow does not move (an equilibrium)
         # is left alone, so the fixed points are those of the paper's scheme
@@ -686,7 +691,6 @@ class WillmoreFlow:
                     actions.append("remesh")
         if not actions:
             return "", {}
-        q0 = self._patch_quality(X, F, free)
         q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
         if not light and q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]:
             return "", {}  # no improvement: keep the flow's own mesh rather than churn

@@ -33,6 +33,7 @@ import numpy as np
 
 from willmore_nlp.geometry import vertex_normals
 from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.mesh.topology import boundary_facets
 from willmore_nlp.tangential import SUBSTEPS
 
 
@@ -313,11 +314,9 @@ def isotropic_remesh(V: np.ndarray, F: np.ndarray, target: float, free: np.ndarr
         raise RemeshError("remeshing moved a fixed vertex")
     new_of_local = np.concatenate([vmap[feat_old], fixed_old.size + np.arange(U.shape[0] - nf)])
     if smooth:
-        e, count = np.unique(np.sort(np.concatenate([G[:, [0, 1]], G[:, [1, 2]], G[:, [2, 0]]]), axis=1), axis=0,
-                             return_counts=True)
         lift = np.ones(U.shape[0], bool)
         lift[:nf] = False
-        lift[e[count == 1].ravel()] = False  # the boundary curve of an open patch stays where it is
+        lift[boundary_facets(G).ravel()] = False  # the boundary curve of an open patch stays where it is
         U[lift] = smooth_lift(U[lift], V, F)
     Vn = np.vstack([V[fixed_old], U[nf:]])
     fmap = np.full(F.shape[0], -1, dtype=np.int64)
@@ -468,9 +467,10 @@ def smooth_lift(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
     used, inv = np.unique(corners, return_inverse=True)
     frames, c = quadric_fits(V, F, used)
     Q = np.einsum("ij,ijk->ik", bary, V[corners])  # the closest points
+    fit = inv.reshape(corners.shape)  # n, 3: the fit of each corner
     lift = np.zeros_like(Q)
     for j in range(3):
-        k = inv.reshape(corners.shape)[:, j]
+        k = fit[:, j]
         lift += bary[:, j:j + 1] * (V[corners[:, j]] + _on_quadric(frames[k], c[k], Q - V[corners[:, j]]))
     return lift
 

@@ -506,6 +506,10 @@ class NewtonKrylovSolver(ReducedSolver):
         rho = 0.0
         it = 0
         pt0 = pt
+
+        def restored(q: _Point) -> _Point:  # the point at q's X with Y = Y[X] (warm-started from q's Y)
+            return self._at(q.x, p, P.unpack_z(q.z, Xk)[1])
+
         for it in range(self.max_iter + 1):
             gmax = float(np.abs(pt.grad).max())
             if not it:  # iterate 0 was tested and its direction found by _iterate
@@ -514,7 +518,7 @@ class NewtonKrylovSolver(ReducedSolver):
                 d: np.ndarray | None = d0
             else:
                 if gmax <= gtol:  # final test at the restored point Y = Y[X] (the reduced iteration's test)
-                    q = self._at(pt.x, p, P.unpack_z(pt.z, Xk)[1])
+                    q = restored(pt)
                     self._count("n_restoration")
                     with self._timed("eval"):
                         q.gv = self.ev.g(q.z, p)
@@ -543,7 +547,7 @@ class NewtonKrylovSolver(ReducedSolver):
                 if shifted and it >= HANDBACK_AFTER:  # negative curvature again after full-space progress:
                     # the reduced iteration goes on from here, Y = Y[X] (40,962-v sphere: 13 Newton iterations
                     # where the restart from X^0 below took 22)
-                    q = self._at(pt.x, p, P.unpack_z(pt.z, Xk)[1])
+                    q = restored(pt)
                     self._count("n_restoration")
                     self._count("n_handback")
                     return self._iterate(q, p, D, h, gtol, monitor, it)
@@ -557,7 +561,7 @@ class NewtonKrylovSolver(ReducedSolver):
                         self._rebuild(pt0, p, D)
                     self._delta = 0.0
                     self._count("n_replay")  # (J_Y's factorisation is refactorised in place: X^0 evaluated again)
-                    return self._iterate(self._at(pt0.x, p, P.unpack_z(pt0.z, Xk)[1]), p, D, h, gtol, monitor, it)
+                    return self._iterate(restored(pt0), p, D, h, gtol, monitor, it)
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
