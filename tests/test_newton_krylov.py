@@ -10,7 +10,7 @@ from willmore_nlp.flow import FlowError
 from willmore_nlp.mesh import shapes
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
-from willmore_nlp.solvers import make_solver
+from willmore_nlp.solvers import make_solver, newton_krylov
 from willmore_nlp.solvers.cholesky import SymmetricFactor
 
 
@@ -357,3 +357,24 @@ def test_first_step_of_an_indefinite_solve_is_the_dense_shifted_kkt_step() -> No
     assert np.abs(lam1 - lam0).max() > 1e-2 * np.abs(lam0).max()  # not the adjoint multiplier
     assert tangent_eigenvalues(z0, lam1).min() > 0.1
     assert tangent_eigenvalues(z0 + dz, lam1).min() > 0.1
+
+
+@pytest.mark.parametrize("name", ["cap-ring", "cap-conormal", "blend-conormal"])
+def test_both_exits_of_the_full_space_iteration_match_ipopt(name: str, monkeypatch) -> None:
+    """When a full-space system meets negative curvature again, the solve leaves the full-space iteration: right
+    after its first step by the reduced iteration restarted from X^0 (``n_replay``), after ``HANDBACK_AFTER`` or
+    more steps by the reduced iteration at the current iterate with Y = Y[X] (``n_handback``; the 40,962-v
+    sphere's first step). On the flattened caps and the co-normal blend the recurrence comes right after the
+    first full-space step: by default they replay; with ``HANDBACK_AFTER = 1`` they take the hand-back exit.
+    Either exit ends at IPOPT's X (tol 1e-12) to 1e-8 of the step's displacement."""
+    mesh, tau, tt, lam, opts = _case(name)
+    off = {"mesh_control": "off", "max_retries": 0, **opts}
+    ref = WillmoreFlow(mesh, tau, tt, lam=lam, tol=1e-12, max_iter=1000, **off).step()
+    step = np.abs(ref.vertices - mesh.vertices).max()
+    for handback_after, exit_count in ((2, "n_replay"), (1, "n_handback")):
+        monkeypatch.setattr(newton_krylov, "HANDBACK_AFTER", handback_after)
+        r = WillmoreFlow(mesh, tau, tt, lam=lam, solver="newton-krylov", tol=1e-10, **off).step()
+        other = "n_handback" if exit_count == "n_replay" else "n_replay"
+        assert r.stats[exit_count] == 1 and r.stats.get(other, 0) == 0
+        assert r.converged and r.stats["kkt_residual"] <= r.stats["gtol"]
+        assert np.abs(r.vertices - ref.vertices).max() <= 1e-8 * step
