@@ -510,6 +510,12 @@ class NewtonKrylovSolver(ReducedSolver):
         def restored(q: _Point) -> _Point:  # the point at q's X with Y = Y[X] (warm-started from q's Y)
             return self._at(q.x, p, P.unpack_z(q.z, Xk)[1])
 
+        def leave(q: _Point) -> _Point:  # hand q to the reduced iteration, the points left behind without their
+            # matrices (the callers' frames keep pt and pt0 alive through it: 3 Hessians at once otherwise)
+            for old in (pt, pt0):
+                old.H = old.Jx = old.Jy = old.lu = None
+            return q
+
         for it in range(self.max_iter + 1):
             gmax = float(np.abs(pt.grad).max())
             if not it:  # iterate 0 was tested and its direction found by _iterate
@@ -550,7 +556,7 @@ class NewtonKrylovSolver(ReducedSolver):
                     q = restored(pt)
                     self._count("n_restoration")
                     self._count("n_handback")
-                    return self._iterate(q, p, D, h, gtol, monitor, it)
+                    return self._iterate(leave(q), p, D, h, gtol, monitor, it)
                 if shifted:  # negative curvature again at once: the first multiplier did not help. The reduced
                     # iteration from X^0 with the preconditioner's state of the start: its path as without
                     # the full-space attempt, two iterations later
@@ -561,7 +567,7 @@ class NewtonKrylovSolver(ReducedSolver):
                         self._rebuild(pt0, p, D)
                     self._delta = 0.0
                     self._count("n_replay")  # (J_Y's factorisation is refactorised in place: X^0 evaluated again)
-                    return self._iterate(restored(pt0), p, D, h, gtol, monitor, it)
+                    return self._iterate(leave(restored(pt0)), p, D, h, gtol, monitor, it)
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
