@@ -203,6 +203,7 @@ def normal_jumps(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> dict[str, fl
     free : (N,) bool, the patch's free vertices
     """
     from willmore_nlp.mesh.topology import simplex_facets
+    from willmore_nlp.mesh.validate import face_normals
 
     E, owner = simplex_facets(F)
     key = np.sort(E, axis=1)
@@ -210,7 +211,7 @@ def normal_jumps(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> dict[str, fl
     inv = inv.ravel()
     order = np.argsort(inv, kind="stable")
     pairs = order[counts[inv[order]] == 2].reshape(-1, 2)  # the two triangles of every interior edge
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n = face_normals(V, F)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     t1, t2 = owner[pairs[:, 0]], owner[pairs[:, 1]]
     ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", n[t1], n[t2]), -1.0, 1.0)))

@@ -24,6 +24,7 @@ import numpy as np
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.validate import face_normals
 
 GammaFn = Callable[[ca.SX], ca.SX]
 """gamma(z) for a column z (m x 1, CasADi SX/DM) -> scalar."""
@@ -174,7 +175,7 @@ def element_normal(X: np.ndarray, S: np.ndarray) -> np.ndarray:
     if S.shape[1] == 2:
         e = X[S[:, 1]] - X[S[:, 0]]
         return np.column_stack([e[:, 1], -e[:, 0]])
-    return 0.5 * np.cross(X[S[:, 1]] - X[S[:, 0]], X[S[:, 2]] - X[S[:, 0]])
+    return 0.5 * face_normals(X, S)
 
 
 def anisotropic_area(an: Anisotropy, X: np.ndarray, S: np.ndarray) -> float:

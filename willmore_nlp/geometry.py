@@ -6,6 +6,7 @@ import numpy as np
 
 from willmore_nlp.fem.assembly import element_geometry, lumped_mass, mass_stiffness
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.validate import face_normals, simplex_volumes
 
 
 def mean_curvature_vector(mesh: Mesh) -> np.ndarray:
@@ -27,7 +28,7 @@ def vertex_normals(mesh: Mesh) -> np.ndarray:
     V, S = mesh.vertices, mesh.simplices
     n = np.zeros_like(V)
     if mesh.d == 2:
-        fn = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])  # length = 2 * area
+        fn = face_normals(V, S)  # length = 2 * area
         for j in range(3):
             np.add.at(n, S[:, j], fn)
     elif mesh.m == 2:
@@ -263,7 +264,7 @@ def quality(mesh: Mesh) -> dict[str, float]:
         V, S = mesh.vertices, mesh.simplices
         sides = _sides(V, S)
         a, b, c = sides
-        area = 0.5 * np.linalg.norm(np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]]), axis=1)
+        area = simplex_volumes(V, S)
         s = 0.5 * (a + b + c)
         inr = area / s
         longest = np.maximum(np.maximum(a, b), c)

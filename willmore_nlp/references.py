@@ -22,6 +22,7 @@ from scipy.sparse.csgraph import connected_components
 from willmore_nlp.analysis import polygon_equilibrium_radius
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import Mesh
+from willmore_nlp.mesh.validate import face_normals
 
 
 @dataclass(frozen=True)
@@ -120,7 +121,7 @@ def _outward(mesh: Mesh, V: np.ndarray) -> bool:
     S = mesh.simplices
 
     def normals(X: np.ndarray) -> np.ndarray:
-        return np.cross(X[S[:, 1]] - X[S[:, 0]], X[S[:, 2]] - X[S[:, 0]])
+        return face_normals(X, S)
 
     return bool(np.all(np.einsum("ij,ij->i", normals(mesh.vertices), normals(V)) > 0))
 

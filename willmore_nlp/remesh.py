@@ -34,6 +34,7 @@ import numpy as np
 from willmore_nlp.geometry import vertex_normals
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.mesh.topology import boundary_facets
+from willmore_nlp.mesh.validate import simplex_volumes
 from willmore_nlp.tangential import SUBSTEPS
 
 
@@ -46,11 +47,6 @@ def euler_characteristic(F: np.ndarray) -> int:
     F = np.asarray(F)
     e = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
     return int(np.unique(F).size - e.shape[0] + F.shape[0])
-
-
-def _normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """(K, 3) face normals of length twice the area."""
-    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
 
 
 def _cross(P: list[list[float]], i: int, j: int, k: int) -> tuple[float, float, float]:
@@ -246,7 +242,7 @@ def equilateral_edge(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = Non
     F = np.asarray(F)
     if free is not None:
         F = F[np.asarray(free, bool)[F].any(axis=1)]
-    area = 0.5 * np.linalg.norm(_normals(np.asarray(V, float), F), axis=1).sum()
+    area = simplex_volumes(np.asarray(V, float), F).sum()
     return float(np.sqrt(4.0 * area / (np.sqrt(3.0) * F.shape[0])))
 
 

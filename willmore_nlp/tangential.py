@@ -27,6 +27,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.validate import face_normals
 
 CONTROL_METHODS = ("auto", "off", "meanratio")
 """Values of the ``tangential_control`` option: "off" is the paper's scheme, "auto" (the default) is "meanratio" where
@@ -142,7 +143,7 @@ def vertex_projectors(V: np.ndarray, S: np.ndarray) -> np.ndarray:
         t[ok] /= ln[ok, None]
         return t[:, :, None] * t[:, None, :]
     if d == 2 and m == 3:
-        a = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+        a = face_normals(V, S)
         n = np.zeros((N, 3))
         for j in range(3):
             np.add.at(n, S[:, j], a)
@@ -193,7 +194,7 @@ def mean_ratio(V: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     q : (K,) distortions
     grad : (N, 3) gradient of sum_T q_T
     """
-    cr = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+    cr = face_normals(V, S)
     A2 = np.linalg.norm(cr, axis=1)
     n = cr / A2[:, None]
     area = A2 / 2
@@ -220,7 +221,7 @@ def surface_displacement(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     i would move to make its triangles equilateral.
     """
     _, grad = mean_ratio(V, S)
-    cr = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+    cr = face_normals(V, S)
     inv = 2 / (np.sqrt(3) * np.linalg.norm(cr, axis=1))
     H = np.bincount(S.ravel(), weights=np.repeat(inv, 3), minlength=V.shape[0])
     out = np.zeros_like(V)
@@ -275,7 +276,7 @@ def unresolved_nodes(mesh: Mesh) -> np.ndarray:
 
     V, S = mesh.vertices, mesh.simplices
     vn = vertex_normals(mesh)
-    cr = np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+    cr = face_normals(V, S)
     fn = cr / np.maximum(np.linalg.norm(cr, axis=1), 1e-300)[:, None]
     c = np.ones(V.shape[0])
     for a in range(3):

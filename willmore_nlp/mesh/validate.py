@@ -167,10 +167,14 @@ def duplicate_vertices(V: np.ndarray, tol: float) -> np.ndarray:
     return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))].astype(np.int64)
 
 
+def face_normals(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Unnormalised normals of the triangles ``S`` ((K, 3) int) at positions ``V`` ((N, 3)): the (K, 3) cross
+    products (x1 - x0) x (x2 - x0), of length twice the area, oriented by the vertex order."""
+    return np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+
+
 def simplex_volumes(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     """(K,) lengths (d = 1) or areas (d = 2) of the simplices ``S`` at vertex positions ``V``."""
     if S.shape[1] == 2:
         return np.linalg.norm(V[S[:, 1]] - V[S[:, 0]], axis=1)
-    e1 = V[S[:, 1]] - V[S[:, 0]]
-    e2 = V[S[:, 2]] - V[S[:, 0]]
-    return 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    return 0.5 * np.linalg.norm(face_normals(V, S), axis=1)
