@@ -213,7 +213,9 @@ def write_report(rows: list[dict[str, Any]], out: Path, command: str) -> str:
         f"Command: `{command}`",
         "",
         f"Machine: {platform.platform()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
-        f"CasADi {casadi.__version__}, numpy {np.__version__}. Sphere = icosphere scaled 1:1:1.3 in z, "
+        f"CasADi {casadi.__version__}, numpy {np.__version__}; BLAS threads (`OPENBLAS_NUM_THREADS`, read by "
+        f"CasADi's OpenBLAS under MUMPS): {os.environ.get('OPENBLAS_NUM_THREADS') or 'unset (one per core)'}. "
+        "Sphere = icosphere scaled 1:1:1.3 in z, "
         "torus R = 1, r = 0.5; tau = 0.2 h, tau_tilde = h^2/100 (the library's default for surfaces), "
         "IPOPT tol 1e-9, MUMPS with METIS ordering. '1 KKT fact' is IPOPT + MUMPS (same options) solving "
         "the equality-constrained QP whose KKT matrix is the step's [[H, J^T], [J, 0]] at the solution: "
