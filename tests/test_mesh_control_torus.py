@@ -134,8 +134,9 @@ def test_the_discrete_energy_of_the_clifford_torus_depends_on_its_mesh_by_more_t
     shape and size (mesh_quality.md, 'Why a 0.5 % band ...'): on the 48x24 grid (1,152 v) its smallest angle is
     11.7 deg, below the 15-deg bound, and W = 39.016; on the 34x34 grid (1,156 v, 22.4 deg) 39.182; on an isotropic
     remesh (about 1,140 v) with its vertices put back on the torus 39.24; on the stretched 64x18 grid (1,152 v)
-    38.724. The energy falls as the triangles stretch along the tube, by more than 0.5 % between meshes of one
-    size; each grid value also converges to 4 pi^2 under refinement (the consistency check of the comparison)."""
+    38.724. The energy falls as the triangles stretch along the meridians (more divisions around the axis), by
+    more than 0.5 % between meshes of one size; each grid value also converges to 4 pi^2 under refinement (the
+    consistency check of the comparison)."""
     R, r = np.sqrt(2) / 2, 0.5
     grid = {ab: shapes.torus(R, r, *ab) for ab in ((64, 18), (48, 24), (34, 34))}
     W = {ab: willmore_energy(m) for ab, m in grid.items()}
@@ -147,7 +148,7 @@ def test_the_discrete_energy_of_the_clifford_torus_depends_on_its_mesh_by_more_t
     w_iso = willmore_energy(Mesh(V, F, "isotropic remesh"))
     assert abs(V.shape[0] / m.n_vertices - 1) < 0.05
     assert triangle_quality(V, F)["min_angle"] > 30.0
-    assert W[64, 18] < W[48, 24] < W[34, 34] < w_iso  # the more stretched along the tube, the lower
+    assert W[64, 18] < W[48, 24] < W[34, 34] < w_iso  # the more stretched along the meridians, the lower
     assert W[34, 34] / W[48, 24] - 1 > 0.004 and w_iso / W[48, 24] - 1 > 0.005
     errs = [abs(willmore_energy(shapes.torus(R, r, 2 * k, k)) - 4 * np.pi**2) for k in (12, 24, 48)]
     assert errs[0] > errs[1] > errs[2] and errs[2] < 0.02 * 4 * np.pi**2
