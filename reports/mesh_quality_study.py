@@ -359,6 +359,9 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
            "options": {k: v for k, v in options.items() if k != "boundary"}, "steps": len(rows) - 1,
            "t": flow.t, "min_angle_before": float(before.min()),
            "min_angle_steps": float(before[1:].min()) if len(before) > 1 else float("nan"),
+           # after the first step (whose stepped state still has the input's triangles)
+           "min_angle_steps_after_first": float(before[2:].min()) if len(before) > 2 else float("nan"),
+           "min_angle_after_first": float(after[1:].min()) if len(after) > 1 else float("nan"),
            "min_angle_after": float(after.min()),
            "min_angle_final": float(after[-1]), "remeshes": int(sum(r["remeshed"] for r in rows)),
            "retries": int(sum(r["retries"] for r in rows[1:])), "failed": failed, "W0": float(W[0]),
@@ -466,6 +469,10 @@ def cases(scale: float) -> dict[str, Any]:
         "capsule": genus0(capsule()),
         "capsule_noisy": genus0(noisy_capsule()),
         "box": genus0(smoothed_box()),
+        # today's surface defaults (tangential_control = auto: the in-step control on these genus-0 meshes)
+        **{f"{key}_today": genus0(make(), tangential_control="auto")
+           for key, make in (("ellipsoid642", lambda: ellipsoid(3)), ("ellipsoid2562", lambda: ellipsoid(4)),
+                             ("capsule", capsule), ("capsule_noisy", noisy_capsule), ("box", smoothed_box))},
         "box_relax": lambda: run_case("smoothed box, relax", smoothed_box(), smoothed_box().h,
                                       0.01 * smoothed_box().h ** 2, steps=n(200), relax=True,
                                       reference=lambda m, f: sphere_reference(m)),
