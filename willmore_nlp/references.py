@@ -119,11 +119,7 @@ def clifford_nodes(V: np.ndarray) -> np.ndarray:
 def _outward(mesh: Mesh, V: np.ndarray) -> bool:
     """Whether every triangle of ``mesh`` with vertices ``V`` keeps the orientation it has in the mesh."""
     S = mesh.simplices
-
-    def normals(X: np.ndarray) -> np.ndarray:
-        return face_normals(X, S)
-
-    return bool(np.all(np.einsum("ij,ij->i", normals(mesh.vertices), normals(V)) > 0))
+    return bool(np.all(np.einsum("ij,ij->i", face_normals(mesh.vertices, S), face_normals(V, S)) > 0))
 
 
 def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,

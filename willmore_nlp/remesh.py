@@ -33,7 +33,7 @@ import numpy as np
 
 from willmore_nlp.geometry import vertex_normals
 from willmore_nlp.mesh.core import Mesh, MeshError
-from willmore_nlp.mesh.topology import boundary_facets
+from willmore_nlp.mesh.topology import boundary_facets, unique_edges
 from willmore_nlp.mesh.validate import simplex_volumes
 from willmore_nlp.tangential import SUBSTEPS
 
@@ -45,8 +45,7 @@ class RemeshError(MeshError):
 def euler_characteristic(F: np.ndarray) -> int:
     """chi = V - E + F of a triangle mesh (vertices counted as those used by the triangles)."""
     F = np.asarray(F)
-    e = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
-    return int(np.unique(F).size - e.shape[0] + F.shape[0])
+    return int(np.unique(F).size - unique_edges(F).shape[0] + F.shape[0])
 
 
 def _cross(P: list[list[float]], i: int, j: int, k: int) -> tuple[float, float, float]:
