@@ -48,3 +48,14 @@ def test_ipopt_max_runs_larger_cases_with_the_other_solvers_alone(monkeypatch, t
     assert rows["sphere:2"][col["IPOPT load"]] == "1.0-2.0"
     assert rows["sphere:3"][col["speed-up"]] == "" and rows["sphere:3"][col["load"]] == "1.0-2.0"
     assert "Fitted exponent of newton-krylov's step time vs N (spheres): step 1 **1.10**, step 2 **1.10**" in text
+
+
+def test_control_steps_report_the_mesh_controls_share_of_a_step() -> None:
+    """Two steps of the 162-vertex sphere with the surface defaults: the light repair runs after each, its time is
+    part of the step's, and the table row carries the case and its share."""
+    row = bench.run_control_case("sphere:2", 2)
+    assert (row["N"], row["steps"], row["actions"]) == (162, 2, "repair")
+    assert 0 < row["control_s"] < row["step_s"] and 0 < row["control_share"] < 1
+    lines = bench.control_table([row, {"case": "torus:8x4", "solver": "ipopt", "error": ["boom"]}])
+    assert lines[-2].startswith("| sphere:2 | 162 | ipopt | 2 |") and "repair" in lines[-2]
+    assert lines[-1] == "| torus:8x4 | | ipopt | failed: ['boom'] |"

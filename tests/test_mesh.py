@@ -8,6 +8,7 @@ from willmore_nlp.analysis import fit_order
 from willmore_nlp.geometry import enclosed_volume, measure, quality
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.io import load_mesh, save_mesh
+from willmore_nlp.mesh.topology import sorted_unique, unique_rows
 
 
 def test_infers_dimensions_and_closedness() -> None:
@@ -38,6 +39,24 @@ def test_infers_dimensions_and_closedness() -> None:
 def test_validation_messages(V, S, match: str) -> None:
     with pytest.raises(MeshError, match=match):
         Mesh(np.asarray(V, float), np.asarray(S))
+
+
+@pytest.mark.parametrize("flags", [{}, {"return_index": True}, {"return_inverse": True, "return_counts": True},
+                                   {"return_index": True, "return_inverse": True, "return_counts": True}])
+def test_unique_rows_and_sorted_unique_equal_numpy_unique(flags: dict) -> None:
+    rng = np.random.default_rng(3)
+    arrays = [rng.integers(-3, 5, (200, 2)), rng.integers(0, 4, (60, 3)), rng.integers(0, 9, (30, 1)),
+              rng.integers(0, 2**40, (40, 2)),  # keys beyond 62 bits: numpy's own path
+              np.zeros((0, 2), dtype=np.int64), shapes.torus(1.0, 0.5, 12, 6).simplices[:, [0, 1]]]
+    for A in arrays:
+        ours = unique_rows(A, **flags)
+        ref = np.unique(A, axis=0, **flags)
+        ours, ref = (ours, ref) if flags else ((ours,), (ref,))
+        assert len(ours) == len(ref)
+        for a, b in zip(ours, ref, strict=True):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b.reshape(a.shape))
+        np.testing.assert_array_equal(sorted_unique(A[:, 0]), np.unique(A[:, 0]))
 
 
 def test_surface_orientation_and_manifold_errors() -> None:

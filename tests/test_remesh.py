@@ -287,6 +287,8 @@ def test_light_repair_keeps_the_torus_healthy() -> None:
     assert min(produced) > 17.5
     assert all("repair" in r.remeshed for r in on)
     assert all(r.vertices.shape[0] == m.n_vertices for r in on)
+    # the mesh control's share of the step is recorded (history column t_wall_control)
+    assert all(0 < r.row()["t_wall_control"] < r.wall_time for r in on)
 
     def ratio(X: np.ndarray) -> float:
         rho, z = np.hypot(X[:, 0], X[:, 1]), X[:, 2] - X[:, 2].mean()

@@ -202,12 +202,12 @@ def normal_jumps(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> dict[str, fl
     F : (K, 3) triangles, consistently oriented (edges with one or more than two triangles are ignored)
     free : (N,) bool, the patch's free vertices
     """
-    from willmore_nlp.mesh.topology import simplex_facets
+    from willmore_nlp.mesh.topology import simplex_facets, unique_rows
     from willmore_nlp.mesh.validate import face_normals
 
     E, owner = simplex_facets(F)
     key = np.sort(E, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inv, counts = unique_rows(key, return_inverse=True, return_counts=True)
     inv = inv.ravel()
     order = np.argsort(inv, kind="stable")
     pairs = order[counts[inv[order]] == 2].reshape(-1, 2)  # the two triangles of every interior edge

@@ -125,7 +125,8 @@ class StepResult:
     quality : mesh-quality figures (:func:`willmore_nlp.geometry.quality`)
     retries : how many times tau was halved
     stats : solver statistics (evaluations, timings, KKT residual; ``rejected_iterations``: solver
-        iterations spent on the step's rejected attempts)
+        iterations spent on the step's rejected attempts; ``t_wall_control``: seconds of the mesh control
+        after the accepted attempt, part of ``wall_time``)
     rejected : reasons of rejected attempts
     simplices : (K, d + 1) connectivity of the state (changes when the mesh control remeshes)
     free : (N,) bool free-vertex mask of a clamped problem on that connectivity (None without boundary)
@@ -194,8 +195,8 @@ class StepResult:
             "rest_steps": self.rest_steps,
         }
         r.update({f"q_{k}": v for k, v in self.quality.items()})
-        for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "n_eval_hess", "energy_before_redistribution",
-                  "redistribution_shift", "rejected_iterations"):
+        for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "t_wall_control", "n_eval_hess",
+                  "energy_before_redistribution", "redistribution_shift", "rejected_iterations"):
             if k in self.stats:
                 r[k] = self.stats[k]
         return r
@@ -558,7 +559,9 @@ class WillmoreFlow:
                 self.lam_g = res.lam_g
                 self._grow_tau(tau, attempt)
                 self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
+                t_control = time.perf_counter()
                 action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
+                mstats["t_wall_control"] = time.perf_counter() - t_control
                 result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
                 if self._rest and self._rest_tau_tilde(attempt, tau, result.willmore, result.measure):
                     # Y, the discrete energy and tau_tilde of the state are those of the halved tau_tilde

@@ -6,7 +6,7 @@ import numpy as np
 
 from willmore_nlp.fem.assembly import element_geometry, lumped_mass, mass_stiffness
 from willmore_nlp.mesh.core import Mesh
-from willmore_nlp.mesh.validate import face_normals, simplex_volumes
+from willmore_nlp.mesh.validate import simplex_volumes, vertex_normals_of
 
 
 def mean_curvature_vector(mesh: Mesh) -> np.ndarray:
@@ -26,12 +26,10 @@ def mean_curvature_vector(mesh: Mesh) -> np.ndarray:
 def vertex_normals(mesh: Mesh) -> np.ndarray:
     """(N, m) unit vertex normals (zero rows where no normal is defined, e.g. curves in R^3)."""
     V, S = mesh.vertices, mesh.simplices
-    n = np.zeros_like(V)
     if mesh.d == 2:
-        fn = face_normals(V, S)  # length = 2 * area
-        for j in range(3):
-            np.add.at(n, S[:, j], fn)
-    elif mesh.m == 2:
+        return vertex_normals_of(V, S)
+    n = np.zeros_like(V)
+    if mesh.m == 2:
         t = V[S[:, 1]] - V[S[:, 0]]
         rot = np.stack([t[:, 1], -t[:, 0]], axis=1)  # outward for counter-clockwise curves
         for j in range(2):

@@ -31,10 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from willmore_nlp.geometry import vertex_normals
 from willmore_nlp.mesh.core import Mesh, MeshError
-from willmore_nlp.mesh.topology import boundary_facets, unique_edges
-from willmore_nlp.mesh.validate import simplex_volumes
+from willmore_nlp.mesh.topology import boundary_facets, unique_edges, unique_rows
+from willmore_nlp.mesh.validate import simplex_volumes, vertex_normals_of
 from willmore_nlp.tangential import SUBSTEPS
 
 
@@ -82,7 +81,7 @@ def opposite_angle_sums(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.nd
     u, v = a - p, b - p
     ang = np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.einsum("ij,ij->i", u, v))
     key = np.sort(he, axis=1)
-    uk, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    uk, inv, cnt = unique_rows(key, return_inverse=True, return_counts=True)
     sums = np.bincount(inv.ravel(), weights=ang, minlength=uk.shape[0])
     interior = cnt == 2
     return uk[interior], sums[interior]
@@ -118,6 +117,10 @@ def delaunay_flips(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None,
     """
     V = np.asarray(V, float)
     F = np.array(F, dtype=np.int64, copy=True)
+    # an edge none of whose two triangles has changed keeps its angle sum: test those all at once
+    edges, sums = opposite_angle_sums(V, F)
+    if np.all(sums <= np.pi + tol):  # every interior edge Delaunay: nothing to flip (common after a step)
+        return F, 0
     free = np.ones(V.shape[0], bool) if free is None else np.asarray(free, bool)
     cos_max = np.cos(np.radians(max_dihedral))
     P = V.tolist()
@@ -125,10 +128,8 @@ def delaunay_flips(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = None,
     owner: dict[tuple[int, int], int] = {}
     for f, (i, j, k) in enumerate(F.tolist()):
         owner[(i, j)], owner[(j, k)], owner[(k, i)] = f, f, f
-    stack = sorted({(min(a, b), max(a, b)) for (a, b) in owner})
+    stack = list(map(tuple, unique_edges(F).tolist()))  # sorted
     limit = 20 * len(stack) if max_flips is None else int(max_flips)
-    # an edge none of whose two triangles has changed keeps its angle sum: test those all at once
-    edges, sums = opposite_angle_sums(V, F)
     delaunay = set(map(tuple, edges[sums <= np.pi + tol].tolist()))
     n = 0
     while stack and n < limit:
@@ -192,7 +193,7 @@ def project_to_surface(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarra
 def _movable(V: np.ndarray, F: np.ndarray, free: np.ndarray | None) -> np.ndarray:
     """(N,) bool: the vertices a repair may move, i.e. the free ones (all without ``free``) off the mesh boundary."""
     move = np.ones(V.shape[0], bool) if free is None else np.asarray(free, bool).copy()
-    move[Mesh(V, F).boundary_vertices] = False
+    move[np.unique(boundary_facets(np.asarray(F)))] = False
     return move
 
 
@@ -214,8 +215,7 @@ def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = No
     F = np.asarray(F, dtype=np.int64)
     N = V0.shape[0]
     move = _movable(V0, F, free)
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = unique_edges(F)
     deg = np.bincount(e.ravel(), minlength=N).astype(float)
     X = V0.copy()
     idx = np.flatnonzero(move)
@@ -224,7 +224,7 @@ def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = No
         np.add.at(s, e[:, 0], X[e[:, 1]])
         np.add.at(s, e[:, 1], X[e[:, 0]])
         dvec = s / np.maximum(deg, 1)[:, None] - X
-        n = vertex_normals(Mesh(X, F))
+        n = vertex_normals_of(X, F)
         dvec -= np.einsum("ij,ij->i", dvec, n)[:, None] * n
         P = X[idx] + step * dvec[idx]
         X[idx] = project_to_surface(P, V0, F)
@@ -355,7 +355,7 @@ def one_rings(F: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
     mask : (N, kmax) bool, True for real neighbours
     """
     F = np.asarray(F, dtype=np.int64)
-    e = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+    e = unique_edges(F)
     e = np.vstack([e, e[:, ::-1]])
     e = e[np.lexsort((e[:, 1], e[:, 0]))]
     deg = np.bincount(e[:, 0], minlength=N)
@@ -369,7 +369,8 @@ def one_rings(F: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
     return nbr, mask
 
 
-def quadric_fits(V: np.ndarray, F: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def quadric_fits(V: np.ndarray, F: np.ndarray, idx: np.ndarray,
+                 rings: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Local quadric fits of the 1-rings of the vertices ``idx`` (the smooth surface of :func:`quadric_offsets`
     and :func:`smooth_lift`).
 
@@ -382,15 +383,15 @@ def quadric_fits(V: np.ndarray, F: np.ndarray, idx: np.ndarray) -> tuple[np.ndar
     Parameters
     ----------
     V : (N, 3) positions; F : (K, 3) triangles; idx : (n,) vertices
+    rings : :func:`one_rings` of F, optional (computed when not given)
 
     Returns
     -------
     frames : (n, 3, 3) rows t1, t2, n of each vertex's frame
     coefficients : (n, 5) c1 ... c5
     """
-    N = V.shape[0]
-    n = vertex_normals(Mesh(V, F))
-    nbr, mask = one_rings(F, N)
+    n = vertex_normals_of(V, F)
+    nbr, mask = one_rings(F, V.shape[0]) if rings is None else rings
     nbr, mask = nbr[idx], mask[idx]
     ni = n[idx]
     a = np.where(np.abs(ni[:, 0:1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
@@ -415,7 +416,8 @@ def _on_quadric(frames: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
     return dx[:, None] * frames[:, 0] + dy[:, None] * frames[:, 1] + z[:, None] * frames[:, 2]
 
 
-def quadric_offsets(V: np.ndarray, F: np.ndarray, D: np.ndarray, idx: np.ndarray) -> np.ndarray:
+def quadric_offsets(V: np.ndarray, F: np.ndarray, D: np.ndarray, idx: np.ndarray,
+                    rings: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Normal offsets that put tangential moves of vertices onto a local quadric fit of their 1-ring.
 
     For each vertex i in ``idx`` the move D_i (tangent) gets the offset ``z(D_i) n_i`` of the fit of
@@ -426,12 +428,13 @@ def quadric_offsets(V: np.ndarray, F: np.ndarray, D: np.ndarray, idx: np.ndarray
     Parameters
     ----------
     V : (N, 3) positions; F : (K, 3) triangles; D : (N, 3) tangential moves; idx : (n,) vertices to place
+    rings : :func:`one_rings` of F, optional
 
     Returns
     -------
     (n, 3) the moves D[idx] plus their normal offsets
     """
-    frames, c = quadric_fits(V, F, idx)
+    frames, c = quadric_fits(V, F, idx, rings)
     return _on_quadric(frames, c, D[idx])
 
 
@@ -504,10 +507,11 @@ def tangential_relax(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = Non
     move = _movable(X, F, free)
     idx = np.flatnonzero(move)
     sub = None if cap is None else np.asarray(cap, float) / RELAX_SUBSTEPS
+    rings = one_rings(F, X.shape[0])
     for _ in range(iterations * RELAX_SUBSTEPS):
         S = nodal_parameters(X, F, fraction=1.0 / RELAX_SUBSTEPS)[:, 9:]
         if sub is not None:
             ln = np.linalg.norm(S, axis=1)
             S *= (np.minimum(ln, sub) / np.maximum(ln, 1e-300))[:, None]
-        X[idx] = X[idx] + quadric_offsets(X, F, S, idx)
+        X[idx] = X[idx] + quadric_offsets(X, F, S, idx, rings)
     return X

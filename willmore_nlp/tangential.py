@@ -27,7 +27,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
-from willmore_nlp.mesh.validate import face_normals
+from willmore_nlp.mesh.validate import face_normals, vertex_normals_of
 
 CONTROL_METHODS = ("auto", "off", "meanratio")
 """Values of the ``tangential_control`` option: "off" is the paper's scheme, "auto" (the default) is "meanratio" where
@@ -143,15 +143,9 @@ def vertex_projectors(V: np.ndarray, S: np.ndarray) -> np.ndarray:
         t[ok] /= ln[ok, None]
         return t[:, :, None] * t[:, None, :]
     if d == 2 and m == 3:
-        a = face_normals(V, S)
-        n = np.zeros((N, 3))
-        for j in range(3):
-            np.add.at(n, S[:, j], a)
-        ln = np.linalg.norm(n, axis=1)
-        ok = ln > 0
-        n[ok] /= ln[ok, None]
+        n = vertex_normals_of(V, S)
         P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
-        P[~ok] = 0.0
+        P[~n.any(axis=1)] = 0.0
         return P
     raise ValueError(f"tangential control: simplices of dimension {d} in R^{m} are not supported")
 

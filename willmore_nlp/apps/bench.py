@@ -1,7 +1,7 @@
 """Scale benchmark of one time step (outside the test suite).
 
     python -m willmore_nlp.bench [--spheres 3 4 5 6] [--torus 96x48] [--vm-max 10242] [--out reports/benchmark_scale]
-                                 [--solvers ipopt newton-krylov] [--ipopt-max 40962]
+                                 [--solvers ipopt newton-krylov] [--ipopt-max 40962] [--control-steps K]
 
 Every case runs in its own subprocess (so peak memory is per case) and measures: build time of the
 step problem and solver, compile time of the generated kernels cold (empty cache) and cached, the
@@ -15,7 +15,9 @@ Every other solver of ``--solvers`` (default: ``newton-krylov``) runs the same s
 in its own subprocess of the same run; a second table compares it with IPOPT: step time and speed-up,
 its iterations, CG iterations, factorisations and time split, peak memory of both, and the largest
 difference of X^{k+1} from IPOPT's, in units of the mean edge length h. Cases above ``--ipopt-max``
-vertices run the other solvers alone. Every row records the machine's 1-minute load average at the start
+vertices run the other solvers alone. ``--control-steps K`` adds, per case and solver, K steps of the flow with
+the surface defaults and the mesh control's share of a step (the light repair, flips and remeshing between
+steps). Every row records the machine's 1-minute load average at the start
 and end of its case (the machine is shared).
 """
 
@@ -148,15 +150,42 @@ def run_case(case: str, codegen: bool, solver: str = "ipopt", save: str | None =
     return row
 
 
+def run_control_case(case: str, steps: int, solver: str = "ipopt") -> dict[str, Any]:
+    """``steps`` steps of the flow with the surface defaults (mesh control on, tau = 0.2 h, tau_tilde = h^2/100):
+    the mean wall time of a step and of its mesh control (``t_wall_control``, part of the step), in this process."""
+    from willmore_nlp import WillmoreFlow
+
+    mesh = _mesh(case)
+    flow = WillmoreFlow(mesh, 0.2 * mesh.h, mesh.h**2 / 100, solver=solver)
+    rs = flow.run(steps=steps)
+    step = sum(r.wall_time for r in rs)
+    control = sum(r.stats["t_wall_control"] for r in rs)
+    return {"case": case, "N": mesh.n_vertices, "solver": solver, "steps": len(rs), "step_s": step / len(rs),
+            "control_s": control / len(rs), "control_share": control / step,
+            "actions": ", ".join(sorted({a for r in rs for a in r.remeshed.split("+") if a})) or "none",
+            "load": _load()}
+
+
+def control_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Markdown lines of :func:`run_control_case` rows."""
+    return ["", "The mesh control's share of a step (`--control-steps`: that many steps of the flow with the surface "
+            "defaults, in one process per case; means per step; the control is part of the step's wall time):", "",
+            "| case | N | solver | steps | step [s] | mesh control [s] | share | actions | load |",
+            "|---|---|---|---|---|---|---|---|---|",
+            *(f"| {r['case']} | | {r['solver']} | failed: {r['error']} |" if "error" in r else
+              f"| {r['case']} | {r['N']} | {r['solver']} | {r['steps']} | {r['step_s']:.3g} | {r['control_s']:.3g} | "
+              f"{100 * r['control_share']:.0f} % | {r['actions']} | {r['load']} |" for r in rows)]
+
+
 def _load() -> str:
     """The machine's 1-minute load average (the benchmark shares the machine: times depend on it)."""
     return f"{os.getloadavg()[0]:.1f}"
 
 
 def _subprocess(case: str, codegen: bool, timeout: float, solver: str = "ipopt",
-                save: str | None = None) -> dict[str, Any]:
+                save: str | None = None, control_steps: int = 0) -> dict[str, Any]:
     cmd = [sys.executable, "-m", "willmore_nlp.apps.bench", "--one", case, "--codegen", str(int(codegen)),
-           "--solver", solver] + (["--save", save] if save else [])
+           "--solver", solver, "--control-steps", str(control_steps)] + (["--save", save] if save else [])
     t0 = time.perf_counter()
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
     if r.returncode != 0:
@@ -309,13 +338,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="reports/benchmark_scale", help="output path without suffix (.md, .csv)")
     ap.add_argument("--solvers", nargs="*", default=["ipopt", "newton-krylov"],
                     help="step solvers to run on every case (IPOPT always; the others with generated C only)")
+    ap.add_argument("--control-steps", type=int, default=0,
+                    help="also run this many steps of the flow with the surface defaults per case and solver and "
+                         "report the mesh control's share of a step (0: not)")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     ap.add_argument("--codegen", type=int, default=1, help=argparse.SUPPRESS)
     ap.add_argument("--solver", default="ipopt", help=argparse.SUPPRESS)
     ap.add_argument("--save", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
-        print(json.dumps(run_case(args.one, bool(args.codegen), args.solver, args.save)))
+        if args.control_steps:
+            print(json.dumps(run_control_case(args.one, args.control_steps, args.solver)))
+        else:
+            print(json.dumps(run_case(args.one, bool(args.codegen), args.solver, args.save)))
         return 0
     cases = [f"sphere:{s}" for s in args.spheres] + [f"torus:{t}" for t in args.torus]
     others = [s for s in args.solvers if s != "ipopt"]
@@ -338,8 +373,14 @@ def main(argv: list[str] | None = None) -> int:
                 _compare(row, ref, x, x_ref)
                 rows.append(row)
                 print(json.dumps(row), flush=True)
+        control = [_subprocess(case, True, args.timeout, solver=name, control_steps=args.control_steps)
+                   for case in cases for name in args.solvers] if args.control_steps else []
     command = "python -m willmore_nlp.bench " + " ".join(sys.argv[1:] if argv is None else argv)
-    print(write_report(rows, Path(args.out), command.strip()))
+    text = write_report(rows, Path(args.out), command.strip())
+    if control:
+        text += "\n".join(control_table(control)) + "\n"
+        Path(args.out).with_suffix(".md").write_text(text, encoding="utf-8")
+    print(text)
     return 0
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -14,10 +14,40 @@ if TYPE_CHECKING:
     from willmore_nlp.mesh.core import Mesh
 
 
+def sorted_unique(a: np.ndarray) -> np.ndarray:
+    """The sorted distinct values of the 1-D array ``a`` (``np.unique(a)``) by a sort: numpy >= 2.3 takes them
+    from a hash table first, which on the millions of integer pattern keys of a step build is about twice as slow."""
+    s = np.sort(a)
+    return s[np.concatenate([s[:1] == s[:1], s[1:] != s[:-1]])]
+
+
+def unique_rows(A: np.ndarray, *, return_index: bool = False, return_inverse: bool = False,
+                return_counts: bool = False) -> Any:
+    """``np.unique(A, axis=0, ...)`` of an integer array ``A`` ((n, c)): the same outputs in the same
+    (lexicographic) order, from one int64 key per row.
+
+    np.unique along an axis sorts the rows as structured records: 26 times slower on the 27,648 half-edges of a
+    4,608-vertex torus (17 ms against 0.6 ms), which every mesh construction and light repair paid several times.
+    Rows whose key would not fit in 62 bits go to np.unique itself.
+    """
+    A = np.asarray(A)
+    flags = {"return_index": return_index, "return_inverse": return_inverse, "return_counts": return_counts}
+    lo = int(A.min()) if A.size else 0
+    base = int(A.max()) - lo + 1 if A.size else 1
+    if A.size == 0 or base ** A.shape[1] > 2**62:
+        return np.unique(A, axis=0, **flags)
+    key = np.zeros(A.shape[0], dtype=np.int64)
+    for j in range(A.shape[1]):
+        key = key * base + (A[:, j].astype(np.int64) - lo)
+    _, first, *rest = np.unique(key, return_index=True, return_inverse=return_inverse, return_counts=return_counts)
+    out = (A[first], *((first,) if return_index else ()), *rest)
+    return out[0] if len(out) == 1 else out
+
+
 def unique_edges(S: np.ndarray) -> np.ndarray:
     """(E, 2) int array of the unique edges (sorted vertex pairs) of the simplices ``S`` ((K, d + 1))."""
     e = S if S.shape[1] == 2 else np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
+    return unique_rows(np.sort(e, axis=1))
 
 
 def edge_lengths(V: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -48,7 +78,7 @@ def boundary_facets(S: np.ndarray) -> np.ndarray:
     """(B, d) facets that belong to exactly one simplex (boundary of the mesh)."""
     F, _ = simplex_facets(S)
     key = np.sort(F, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inv, counts = unique_rows(key, return_inverse=True, return_counts=True)
     once = counts[inv.ravel()] == 1
     return F[once]
 
@@ -77,7 +107,7 @@ def check_manifold(mesh: Mesh) -> None:
         return
     F, owner = simplex_facets(S)
     key = np.sort(F, axis=1)
-    uniq, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    uniq, inv, counts = unique_rows(key, return_inverse=True, return_counts=True)
     inv = inv.ravel()
     if np.any(counts > 2):
         e = uniq[np.argmax(counts > 2)]
@@ -86,7 +116,7 @@ def check_manifold(mesh: Mesh) -> None:
             f"{src}: non-manifold surface: edge {e.tolist()} lies on {len(tris)} triangles "
             f"{tris.tolist()}"
         )
-    directed, dcounts = np.unique(F, axis=0, return_counts=True)
+    directed, dcounts = unique_rows(F, return_counts=True)
     if np.any(dcounts > 1):
         e = directed[np.argmax(dcounts > 1)]
         tris = owner[np.flatnonzero((e == F).all(axis=1))]
@@ -118,7 +148,7 @@ def check_manifold(mesh: Mesh) -> None:
     G = sp.coo_matrix((np.ones(r.size), (r, c)), shape=(inc_v.size, inc_v.size))
     _, labels = connected_components(G, directed=False)
     fans = np.zeros(N, dtype=np.int64)
-    uniq_pairs = np.unique(np.stack([inc_v, labels], axis=1), axis=0)
+    uniq_pairs = unique_rows(np.stack([inc_v, labels], axis=1))
     np.add.at(fans, uniq_pairs[:, 0], 1)
     bad = np.flatnonzero(fans > 1)
     if bad.size:

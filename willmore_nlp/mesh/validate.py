@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from willmore_nlp.mesh.core import MeshError
+from willmore_nlp.mesh.topology import unique_rows
 
 
 def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[np.ndarray, np.ndarray]:
@@ -65,7 +66,7 @@ def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[n
     rep = np.flatnonzero((np.diff(Ss, axis=1) == 0).any(axis=1))
     if rep.size:
         raise MeshError(f"{source}: simplex {rep[0]} repeats a vertex: {S[rep[0]].tolist()}")
-    _, first, counts = np.unique(Ss, axis=0, return_index=True, return_counts=True)
+    _, first, counts = unique_rows(Ss, return_index=True, return_counts=True)
     if np.any(counts > 1):
         i = int(first[np.argmax(counts > 1)])
         dup = np.flatnonzero((Ss == Ss[i]).all(axis=1))
@@ -171,6 +172,17 @@ def face_normals(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     """Unnormalised normals of the triangles ``S`` ((K, 3) int) at positions ``V`` ((N, 3)): the (K, 3) cross
     products (x1 - x0) x (x2 - x0), of length twice the area, oriented by the vertex order."""
     return np.cross(V[S[:, 1]] - V[S[:, 0]], V[S[:, 2]] - V[S[:, 0]])
+
+
+def vertex_normals_of(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(N, 3) unit vertex normals of the triangles ``S`` ((K, 3) int) at ``V`` ((N, 3)): the normalised sums of
+    the incident :func:`face_normals` (area weighted); zero rows at vertices of no triangle or a zero sum."""
+    n = np.zeros_like(V, dtype=float)
+    fn = face_normals(V, S)
+    for j in range(3):
+        np.add.at(n, S[:, j], fn)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
 def simplex_volumes(V: np.ndarray, S: np.ndarray) -> np.ndarray:

@@ -33,6 +33,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from willmore_nlp.mesh.topology import sorted_unique
 from willmore_nlp.model.params import BASE_SCALARS, StepParams
 from willmore_nlp.model.terms.base import Element, Term
 
@@ -183,7 +184,7 @@ def _pattern(entries: Callable[[slice], tuple[np.ndarray, np.ndarray]], width: i
         key[(rows < 0) | (cols < 0)] = -1
         return key
 
-    uk = np.unique(np.concatenate([np.unique(keys(b)) for b in blocks] or [np.zeros(0, np.int64)]))
+    uk = sorted_unique(np.concatenate([sorted_unique(keys(b)) for b in blocks] or [np.zeros(0, np.int64)]))
     uk = uk[uk >= 0]
     dtype = _index_dtype(max(uk.size, *shape))
     emap = np.empty((K, width), dtype)
