@@ -30,7 +30,7 @@ from willmore_nlp.solvers.ipopt import IpoptSolver
 CLI = [sys.executable, "-m", "willmore_nlp.cli"]
 STEPS = 150
 ARGS = ["circle", "--set", "n=24", "--set", "tau=0.01", "--quiet"]
-TIMING = {"wall_time", "t_wall_eval", "t_wall_solver", "t_wall_total"}
+TIMING = {"wall_time", "t_wall_eval", "t_wall_solver", "t_wall_total", "t_wall_control"}
 
 
 @pytest.fixture(autouse=True)
