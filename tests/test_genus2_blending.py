@@ -10,7 +10,7 @@ from willmore_nlp.analysis import normal_jumps
 from willmore_nlp.boundary import boundary_data
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import MeshError
-from willmore_nlp.remesh import euler_characteristic
+from willmore_nlp.mesh.topology import euler_characteristic
 
 
 def test_double_torus_is_a_resolved_genus2_surface() -> None:

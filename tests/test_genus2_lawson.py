@@ -11,7 +11,7 @@ from willmore_nlp.analysis import fit_order, minimal_s3_fit
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
-from willmore_nlp.remesh import euler_characteristic
+from willmore_nlp.mesh.topology import euler_characteristic
 
 LAWSON_21 = 2 * 21.9  # Hsu, Kusner, Sullivan 1992: int H^2 = 21.9, H the mean of the principal curvatures
 

@@ -207,7 +207,7 @@ def test_auto_is_the_meanratio_control_on_surfaces_and_off_elsewhere() -> None:
     assert WillmoreFlow(ell, tau, tt, mesh_control="off")._control.method == "off"
     # genus >= 1 closed surfaces keep the paper's tangential freedom (Euler characteristic 0 and -2); a boundary: on
     torus, lawson = shapes.torus(1.0, 0.5, 24, 12), shapes.lawson_genus2()
-    assert (euler_characteristic(torus), euler_characteristic(lawson), euler_characteristic(ell)) == (0, -2, 2)
+    assert [euler_characteristic(m.simplices) for m in (torus, lawson, ell)] == [0, -2, 2]
     assert WillmoreFlow(torus, 1e-3, 1e-4)._control.method == "off"
     disk = shapes.disk(4)
     bd = Boundary(np.linalg.norm(disk.vertices[:, :2], axis=1) < 0.6)

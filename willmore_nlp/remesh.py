@@ -32,19 +32,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from willmore_nlp.mesh.core import Mesh, MeshError
-from willmore_nlp.mesh.topology import boundary_facets, unique_edges, unique_rows
+from willmore_nlp.mesh.topology import boundary_facets, euler_characteristic, unique_edges, unique_rows
 from willmore_nlp.mesh.validate import simplex_volumes, vertex_normals_of
 from willmore_nlp.tangential import SUBSTEPS
 
 
 class RemeshError(MeshError):
     """A remeshing operation would change the topology or produce an invalid mesh."""
-
-
-def euler_characteristic(F: np.ndarray) -> int:
-    """chi = V - E + F of a triangle mesh (vertices counted as those used by the triangles)."""
-    F = np.asarray(F)
-    return int(np.unique(F).size - unique_edges(F).shape[0] + F.shape[0])
 
 
 def _cross(P: list[list[float]], i: int, j: int, k: int) -> tuple[float, float, float]:

@@ -64,7 +64,7 @@ def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool
         return "meanratio"
     from willmore_nlp.mesh.topology import components, euler_characteristic
 
-    return "meanratio" if euler_characteristic(mesh) == 2 * components(mesh)[0] else "off"
+    return "meanratio" if euler_characteristic(mesh.simplices) == 2 * components(mesh)[0] else "off"
 
 
 @dataclass(frozen=True)

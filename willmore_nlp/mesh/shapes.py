@@ -215,7 +215,7 @@ def _genus2_level_set(func: Callable[[np.ndarray], np.ndarray], ax: list[np.ndar
     and the Euler characteristic checked (-2)."""
     import gpytoolbox
 
-    from willmore_nlp.remesh import euler_characteristic
+    from willmore_nlp.mesh.topology import euler_characteristic
 
     n = [len(a) for a in ax]
     G = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3, order="F")  # x fastest

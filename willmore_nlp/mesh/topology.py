@@ -184,9 +184,11 @@ def vertex_components(S: np.ndarray, N: int) -> tuple[int, np.ndarray]:
     return int(n), labels
 
 
-def euler_characteristic(mesh: Mesh) -> int:
-    """V - E + F of a triangle surface (2 - 2 g for a closed connected one of genus g)."""
-    return mesh.n_vertices - unique_edges(mesh.simplices).shape[0] + mesh.n_simplices
+def euler_characteristic(F: np.ndarray) -> int:
+    """V - E + F of the triangles ``F`` ((K, 3) int), V counting the vertices they use (2 - 2 g for a closed
+    connected surface of genus g)."""
+    F = np.asarray(F)
+    return int(sorted_unique(F.ravel()).size - unique_edges(F).shape[0] + F.shape[0])
 
 
 def check_connected(mesh: Mesh, hint: str = "") -> None:
