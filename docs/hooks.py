@@ -149,7 +149,8 @@ GENERATED = {
 }
 
 
-EVIDENCE = ("anisotropic_study.md", "boundary_study.md", "benchmark_scale.md", "vesicle_evolver.md")
+EVIDENCE = ("anisotropic_study.md", "boundary_study.md", "benchmark_scale.md", "benchmark_control.md",
+            "vesicle_evolver.md")
 """Measured studies of ``reports/`` shown under ``evidence/`` as they are committed."""
 
 

@@ -373,8 +373,11 @@ def main(argv: list[str] | None = None) -> int:
                 _compare(row, ref, x, x_ref)
                 rows.append(row)
                 print(json.dumps(row), flush=True)
-        control = [_subprocess(case, True, args.timeout, solver=name, control_steps=args.control_steps)
-                   for case in cases for name in args.solvers] if args.control_steps else []
+        control = []
+        for case in cases if args.control_steps else []:
+            for name in args.solvers:
+                control.append(_subprocess(case, True, args.timeout, solver=name, control_steps=args.control_steps))
+                print(json.dumps(control[-1]), flush=True)
     command = "python -m willmore_nlp.bench " + " ".join(sys.argv[1:] if argv is None else argv)
     text = write_report(rows, Path(args.out), command.strip())
     if control:
