@@ -417,7 +417,7 @@ FIG67_T = 0.3735
 
 FIG67_POWERS = (1, 2, 3, 4)
 """tau = h^p of the Fig. 7 runs: the paper's h, h^2, h^4 and h^3 between them. h^4 = 3.2e-5 is 11,839 steps
-(0.6-0.8 s each with the mesh control of 2026-11-27, about 2.5 h; 1.8 s before it), h^3 888 steps."""
+(2.2 h of steps, 0.67 s each, with the mesh control of 2026-11-27; 1.8 s each before it), h^3 888 steps."""
 
 FIG67_SOLVER = "newton-krylov"
 """Step solver of the Figs. 6-7 runs: faster than IPOPT per step on the 96 x 48 torus (the first four steps at
