@@ -13,6 +13,7 @@ from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.topology import euler_characteristic
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
 from willmore_nlp.tangential import SUBSTEPS, TangentialControl, mean_ratio, nodal_parameters, unresolved_nodes
 
 ON = TangentialControl("meanratio", 7.0)
@@ -96,6 +97,32 @@ def test_control_term_matches_numpy_and_derivatives_fd(case: str, check_step_der
     normal_part = diff - np.einsum("nab,nb->na", Pfree, diff)
     assert np.abs(diff).max() > 1e-5 * np.abs(ev0.grad_f(z, p0)).max()
     assert np.abs(normal_part).max() <= 1e-12 * np.abs(diff).max()
+
+
+def test_parameters_follow_every_input_of_the_kept_result() -> None:
+    """The term keeps its last nodal data (asked for up to three times per state by a flow with the light repair):
+    equal inputs give the same data, a change of Xk (one coordinate of one node, by 1e-12), of tau (with a
+    relaxation time), of the free nodes or of the simplices gives the data computed afresh."""
+    mesh = _perturbed(shapes.icosphere(1), 1)
+    V, S = mesh.vertices, mesh.simplices
+    setup = build_step(mesh, tangential_control=TangentialControl("meanratio", 2.0, time=0.5))
+    (term,) = [t for t in setup.problem.terms if isinstance(t, TangentialControlTerm)]
+    first = term.values(V, 0.1, S, None)["control"]
+    assert np.array_equal(first, nodal_parameters(V, S, None, 0.2, SUBSTEPS))
+    assert term.values(V.copy(), 0.1, S.copy(), None)["control"] is first
+    W = V.copy()
+    W[7, 2] += 1e-12
+    flipped = S.copy()
+    flipped[0] = flipped[0, [0, 2, 1]]
+    free = np.ones(mesh.n_vertices, bool)
+    free[:3] = False
+    for Xk, tau, simplices, x_free in [(W, 0.1, S, None), (V, 0.2, S, None), (V, 0.1, flipped, None),
+                                       (V, 0.1, S, free), (V, 0.1, S, None)]:
+        got = term.values(Xk, tau, simplices, x_free)["control"]
+        fresh = nodal_parameters(Xk, simplices, x_free, min(1.0, tau / 0.5), SUBSTEPS)
+        assert np.array_equal(got, fresh)
+        if Xk is not V or tau != 0.1 or simplices is not S or x_free is not None:
+            assert not np.array_equal(fresh, first)
 
 
 def test_mean_ratio_is_one_for_equilateral_and_its_gradient_fd() -> None:

@@ -24,6 +24,7 @@ import numpy as np
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.topology import scatter_sum
 from willmore_nlp.mesh.validate import face_normals
 
 GammaFn = Callable[[ca.SX], ca.SX]
@@ -187,19 +188,14 @@ def anisotropic_area_gradient(an: Anisotropy, X: np.ndarray, S: np.ndarray) -> n
     """(N, m) gradient of A_gamma with respect to the vertex positions (numpy chain rule)."""
     X = np.asarray(X, float)
     G = an.gradient(element_normal(X, S))
-    out = np.zeros_like(X)
+    N = X.shape[0]
     if S.shape[1] == 2:
         g1 = np.column_stack([-G[:, 1], G[:, 0]])  # d gamma(rot(X1 - X0)) / d X1 = rot^T grad
-        np.add.at(out, S[:, 1], g1)
-        np.add.at(out, S[:, 0], -g1)
-        return out
+        return scatter_sum(N, [(S[:, 1], g1), (S[:, 0], -g1)])
     e1, e2 = X[S[:, 1]] - X[S[:, 0]], X[S[:, 2]] - X[S[:, 0]]
     g1 = 0.5 * np.cross(e2, G)
     g2 = 0.5 * np.cross(G, e1)
-    np.add.at(out, S[:, 1], g1)
-    np.add.at(out, S[:, 2], g2)
-    np.add.at(out, S[:, 0], -(g1 + g2))
-    return out
+    return scatter_sum(N, [(S[:, 1], g1), (S[:, 2], g2), (S[:, 0], -(g1 + g2))])
 
 
 def anisotropic_willmore_energy(mesh: Mesh, an: Anisotropy) -> float:

@@ -39,7 +39,7 @@ import numpy as np
 
 from willmore_nlp.fem.assembly import mass_stiffness
 from willmore_nlp.mesh.core import Mesh, MeshError
-from willmore_nlp.mesh.topology import boundary_facets, simplex_facets, vertex_components
+from willmore_nlp.mesh.topology import boundary_facets, scatter_sum, simplex_facets, vertex_components
 
 VARIANTS = ("conormal", "ring")
 """Boundary variants: prescribed co-normal (paper (2.6)) and fixed outer ring (paper (2.8))."""
@@ -361,13 +361,9 @@ def ring_conormal(mesh: Mesh, ring: np.ndarray, gamma: np.ndarray) -> np.ndarray
 
 def _integrate_conormal(mesh: Mesh, facets: np.ndarray, fco: np.ndarray) -> np.ndarray:
     """Nco_i = int_Gamma N^co Phi_i: point values for curves, |e|/2 per edge end for surfaces."""
-    N, m = mesh.n_vertices, mesh.m
-    out = np.zeros((N, m))
+    N = mesh.n_vertices
     if mesh.d == 1:
-        np.add.at(out, facets[:, 0], fco)
-        return out
+        return scatter_sum(N, [(facets[:, 0], fco)])
     V = np.asarray(mesh.vertices)
     ell = np.linalg.norm(V[facets[:, 1]] - V[facets[:, 0]], axis=1)
-    for j in range(2):
-        np.add.at(out, facets[:, j], 0.5 * ell[:, None] * fco)
-    return out
+    return scatter_sum(N, [(facets[:, j], 0.5 * ell[:, None] * fco) for j in range(2)])

@@ -6,6 +6,7 @@ import numpy as np
 
 from willmore_nlp.fem.assembly import element_geometry, lumped_mass, mass_stiffness
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.topology import scatter_sum
 from willmore_nlp.mesh.validate import simplex_volumes, vertex_normals_of
 
 
@@ -28,14 +29,11 @@ def vertex_normals(mesh: Mesh) -> np.ndarray:
     V, S = mesh.vertices, mesh.simplices
     if mesh.d == 2:
         return vertex_normals_of(V, S)
-    n = np.zeros_like(V)
-    if mesh.m == 2:
-        t = V[S[:, 1]] - V[S[:, 0]]
-        rot = np.stack([t[:, 1], -t[:, 0]], axis=1)  # outward for counter-clockwise curves
-        for j in range(2):
-            np.add.at(n, S[:, j], rot)
-    else:
-        return n
+    if mesh.m != 2:
+        return np.zeros_like(V)
+    t = V[S[:, 1]] - V[S[:, 0]]
+    rot = np.stack([t[:, 1], -t[:, 0]], axis=1)  # outward for counter-clockwise curves
+    n = scatter_sum(V.shape[0], [(S[:, j], rot) for j in range(2)])
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
@@ -133,8 +131,7 @@ def gauss_curvature(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     exactly (discrete Gauss-Bonnet).
     """
     V = np.asarray(V, float)
-    ang = np.zeros(V.shape[0])
-    np.add.at(ang, S.T.ravel(), _corner_angles(_sides(V, S)).ravel())
+    ang = scatter_sum(V.shape[0], [(S.T.ravel(), _corner_angles(_sides(V, S)).ravel())])
     return (2 * np.pi - ang) / lumped_mass(V, S)
 
 

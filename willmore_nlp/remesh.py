@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from willmore_nlp.mesh.core import Mesh, MeshError
-from willmore_nlp.mesh.topology import boundary_facets, euler_characteristic, unique_edges, unique_rows
+from willmore_nlp.mesh.topology import boundary_facets, euler_characteristic, scatter_sum, unique_edges, unique_rows
 from willmore_nlp.mesh.validate import simplex_volumes, vertex_normals_of
 from willmore_nlp.tangential import SUBSTEPS
 
@@ -214,9 +214,7 @@ def tangential_smooth(V: np.ndarray, F: np.ndarray, free: np.ndarray | None = No
     X = V0.copy()
     idx = np.flatnonzero(move)
     for _ in range(iterations):
-        s = np.zeros_like(X)
-        np.add.at(s, e[:, 0], X[e[:, 1]])
-        np.add.at(s, e[:, 1], X[e[:, 0]])
+        s = scatter_sum(N, [(e[:, 0], X[e[:, 1]]), (e[:, 1], X[e[:, 0]])])
         dvec = s / np.maximum(deg, 1)[:, None] - X
         n = vertex_normals_of(X, F)
         dvec -= np.einsum("ij,ij->i", dvec, n)[:, None] * n

@@ -27,6 +27,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.topology import scatter_sum
 from willmore_nlp.mesh.validate import face_normals, vertex_normals_of
 
 CONTROL_METHODS = ("auto", "off", "meanratio")
@@ -135,9 +136,7 @@ def vertex_projectors(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     if d == 1:
         e = V[S[:, 1]] - V[S[:, 0]]
         u = e / np.linalg.norm(e, axis=1)[:, None]
-        t = np.zeros((N, m))
-        np.add.at(t, S[:, 0], u)
-        np.add.at(t, S[:, 1], u)
+        t = scatter_sum(N, [(S[:, 0], u), (S[:, 1], u)])
         ln = np.linalg.norm(t, axis=1)
         ok = ln > 0
         t[ok] /= ln[ok, None]
@@ -159,11 +158,8 @@ def curve_displacement(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     surface it reproduces linear functions and sees only curvature, never the spacing.)
     """
     N = V.shape[0]
-    c = np.zeros_like(V)
-    deg = np.zeros(N)
-    for a, b in ((0, 1), (1, 0)):
-        np.add.at(c, S[:, a], V[S[:, b]])
-        np.add.at(deg, S[:, a], 1.0)
+    c = scatter_sum(N, [(S[:, 0], V[S[:, 1]]), (S[:, 1], V[S[:, 0]])])
+    deg = np.bincount(S.ravel(), minlength=N)
     out = np.zeros_like(V)
     two = deg == 2
     out[two] = c[two] / 2 - V[two]
@@ -195,12 +191,12 @@ def mean_ratio(V: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     L2 = sum(np.sum((V[S[:, (j + 1) % 3]] - V[S[:, j]]) ** 2, axis=1) for j in range(3))
     c = 4 * np.sqrt(3) * area
     q = L2 / c
-    grad = np.zeros_like(V)
+    parts = []
     for i in range(3):
         xi, xj, xk = V[S[:, i]], V[S[:, (i + 1) % 3]], V[S[:, (i + 2) % 3]]
         d_area = 0.5 * np.cross(n, xk - xj)
-        np.add.at(grad, S[:, i], 2 * (2 * xi - xj - xk) / c[:, None] - (q / area)[:, None] * d_area)
-    return q, grad
+        parts.append((S[:, i], 2 * (2 * xi - xj - xk) / c[:, None] - (q / area)[:, None] * d_area))
+    return q, scatter_sum(V.shape[0], parts)
 
 
 RELAXATION = 0.5

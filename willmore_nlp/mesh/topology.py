@@ -1,7 +1,9 @@
-"""Topology of simplicial meshes: boundary facets, manifoldness, orientation, components."""
+"""Topology of simplicial meshes: boundary facets, manifoldness, orientation, components; and the index kernels
+the mesh code shares (distinct values and rows, scatter sums)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -19,6 +21,33 @@ def sorted_unique(a: np.ndarray) -> np.ndarray:
     from a hash table first, which on the millions of integer pattern keys of a step build is about twice as slow."""
     s = np.sort(a)
     return s[np.concatenate([s[:1] == s[:1], s[1:] != s[:-1]])]
+
+
+def scatter_sum(n: int, parts: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Sums of values at indices: ``out[i] = sum of v[k] over (idx, v) in parts and k with idx[k] == i``.
+
+    The values are added part by part in the order given, each part in its own order, exactly as successive
+    ``np.add.at(out, idx, v)`` into zeros would add them (bitwise the same sums), by one ``np.bincount`` per
+    column: np.add.at with (n, 3) rows was 6.5 times slower on the vertex normals of a 10,242-vertex sphere.
+
+    Parameters
+    ----------
+    n : number of rows of the result (every index is below it)
+    parts : (idx, v) pairs, idx (k,) int and v (k,) or (k, c) float (the same c in every part)
+
+    Returns
+    -------
+    (n,) or (n, c) float array
+    """
+    idx = np.concatenate([np.asarray(i, dtype=np.int64).ravel() for i, _ in parts])
+    vals = [np.asarray(v, float) for _, v in parts]
+    if vals[0].ndim == 1:
+        return np.bincount(idx, weights=np.concatenate(vals), minlength=n)
+    W = np.concatenate(vals)
+    out = np.empty((n, W.shape[1]))
+    for c in range(W.shape[1]):
+        out[:, c] = np.bincount(idx, weights=W[:, c], minlength=n)
+    return out
 
 
 def unique_rows(A: np.ndarray, *, return_index: bool = False, return_inverse: bool = False,
@@ -147,9 +176,7 @@ def check_manifold(mesh: Mesh) -> None:
     c = np.concatenate([incidence(pairs[:, 1], edges_of_pairs[:, j]) for j in range(2)])
     G = sp.coo_matrix((np.ones(r.size), (r, c)), shape=(inc_v.size, inc_v.size))
     _, labels = connected_components(G, directed=False)
-    fans = np.zeros(N, dtype=np.int64)
-    uniq_pairs = unique_rows(np.stack([inc_v, labels], axis=1))
-    np.add.at(fans, uniq_pairs[:, 0], 1)
+    fans = np.bincount(unique_rows(np.stack([inc_v, labels], axis=1))[:, 0], minlength=N)
     bad = np.flatnonzero(fans > 1)
     if bad.size:
         raise MeshError(

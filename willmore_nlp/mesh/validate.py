@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from willmore_nlp.mesh.core import MeshError
-from willmore_nlp.mesh.topology import unique_rows
+from willmore_nlp.mesh.topology import scatter_sum, unique_rows
 
 
 def validate_arrays(vertices: object, simplices: object, source: str) -> tuple[np.ndarray, np.ndarray]:
@@ -177,10 +177,8 @@ def face_normals(V: np.ndarray, S: np.ndarray) -> np.ndarray:
 def vertex_normals_of(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     """(N, 3) unit vertex normals of the triangles ``S`` ((K, 3) int) at ``V`` ((N, 3)): the normalised sums of
     the incident :func:`face_normals` (area weighted); zero rows at vertices of no triangle or a zero sum."""
-    n = np.zeros_like(V, dtype=float)
     fn = face_normals(V, S)
-    for j in range(3):
-        np.add.at(n, S[:, j], fn)
+    n = scatter_sum(V.shape[0], [(S[:, j], fn) for j in range(3)])
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
