@@ -268,6 +268,26 @@ def test_discrete_energy_leaves_the_control_term_out() -> None:
     np.testing.assert_allclose(off.discrete_energy(X), e_off, rtol=1e-12)
 
 
+def test_parameters_with_the_control_off_change_no_evaluation_it_does_not_enter() -> None:
+    """``off = ("control_weight",)`` (the flow's inner solves, outer constraints and energy e) packs weight 0 and
+    zero data without computing them: Y[X] is the same to the last bit as with the data, and so is the objective
+    with the weight set to 0; the step's own parameters (weight 7, the data) are left alone."""
+    mesh = _perturbed(shapes.icosphere(1), 4)
+    setup = build_step(mesh, tangential_control=ON)
+    P, ev = setup.problem, StepEvaluator(setup.problem, setup.problem.functions())
+    V = mesh.vertices
+    full = setup.params(V, 0.2, 0.01 * mesh.h**2, 0.0)
+    off = setup.params(V, 0.2, 0.01 * mesh.h**2, 0.0, ("control_weight",))
+    assert P.params.scalar(full, "control_weight") == 7.0 and P.params.scalar(off, "control_weight") == 0.0
+    changed = np.flatnonzero(P.params.replace(full, control_weight=0.0) != off)  # beside the weight: nodal data
+    assert changed.size > 10 and changed.min() >= P.params.nodal_start and np.all(off[changed] == 0.0)
+    Y_full, Y_off = ev.solve_y(V, full), ev.solve_y(V, off)
+    assert np.array_equal(Y_full, Y_off)
+    z = P.pack_z(V + 0.1 * mesh.h, Y_full)
+    assert ev.f(z, P.params.replace(full, control_weight=0.0)) == ev.f(z, off)
+    assert ev.f(z, full) > ev.f(z, off)
+
+
 def _trimesh_box(subdivisions: int) -> Mesh:
     import trimesh
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,6 +18,7 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
 from willmore_nlp.settings import FlowSettings, check_run_value
 from willmore_nlp.solvers import make_solver, solver_capabilities
 from willmore_nlp.tangential import TangentialControl, resolve_method
@@ -95,6 +96,10 @@ REPAIR_SPEED = 1.0
 REPAIR_ROUNDS = 5
 """The light repair (``remesh_repair``) repeats its passes up to this many times while the mesh is below the
 repair thresholds, before the stronger repairs (projected smoothing, isotropic remeshing) are tried."""
+
+CONTROL_OFF = TangentialControlTerm.scalars
+"""``off`` of :meth:`WillmoreFlow.params` for the evaluations the tangential control does not enter (an outer term):
+the inner solve, the outer constraints, the energy e(X); its per-node data are then not computed."""
 
 TAU_TILDE_WARN_FACTOR = 2.0
 """WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde > this factor times h^2 (h = mean edge)."""
@@ -393,7 +398,7 @@ class WillmoreFlow:
         P = self.problem
         if not P.nh:
             return 0.0
-        p = self.params(X, self.tau)
+        p = self._x_params(X, self.tau)
         h = self.evaluator.h(P.pack_z(X, X), p)
         return float(np.max(np.abs(h) / np.abs([P.params.scalar(p, t) for t in P.targets])))
 
@@ -404,26 +409,30 @@ class WillmoreFlow:
         for _ in range(30):
             if self.constraint_violation(X) <= 1e-13:
                 return X
-            p = self.params(X, self.tau)
+            p = self._x_params(X, self.tau)
             c, Jc = self.evaluator.c_jac(P.pack_z(X, X), p)
             Jh = Jc.tocsr()[P.ng :, : P.nX * P.m].toarray()
             X = P.unpack_x(X[P.x_free].ravel() - Jh.T @ np.linalg.solve(Jh @ Jh.T, c[P.ng :]), X)
         raise RuntimeError(f"outer constraints not restored (relative residual {self.constraint_violation(X):.3e})")
 
-    def params(self, Xk: np.ndarray, tau: float) -> np.ndarray:
-        """Parameter vector of a step from Xk with step size tau."""
-        return self.setup.params(Xk, tau, self.tau_tilde, self.lam)
+    def params(self, Xk: np.ndarray, tau: float, off: Collection[str] = ()) -> np.ndarray:
+        """Parameter vector of a step from Xk with step size tau (``off``: terms left out,
+        :meth:`~willmore_nlp.model.step.StepProblem.pack_p`)."""
+        return self.setup.params(Xk, tau, self.tau_tilde, self.lam, off)
+
+    def _x_params(self, X: np.ndarray, tau: float) -> np.ndarray:
+        """Parameters for the functions of X alone (the inner solve Y[X], the outer constraints): the tangential
+        control, an outer term, is left out (its per-node data cost four mean-ratio sub-steps)."""
+        return self.params(X, tau, CONTROL_OFF)
 
     def _solve_y(self, X: np.ndarray, tau: float, Y0: np.ndarray | None = None) -> np.ndarray:
-        return self.evaluator.solve_y(X, self.params(X, tau), Y0)
+        return self.evaluator.solve_y(X, self._x_params(X, tau), Y0)
 
     def discrete_energy(self, X: np.ndarray, Y: np.ndarray | None = None) -> float:
         """``e(X) = 1/(2 tt^2) M[X](Y[X]-X).(Y[X]-X) + lam A[X]``, the energy the scheme decreases (with ``c0``:
         ``1/2 int |(Y[X] - X)/tt + c0 n|^2 + lam A[X]``): W at X^k = X, where the distance term vanishes and the
         tangential control's term (which does not: its target S is not 0) is left out."""
-        p = self.params(X, 1.0)
-        if "control_weight" in self.problem.params.scalars:
-            p = self.problem.params.replace(p, control_weight=0.0)
+        p = self.params(X, 1.0, CONTROL_OFF)
         Y = self.evaluator.solve_y(X, p) if Y is None else Y
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0
 

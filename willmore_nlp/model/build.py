@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,9 +45,9 @@ class StepSetup:
     anisotropy: Anisotropy | None = None
     simplices: np.ndarray | None = None
 
-    def params(self, Xk: np.ndarray, tau: float, tt: float, lam: float) -> np.ndarray:
-        """Parameter vector of a step from Xk."""
-        return self.problem.pack_p(Xk, tau, tt, lam, self.simplices)
+    def params(self, Xk: np.ndarray, tau: float, tt: float, lam: float, off: Collection[str] = ()) -> np.ndarray:
+        """Parameter vector of a step from Xk (``off``: :meth:`StepProblem.pack_p`)."""
+        return self.problem.pack_p(Xk, tau, tt, lam, self.simplices, off)
 
 
 def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None, tangential_weight: float = 1.0,

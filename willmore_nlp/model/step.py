@@ -26,7 +26,7 @@ may add a few outer equality constraints ``h(X, Y) = sum_T h_T - target = 0``; s
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -414,16 +414,24 @@ class StepProblem:
         return X
 
     def pack_p(self, Xk: np.ndarray, tau: float, tt: float, lam: float,
-               simplices: np.ndarray | None = None) -> np.ndarray:
+               simplices: np.ndarray | None = None, off: Collection[str] = ()) -> np.ndarray:
         """(np,) parameter vector of a step from Xk: the base scalars and every term's values.
 
         ``simplices`` are all simplices of the mesh (default: the problem's own), for terms with
-        per-node data built over neighbourhoods (the tangential control).
+        per-node data built over neighbourhoods (the tangential control). ``off``: scalar parameters of
+        terms left out (e.g. "control_weight"): every scalar of a term whose scalars are all named is 0 and its
+        per-node data are zeros instead of computed (for the evaluations that such a term cannot change or
+        must not enter: the inner equation, the outer constraints, the energy without it).
         """
         S = self.simplices if simplices is None else simplices
         values: dict[str, object] = {"tau": tau, "tt": tt, "lam": lam}
+        N = np.shape(Xk)[0]
         for t in self.terms:
-            values.update(t.values(Xk, tau, S, self.x_free))
+            if t.scalars and set(t.scalars) <= set(off):
+                values.update({k: 0.0 for k in t.scalars})
+                values.update({k: np.zeros((N, w)) for k, w in t.nodal})
+            else:
+                values.update(t.values(Xk, tau, S, self.x_free))
         return self.params.pack(Xk, values)
 
 
