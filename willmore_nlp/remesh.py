@@ -187,7 +187,7 @@ def project_to_surface(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarra
 def _movable(V: np.ndarray, F: np.ndarray, free: np.ndarray | None) -> np.ndarray:
     """(N,) bool: the vertices a repair may move, i.e. the free ones (all without ``free``) off the mesh boundary."""
     move = np.ones(V.shape[0], bool) if free is None else np.asarray(free, bool).copy()
-    move[np.unique(boundary_facets(np.asarray(F)))] = False
+    move[boundary_facets(np.asarray(F)).ravel()] = False
     return move
 
 
