@@ -19,10 +19,11 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     the largest step, and a step that fails at it continues from the step size that worked (a trimesh
     torus of R/r = 2.5 loses a quarter of its energy by t = 0.02; fixed tau = h then fails at step 2,
     whose retries stop at h/16), and ``max_retries = 8``: a raw input can need its first step far below h
-    (a trimesh capsule, count 16 x 16, with noise of 1 % of its radius, 258 v, min angle 9.3 deg: every attempt
-    from h to h/16 failed, the 100-iteration budget or a collapsed edge, and the run stopped after the default 4
-    retries; h/128 converges in 16 iterations and the adaptive steps are back at h by step 19). Curves:
-    tau_tilde = h^2 / 4, fixed tau.
+    (a trimesh capsule, count 16 x 16, with noise of 1 % of its radius, 258 v, min angle 9.3 deg, flowed as given
+    with ``input_repair = false``: every attempt from h to h/16 failed, the 100-iteration budget or a collapsed
+    edge, and the run stopped after the default 4 retries; h/128 converges in 16 iterations and the adaptive steps
+    are back at h by step 19; the default ``input_repair`` remeshes it before step 0, 241 v and 42.9 deg, and the
+    first step is taken at h without a retry). Curves: tau_tilde = h^2 / 4, fixed tau.
 
     A mesh with a boundary needs ``clamp``: its outermost strip of simplices (every simplex with a
     vertex on the mesh boundary) is held fixed and clamps the rest, position and tangent plane

@@ -8,20 +8,30 @@ from willmore_nlp import FlowError, registry
 
 
 def test_raw_capsule_takes_its_first_step_within_the_file_problems_retries(tmp_path) -> None:
-    """A trimesh capsule (count 16 x 16, 258 v, noise 1 % of the radius, min angle 9.3 deg) needs its first step
-    far below h: with the flow's default 4 retries every attempt from h to h/16 fails (the first-step budget or a
-    collapsed edge) and the run stops; the ``file`` problem's ``max_retries = 8`` takes it at h/128 (measured: 7
-    retries, 16 iterations), and the adaptive steps then grow again (back at h by step 19 of a 20-step run)."""
+    """A trimesh capsule (count 16 x 16, 258 v, noise 1 % of the radius, min angle 9.3 deg), flowed as given
+    (``input_repair = false``), needs its first step far below h: with the flow's default 4 retries every attempt
+    from h to h/16 fails (the first-step budget or a collapsed edge) and the run stops; the ``file`` problem's
+    ``max_retries = 8`` takes it at h/128 (measured: 7 retries, 16 iterations), and the adaptive steps then grow
+    again (back at h by step 19 of a 20-step run). With the default ``input_repair`` the mesh is remeshed before the
+    first step (flips and remeshing, 258 -> 241 v, 42.9 deg, the vertices on the input's triangles) and the first
+    step is taken at h without a retry."""
     capsule = trimesh.creation.capsule(height=1.0, radius=0.5, count=[16, 16])
     capsule.vertices += 0.01 * np.random.default_rng(3).standard_normal(capsule.vertices.shape)
     capsule.export(tmp_path / "capsule.obj")
     pb, _ = registry.build("file", path=str(tmp_path / "capsule.obj"))
     assert pb.flow_options["max_retries"] == 8
     with pytest.raises(FlowError, match="failed after 4 retries"):
-        pb.make_flow(max_retries=4).step()
-    flow = pb.make_flow()
+        pb.make_flow(max_retries=4, input_repair=False).step()
+    flow = pb.make_flow(input_repair=False)
+    assert flow.state().remeshed == ""
     w0 = flow.discrete_energy(flow.X)
     first = flow.step()
     assert 4 < first.retries <= 8 and first.tau <= pb.tau / 2**5
     second = flow.step()
     assert second.retries == 0 and second.energy < first.energy < w0
+    with pytest.warns(UserWarning, match=r"input mesh is below .*smallest angle 9.26 deg.* 258 -> \d+ vertices"):
+        repaired = pb.make_flow()
+    assert repaired.state().remeshed.endswith("remesh") and repaired.state().quality["min_angle"] > 30
+    w0 = repaired.discrete_energy(repaired.X)
+    first = repaired.step()
+    assert first.retries == 0 and first.tau == pb.tau and first.energy < w0

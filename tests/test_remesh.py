@@ -132,20 +132,29 @@ CLI = [sys.executable, "-m", "willmore_nlp.cli"]
 TORUS = ["torus", "--set", "remesh_min_angle=35", "--set", "remesh_repair=0", "--quiet"]
 
 
-def test_resume_export_and_load_across_a_remesh(tmp_path) -> None:
+@pytest.mark.parametrize("input_repair", [False, True])
+def test_resume_export_and_load_across_a_remesh(tmp_path, input_repair: bool) -> None:
     """2 + 2 steps with a remesh at step 1 equal 4 uninterrupted steps bit for bit; load_run, export
-    (.pvd over meshes of different sizes) and report read the run."""
+    (.pvd over meshes of different sizes) and report read the run. With ``input_repair`` the initial grid (26.4 deg,
+    below the forced threshold of 35) is remeshed before step 0 (recorded in its row) and the resumed run repairs
+    it the same way."""
     full, part = tmp_path / "full", tmp_path / "part"
+    torus = [*TORUS, "--set", f"input_repair={str(input_repair).lower()}"]
     for out, steps in ((full, "4"), (part, "2")):
-        r = subprocess.run([*CLI, "run", *TORUS, "--steps", steps, "--out", str(out)], capture_output=True,
+        r = subprocess.run([*CLI, "run", *torus, "--steps", steps, "--out", str(out)], capture_output=True,
                            text=True, timeout=600)
         assert r.returncode == 0, r.stderr
+        assert ("the input mesh is below the mesh control's thresholds" in r.stderr) == input_repair
     r = subprocess.run([*CLI, "run", "--resume", str(part), "--steps", "4", "--quiet"], capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     a, b = load_run(full), load_run(part)
-    assert [int(h["remeshed"]) for h in a.history] == [0, 1, 0, 0, 0]
-    assert a.states[1].n_vertices != a.states[0].n_vertices == 288
+    if input_repair:
+        assert a.history[0]["remesh_action"] == "remesh" and a.states[0].n_vertices != 288
+        assert float(a.history[0]["q_min_angle"]) > 35
+    else:
+        assert [int(h["remeshed"]) for h in a.history] == [0, 1, 0, 0, 0]
+        assert a.states[1].n_vertices != a.states[0].n_vertices == 288
     for sa, sb, ya, yb in zip(a.states, b.states, a.Y, b.Y, strict=True):
         assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)
         assert np.array_equal(ya, yb)
@@ -156,7 +165,8 @@ def test_resume_export_and_load_across_a_remesh(tmp_path) -> None:
     from willmore_nlp.apps.report import write_report
 
     text = write_report(full).read_text()
-    assert "mesh repairs (steps) | 1 (1)" in text
+    if not input_repair:
+        assert "mesh repairs (steps) | 1 (1)" in text
 
 
 def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> None:
@@ -373,3 +383,54 @@ def test_isotropic_remesh_places_new_vertices_on_the_smooth_surface(kind: str) -
     assert err[True][-1] < 0.1 * err[False][-1]
     assert all(a < 0.1 * b for a, b in zip(gap[True], gap[False], strict=True))
     assert gap[True][-1] < 1e-3 and min(gap[False]) > 0.03
+
+
+def _cone() -> Mesh:
+    """trimesh's cone (24 sections, subdivided once: 98 v), a cone point, a crease and fans of 8.3-degree triangles."""
+    c = trimesh.creation.cone(radius=1.0, height=1.5, sections=24).subdivide()
+    return Mesh(np.array(c.vertices), np.array(c.faces), "cone")
+
+
+def test_input_repair_remeshes_a_poor_input_on_its_own_polyhedron() -> None:
+    """``input_repair`` (default): an input below the repair thresholds is remeshed before the first step (a warning
+    names it, row 0 records it): every new vertex lies on the input's triangles, every input vertex within h of the
+    new mesh (0.48 h measured: the new triangles chord across the crease and the cone point, which are not kept),
+    the Euler characteristic is kept and the smallest angle rises above the threshold; and the flow steps from it.
+    Off with ``input_repair = false``, with ``mesh_control = off`` (the paper's scheme) and for an input above the
+    thresholds."""
+    cone = _cone()
+    q0 = geometry.triangle_quality(cone.vertices, cone.simplices)
+    assert q0["min_angle"] < 15
+    with pytest.warns(UserWarning, match=r"cone: the input mesh is below .*angle 8.3 deg.* 98 -> \d+ vertices"):
+        flow = WillmoreFlow(cone, cone.h, cone.h**2 / 100)
+    m = flow.mesh
+    assert flow.state().remeshed == "remesh" and m.n_vertices != cone.n_vertices
+    assert geometry.triangle_quality(m.vertices, m.simplices)["min_angle"] > 30
+    face, bary = rm.closest_on_mesh(m.vertices, cone.vertices, cone.simplices)
+    on = np.einsum("ij,ijk->ik", bary, cone.vertices[cone.simplices[face]])
+    assert np.abs(on - m.vertices).max() < 1e-12
+    assert rm.euler_characteristic(m.simplices) == rm.euler_characteristic(cone.simplices) == 2
+    face, bary = rm.closest_on_mesh(cone.vertices, m.vertices, m.simplices)
+    back = np.einsum("ij,ijk->ik", bary, m.vertices[m.simplices[face]])
+    assert np.linalg.norm(back - cone.vertices, axis=1).max() < cone.h
+    r = flow.step()
+    assert r.energy < flow.discrete_energy(m.vertices)
+    for options in ({"input_repair": False}, {"mesh_control": "off"}):
+        as_given = WillmoreFlow(cone, cone.h, cone.h**2 / 100, **options)
+        assert as_given.mesh is cone and as_given.state().remeshed == ""
+    ico = shapes.icosphere(2)
+    assert WillmoreFlow(ico, ico.h, ico.h**2 / 100).mesh is ico
+
+
+def test_input_repair_keeps_the_inputs_volume_target() -> None:
+    """``volume = "initial"`` is the input's enclosed volume also when ``input_repair`` remeshed it: the repaired
+    polyhedron of the cone encloses less (its triangles chord across the crease), the flow starts from it moved
+    onto the input's volume and keeps it."""
+    cone = _cone()
+    v0 = geometry.enclosed_volume(cone)
+    with pytest.warns(UserWarning, match="input mesh is below"):
+        flow = WillmoreFlow(cone, 1e-3, cone.h**2 / 100, volume="initial")
+    assert geometry.enclosed_volume(flow.mesh) < 0.95 * v0
+    assert geometry.enclosed_volume(flow.mesh.with_vertices(flow.X)) == pytest.approx(v0, rel=1e-12)
+    r = flow.step()
+    assert abs(r.volume / v0 - 1) < 1e-10

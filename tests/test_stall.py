@@ -199,9 +199,9 @@ def _held_flow(mesh: Mesh, limit: float, control: str = "relax") -> WillmoreFlow
     state = {"tau": 0.0}
     params, solve = flow.params, flow.solver.solve
 
-    def tracked(X, t):
+    def tracked(X, t, *off):
         state["tau"] = t
-        return params(X, t)
+        return params(X, t, *off)
 
     def refusing(*args, **kw):
         if state["tau"] > limit * (1 + 1e-12):

@@ -231,6 +231,11 @@ def _check_initial_mesh(mesh: Mesh, min_angle: float, max_edge_ratio: float) -> 
                             f"remesh, or lower min_angle")
 
 
+def _explicit(boundary: Any) -> bool:
+    """A clamp with explicit co-normal or ring data (which a remeshing cannot carry to new vertices)."""
+    return boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
+
+
 def _target(value: float | str | None, name: str, mesh: Mesh) -> float | None:
     """Target of the ``volume`` or ``area`` option (validated by FlowSettings); "initial": the initial mesh's."""
     if value == "initial":
@@ -310,11 +315,16 @@ class WillmoreFlow:
         self.relaxed = False
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
+        self.k = 0
+        # "initial" volume and area are the input's (a vesicle's reduced volume), also when input_repair remeshes it
+        self._targets = {"volume": _target(s.volume, "volume", mesh), "area": _target(s.area, "area", mesh)}
+        self.input_repair = ""  # what input_repair did to the initial mesh ("": nothing)
+        if self.remesh and s.input_repair:
+            mesh, boundary = self._repair_input(mesh, boundary)
         self._variational = "variational" in solver_capabilities(s.solver)  # the semi-implicit baseline is not
         method = resolve_method(s.tangential_control, mesh, s.mesh_control, self._variational,
                                 None if boundary is None else boundary.free)
         self._control = TangentialControl(method, s.tangential_control_weight, s.tangential_control_time)
-        self._targets = {"volume": _target(s.volume, "volume", mesh), "area": _target(s.area, "area", mesh)}
         self.codegen_info: dict[str, Any] = {"enabled": False}
         codegen = s.codegen
         if codegen is None:
@@ -437,8 +447,11 @@ class WillmoreFlow:
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0
 
     def state(self) -> StepResult:
-        """The current state as a StepResult (step 0 style, no solver data)."""
-        return self._result(self.X, self.Y, self.tau, float("nan"), None, 0.0, 0, [])
+        """The current state as a StepResult (step 0 style, no solver data; at step 0 ``remeshed`` says what
+        ``input_repair`` did to the initial mesh)."""
+        r = self._result(self.X, self.Y, self.tau, float("nan"), None, 0.0, 0, [])
+        r.remeshed = self.input_repair if self.k == 0 else ""
+        return r
 
     def _result(self, X: np.ndarray, Y: np.ndarray, tau: float, obj: float, res: Any,
                 wall: float, retries: int, rejected: list[str]) -> StepResult:
@@ -682,25 +695,11 @@ class WillmoreFlow:
             X1 = rm.tangential_smooth(X1, F1, free)
             F1, _ = rm.delaunay_flips(X1, F1, free)
             actions.append("smooth")
-        explicit = boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
-        if self._needs_repair(X1, F1, drop) and not explicit:
-            try:
-                target = self.settings.remesh_target or rm.equilateral_edge(X1, F1, free)
-                r = rm.isotropic_remesh(X1, F1, target, free)
-            except rm.RemeshError as exc:
-                warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=3)
-            else:
-                F2, _ = rm.delaunay_flips(r.vertices, r.simplices, r.free if boundary is not None else None)
-                qa = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
-                qb = self._patch_quality(r.vertices, F2, r.free if boundary is not None else None)
-                # only a remeshing that keeps the smallest angle and improves it or the edge ratio (with the
-                # light repair on, any result was taken: 0.6 deg on a coarse genus-2 flow, mesh_quality.md)
-                if qb["min_angle"] >= qa["min_angle"] and (qb["min_angle"] > qa["min_angle"]
-                                                           or qb["edge_ratio"] < qa["edge_ratio"]):
-                    X1, F1 = r.vertices, F2
-                    if boundary is not None:
-                        boundary = rm.carry_boundary(boundary, r)
-                    actions.append("remesh")
+        if self._needs_repair(X1, F1, drop) and not _explicit(boundary):
+            remeshed = self._isotropic_remesh(X1, F1, boundary)
+            if remeshed is not None:
+                X1, F1, boundary = remeshed
+                actions.append("remesh")
         if not actions:
             return "", {}
         q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
@@ -731,6 +730,63 @@ class WillmoreFlow:
         return "+".join(actions), {"energy_before_remesh": e_before,
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before, "willmore_before_remesh": w_before}
+
+    def _isotropic_remesh(self, X: np.ndarray, F: np.ndarray, boundary: Any,
+                          smooth: bool = True) -> tuple[np.ndarray, np.ndarray, Any] | None:
+        """(X', F', boundary') of an isotropic remeshing of (X, F) toward ``remesh_target`` (default: the equilateral
+        edge) followed by flips, or None when it failed (a warning) or did not keep the smallest patch angle and
+        improve it or the edge ratio. ``smooth``: :func:`willmore_nlp.remesh.isotropic_remesh`."""
+        from willmore_nlp import remesh as rm
+
+        free = None if boundary is None else boundary.free
+        try:
+            target = self.settings.remesh_target or rm.equilateral_edge(X, F, free)
+            r = rm.isotropic_remesh(X, F, target, free, smooth=smooth)
+        except rm.RemeshError as exc:
+            warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=4)
+            return None
+        F2, _ = rm.delaunay_flips(r.vertices, r.simplices, r.free if boundary is not None else None)
+        qa = self._patch_quality(X, F, free)
+        qb = self._patch_quality(r.vertices, F2, r.free if boundary is not None else None)
+        # only a remeshing that keeps the smallest angle and improves it or the edge ratio (with the
+        # light repair on, any result was taken: 0.6 deg on a coarse genus-2 flow, mesh_quality.md)
+        if not (qb["min_angle"] >= qa["min_angle"] and (qb["min_angle"] > qa["min_angle"]
+                                                        or qb["edge_ratio"] < qa["edge_ratio"])):
+            return None
+        return r.vertices, F2, None if boundary is None else rm.carry_boundary(boundary, r)
+
+    def _repair_input(self, mesh: Mesh, boundary: Any) -> tuple[Mesh, Any]:
+        """``input_repair``: the initial mesh and boundary, repaired when the patch is below the repair thresholds
+        (Delaunay flips, then an isotropic remeshing with the new vertices on the input's triangles); a warning
+        names what was done. Unchanged when nothing improved the smallest angle or the edge ratio."""
+        from willmore_nlp import remesh as rm
+
+        if _explicit(boundary):
+            return mesh, boundary
+        free = None if boundary is None else boundary.free
+        X, F = mesh.vertices, mesh.simplices
+        q0 = self._patch_quality(X, F, free)
+        if not self._below_thresholds(q0):
+            return mesh, boundary
+        F1, n = rm.delaunay_flips(X, F, free)
+        actions = ["flips"] if n else []
+        X1, b1 = X, boundary
+        if self._below_thresholds(self._patch_quality(X1, F1, free)):
+            remeshed = self._isotropic_remesh(X1, F1, boundary, smooth=False)
+            if remeshed is not None:
+                X1, F1, b1 = remeshed
+                actions.append("remesh")
+        q1 = self._patch_quality(X1, F1, None if b1 is None else b1.free)
+        if not actions or (q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]):
+            return mesh, boundary
+        new = Mesh(X1, F1, mesh.source)
+        self.input_repair = "+".join(actions)
+        warnings.warn(f"{mesh.source}: the input mesh is below the mesh control's thresholds (smallest angle "
+                      f"{q0['min_angle']:.3g} deg, edge ratio {q0['edge_ratio']:.3g}); repaired before the first step "
+                      f"by {' and '.join(actions)}: {mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle "
+                      f"{q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g} (input_repair=false flows it as "
+                      f"given)", stacklevel=3)
+        return new, b1
 
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""

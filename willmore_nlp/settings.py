@@ -366,6 +366,15 @@ class FlowSettings(Settings):
         connectivity and Y[X] solved again. Boundary vertices and the fixed part of a clamped problem
         never move. Changes the state (recorded: ``StepResult.remeshed``, ``stats`` energies before
         and after), so e(X^k) is not guaranteed to decrease across a repair.
+    input_repair : bool
+        While ``remesh`` is on (surfaces in R^3): an initial mesh whose patch is below ``remesh_min_angle`` or
+        above ``remesh_max_edge_ratio`` is repaired before the first step, by Delaunay flips and, when they do not
+        suffice, an isotropic remeshing toward the equilateral edge (``remesh_target``) with the new vertices on
+        the input's triangles (not lifted onto quadric fits, which a crease would bend; the new triangles chord
+        across creases and cone points: 0.38 h on a trimesh cone), taken when it improves the smallest angle (a
+        warning says so; default true). That cone (770 v, 4.2 deg) failed its first step at every tau down to
+        h/256 as given and flows to a sphere after it (docs/guide/mesh_quality.md). Not with an explicit clamp
+        (``conormal``/``ring`` data).
     remesh_min_angle : float
         Smallest patch angle (degrees) that triggers the stronger repairs (default 15). The isotropic
         remeshing comes earlier, while the repaired patch's smallest angle is below this plus its fall in
@@ -438,6 +447,7 @@ class FlowSettings(Settings):
     relax_max_tau: float | None = option(None, real(0, lo_open=True, unset="100 tau"))
     mesh_control: str = option("auto", one_of("auto", "off"))
     remesh: str = option("auto", one_of("auto", "off"))
+    input_repair: bool = option(True, BOOL)
     remesh_min_angle: float = option(15.0, real(0, 60))
     remesh_max_edge_ratio: float = option(10.0, real(1, finite=False))
     remesh_target: float | None = option(None, real(0, lo_open=True, unset="the initial mean edge"))
