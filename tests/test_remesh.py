@@ -186,12 +186,13 @@ def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> N
     assert recorded == {"method": "meanratio", "weight": 1.0}
     assert np.abs(load_run(auto).states[2].vertices - load_run(off).states[2].vertices).max() > 1e-6
     assert stored_control(json.loads((off / "config.json").read_text()))["tangential_control"] == "off"
-    # the "off" run as written before the record existed
+    # the "off" run as written before the records existed
     cfg = json.loads((old / "config.json").read_text())
-    del cfg["tangential_control"], cfg["flow_options"]["tangential_control"]
+    del cfg["tangential_control"], cfg["flow_options"]["tangential_control"], cfg["input_repair"]
     del cfg["effective_flow_options"]["tangential_control"]
     (old / "config.json").write_text(json.dumps(cfg))
-    assert stored_control(cfg) == {"tangential_control": "off", "tangential_control_weight": 0.3}
+    assert stored_control(cfg) == {"tangential_control": "off", "tangential_control_weight": 0.3,
+                                   "input_repair": False}
     r = subprocess.run([*CLI, "run", "--resume", str(old), "--steps", "4", "--quiet"], capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr
@@ -434,3 +435,28 @@ def test_input_repair_keeps_the_inputs_volume_target() -> None:
     assert geometry.enclosed_volume(flow.mesh.with_vertices(flow.X)) == pytest.approx(v0, rel=1e-12)
     r = flow.step()
     assert abs(r.volume / v0 - 1) < 1e-10
+
+
+def test_a_run_written_before_input_repair_resumes_as_given(tmp_path) -> None:
+    """A run directory without the ``input_repair`` record (written before it existed, its initial state the input
+    as given) resumes with the repair off, even where today's default would repair that input (the torus below the
+    forced threshold of 35 deg): 2 + 2 steps equal 4 uninterrupted steps bit for bit."""
+    full, old = tmp_path / "full", tmp_path / "old"
+    torus = [*TORUS, "--set", "input_repair=false"]
+    for out, steps in ((full, "4"), (old, "2")):
+        r = subprocess.run([*CLI, "run", *torus, "--steps", steps, "--out", str(out)], capture_output=True,
+                           text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+    cfg = json.loads((old / "config.json").read_text())
+    assert cfg["input_repair"] == ""
+    del cfg["input_repair"]
+    for key in ("flow_options", "effective_flow_options"):
+        cfg.get(key, {}).pop("input_repair", None)
+    (old / "config.json").write_text(json.dumps(cfg))
+    r = subprocess.run([*CLI, "run", "--resume", str(old), "--steps", "4", "--quiet"], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "input mesh is below" not in r.stderr
+    a, b = load_run(full), load_run(old)
+    for sa, sb in zip(a.states, b.states, strict=True):
+        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)

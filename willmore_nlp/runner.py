@@ -253,6 +253,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     cfg["cwd"] = os.getcwd()
     cfg["environment"] = thread_environment()
     cfg["tangential_control"] = {"method": flow.tangential_control.method, "weight": flow.tangential_control.weight}
+    cfg["input_repair"] = flow.input_repair
     with SignalGuard(ignore_late_signals) as guard:
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
         try:
@@ -266,15 +267,18 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
 
 
 def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
-    """The tangential control a run directory's flow ran with, as flow options (a resumed run keeps it even when the
-    library's default changed): ``config.json``'s ``tangential_control`` entry, or, for runs written before it
-    existed (when the default was "off" at weight 0.3), the options they gave."""
+    """The tangential control and input repair a run directory's flow ran with, as flow options (a resumed run keeps
+    them even when the library's defaults changed): ``config.json``'s ``tangential_control`` entry, or, for runs
+    written before it existed (when the default was "off" at weight 0.3), the options they gave; and
+    ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their
+    initial state is the input as given, and the repair would give the flow another connectivity)."""
     stored = cfg.get("tangential_control")
     if stored is None:
         given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
         stored = {"method": given.get("tangential_control", "off"),
                   "weight": given.get("tangential_control_weight", 0.3)}
-    return {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"]}
+    out = {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"]}
+    return out if "input_repair" in cfg else {**out, "input_repair": False}
 
 
 @contextlib.contextmanager
