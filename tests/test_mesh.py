@@ -75,6 +75,8 @@ def test_scatter_sum_equals_successive_add_at_bit_for_bit() -> None:
         ours = scatter_sum(n, parts)
         assert ours.shape == ref.shape and ours.dtype == np.float64
         assert ours.tobytes() == ref.tobytes()
+    with pytest.raises(ValueError, match=r"indices 0\.\.5 outside 0\.\.4"):
+        scatter_sum(5, [(np.array([0, 5]), np.ones(2))])
 
 
 def test_surface_orientation_and_manifold_errors() -> None:

@@ -40,6 +40,8 @@ def scatter_sum(n: int, parts: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.nd
     (n,) or (n, c) float array
     """
     idx = np.concatenate([np.asarray(i, dtype=np.int64).ravel() for i, _ in parts])
+    if idx.size and not 0 <= int(idx.min()) <= int(idx.max()) < n:
+        raise ValueError(f"scatter_sum: indices {int(idx.min())}..{int(idx.max())} outside 0..{n - 1}")
     vals = [np.asarray(v, float) for _, v in parts]
     if vals[0].ndim == 1:
         return np.bincount(idx, weights=np.concatenate(vals), minlength=n)
