@@ -231,6 +231,11 @@ def _check_initial_mesh(mesh: Mesh, min_angle: float, max_edge_ratio: float) -> 
                             f"remesh, or lower min_angle")
 
 
+def _improves(before: dict[str, float], after: dict[str, float]) -> bool:
+    """Patch quality ``after`` has a larger smallest angle or a smaller edge ratio than ``before``."""
+    return after["min_angle"] > before["min_angle"] or after["edge_ratio"] < before["edge_ratio"]
+
+
 def _explicit(boundary: Any) -> bool:
     """A clamp with explicit co-normal or ring data (which a remeshing cannot carry to new vertices)."""
     return boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
@@ -315,7 +320,7 @@ class WillmoreFlow:
         self.relaxed = False
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
-        self.k = 0
+        self.k = 0  # (the input repair's warnings name the step)
         # "initial" volume and area are the input's (a vesicle's reduced volume), also when input_repair remeshes it
         self._targets = {"volume": _target(s.volume, "volume", mesh), "area": _target(s.area, "area", mesh)}
         self.input_repair = ""  # what input_repair did to the initial mesh ("": nothing)
@@ -344,7 +349,6 @@ class WillmoreFlow:
             raise UserInputError(f"volume/area: the initial mesh cannot be moved onto the targets {self._targets} "
                                  f"({exc})") from exc
         self.t = 0.0
-        self.k = 0
         try:
             self.Y = self._solve_y(self.X, self.tau)
         except RuntimeError as exc:
@@ -703,7 +707,7 @@ class WillmoreFlow:
         if not actions:
             return "", {}
         q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
-        if not light and q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]:
+        if not light and not _improves(q0, q1):
             return "", {}  # no improvement: keep the flow's own mesh rather than churn
         e_before = self.discrete_energy(X, self.Y)
         w_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
@@ -750,8 +754,7 @@ class WillmoreFlow:
         qb = self._patch_quality(r.vertices, F2, r.free if boundary is not None else None)
         # only a remeshing that keeps the smallest angle and improves it or the edge ratio (with the
         # light repair on, any result was taken: 0.6 deg on a coarse genus-2 flow, mesh_quality.md)
-        if not (qb["min_angle"] >= qa["min_angle"] and (qb["min_angle"] > qa["min_angle"]
-                                                        or qb["edge_ratio"] < qa["edge_ratio"])):
+        if not (qb["min_angle"] >= qa["min_angle"] and _improves(qa, qb)):
             return None
         return r.vertices, F2, None if boundary is None else rm.carry_boundary(boundary, r)
 
@@ -777,7 +780,7 @@ class WillmoreFlow:
                 X1, F1, b1 = remeshed
                 actions.append("remesh")
         q1 = self._patch_quality(X1, F1, None if b1 is None else b1.free)
-        if not actions or (q1["min_angle"] <= q0["min_angle"] and q1["edge_ratio"] >= q0["edge_ratio"]):
+        if not actions or not _improves(q0, q1):
             return mesh, boundary
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "+".join(actions)

@@ -36,7 +36,6 @@ class TangentialControlTerm(Term):
         self.control = control
         self.name = control.tag.lstrip("_")
         self.nodal = (("control", n_nodal(m)),)
-        self._last: tuple[np.ndarray, float, np.ndarray, np.ndarray | None, np.ndarray] | None = None
 
     def check(self, mesh: Mesh, variant: str | None) -> None:
         if mesh.d == 2 and mesh.m != 3:
@@ -53,16 +52,8 @@ class TangentialControlTerm(Term):
         return e.par["control_weight"] * (measure(e.Xk) / nv * total)
 
     def values(self, Xk: np.ndarray, tau: float, simplices: np.ndarray, x_free: np.ndarray) -> dict[str, Any]:
-        """The weight and :func:`~willmore_nlp.tangential.nodal_parameters` at Xk. The last result is kept and
-        returned again for equal inputs: a flow with the light repair asks for the data of the repaired state
-        three times (its inner solve, its energy, the next step), each time four mean-ratio sub-steps."""
-        Xk = np.asarray(Xk, float)
-        fraction = self.control.fraction(tau)
-        last = self._last
-        if not (last is not None and last[1] == fraction and np.array_equal(last[0], Xk)
-                and np.array_equal(last[2], simplices)
-                and (last[3] is None if x_free is None else np.array_equal(last[3], x_free))):
-            Q = nodal_parameters(Xk, simplices, x_free, fraction, SUBSTEPS)
-            last = self._last = (Xk.copy(), fraction, np.array(simplices), None if x_free is None else
-                                 np.array(x_free), Q)
-        return {"control_weight": self.control.weight, "control": last[4]}
+        """The weight and :func:`~willmore_nlp.tangential.nodal_parameters` at Xk (four mean-ratio sub-steps: the
+        flow asks for them only for its steps; its inner solves, constraints and energy pack them as zeros, ``off``
+        of :meth:`~willmore_nlp.model.step.StepProblem.pack_p`)."""
+        Q = nodal_parameters(np.asarray(Xk, float), simplices, x_free, self.control.fraction(tau), SUBSTEPS)
+        return {"control_weight": self.control.weight, "control": Q}
