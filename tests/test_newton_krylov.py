@@ -214,6 +214,46 @@ def test_cholmod_with_openblas_solves_like_its_reference_blas(tmp_path) -> None:
         assert np.abs(x[simplicial] - np.array(x_ref)).max() <= 1e-12 * np.abs(x_ref).max()
 
 
+def test_cholmod_solves_run_on_one_blas_thread_whatever_the_process_count(monkeypatch) -> None:
+    """CHOLMOD's supernodal solves run with one OpenBLAS thread (two made newton-krylov's CG 2.7-3.1x slower on
+    the 10,242-vertex sphere): every solve enters :func:`cholesky.one_blas_thread`, which sees one thread inside
+    under a process count of 2 and leaves the count as it was; the solves under counts 1 and 2 are bitwise
+    equal."""
+    import scipy.sparse as sp
+
+    from willmore_nlp.solvers import cholesky
+
+    pytest.importorskip("sksparse_minimal")
+    lib = cholesky._OPENBLAS
+    if lib is None:
+        pytest.skip("CHOLMOD does not run on CasADi's OpenBLAS here")
+    n = 30
+    T = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n))
+    A = sp.kron(sp.kronsum(T, T) @ sp.kronsum(T, T) + sp.identity(n * n), np.eye(3) + 0.2).tocsc()
+    b = np.random.default_rng(4).normal(size=(A.shape[0], 3))
+    F = SymmetricFactor("cholmod", simplicial=False).factor(A)
+    before = lib.openblas_get_num_threads()
+    seen = []
+    try:
+        x = {}
+        for count in (1, 2):
+            lib.openblas_set_num_threads(count)
+            with cholesky.one_blas_thread():
+                seen.append(lib.openblas_get_num_threads())
+            x[count] = F.solve(b)
+            assert lib.openblas_get_num_threads() == count
+    finally:
+        lib.openblas_set_num_threads(before)
+    assert seen == [1, 1]
+    np.testing.assert_array_equal(x[1], x[2])
+    entered = []
+    real = cholesky.one_blas_thread
+    monkeypatch.setattr(cholesky, "one_blas_thread", lambda: entered.append(1) or real())
+    F.solve(b)
+    assert entered == [1]
+    assert np.abs(A @ x[2] - b).max() <= 1e-11 * np.abs(b).max()
+
+
 def test_stale_preconditioner_is_rebuilt_and_steps_agree() -> None:
     """A CG solve with a preconditioner built at another point that reaches ``cg_stale`` iterations restarts
     with B rebuilt at the current point: with cg_stale=2 the rule fires (more builds than with the default),
@@ -235,6 +275,29 @@ def test_stale_preconditioner_is_rebuilt_and_steps_agree() -> None:
     for name in ("stale", "scipy"):
         for a, b in zip(runs[name], runs["default"], strict=True):
             assert np.abs(a.vertices - b.vertices).max() <= 1e-8 * step
+
+
+def test_preconditioner_is_rebuilt_after_the_first_newton_step_of_a_time_step() -> None:
+    """``precond_move`` (0.1 h) rebuilds B at the second Newton system of a time step, whose first Newton step
+    moved X by 0.16-0.42 h: with the earlier 0.5 h the previous step's B served that system and then failed the
+    next, tighter one after ``cg_stale`` iterations. On the 642-vertex ellipsoid 1:1:1.3 at tau = 0.2 h (tol
+    1e-10), steps 2-4: measured 53 / 62 / 79 CG iterations with 0.5 h, 22 / 19 / 17 with 0.1 h, one build of B per
+    step either way; the steps land on the same X (the iterates differ, the solution does not)."""
+    mesh = _ellipsoid(3)
+    args = (mesh, 0.2 * mesh.h, mesh.h**2 / 100)
+    off = {"mesh_control": "off", "max_retries": 0, "solver": "newton-krylov", "tol": 1e-10}
+    runs = {}
+    for name, extra in (("default", {}), ("0.5 h", {"precond_move": 0.5})):
+        flow = WillmoreFlow(*args, **off, **extra)
+        runs[name] = [flow.step() for _ in range(4)]
+        assert all(r.converged for r in runs[name])
+    cg = {k: [r.stats["n_cg"] for r in v[1:]] for k, v in runs.items()}
+    builds = {k: [r.stats["n_precond_builds"] for r in v[1:]] for k, v in runs.items()}
+    assert builds["default"] == builds["0.5 h"] == [1, 1, 1]
+    assert all(2 * a < b for a, b in zip(cg["default"], cg["0.5 h"], strict=True))
+    step = np.abs(runs["default"][-1].vertices - runs["default"][-2].vertices).max()
+    for a, b in zip(runs["default"], runs["0.5 h"], strict=True):
+        assert np.abs(a.vertices - b.vertices).max() <= 1e-7 * step
 
 
 def test_missing_cholmod_falls_back_to_scipy(monkeypatch) -> None:

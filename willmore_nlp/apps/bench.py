@@ -5,7 +5,7 @@
 
 Every case runs in its own subprocess (so peak memory is per case) and measures: build time of the
 step problem and solver, compile time of the generated kernels cold (empty cache) and cached, the
-wall time of one step (and of the next one, with codegen), IPOPT iterations, the time IPOPT spent
+wall time of one step (and of the next two, with codegen), IPOPT iterations, the time IPOPT spent
 in function evaluations and in its own algorithm (mostly MUMPS), one MUMPS factorisation of the
 step's KKT matrix at the solution (CasADi's MUMPS interface, symmetric indefinite mode), and peak
 resident memory. Cases with codegen off (CasADi's virtual machine) run up to ``--vm-max`` vertices. The summary fits the
@@ -37,6 +37,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+LATER_STEPS = (2, 3)
+"""Steps measured after the first with generated C (the first starts from the input; from step 3 on the
+newton-krylov preconditioner is no longer the first step's, so steps 2 and 3 differ)."""
 
 
 def _mesh(case: str) -> Any:
@@ -118,12 +122,12 @@ def run_case(case: str, codegen: bool, solver: str = "ipopt", save: str | None =
     st = r.stats
     if save:
         np.save(save, r.vertices)
-    if codegen:  # a second step, from a state the flow reached (the first starts from the initial mesh)
-        r2 = flow.step()
-        row.update(step2_s=r2.wall_time, iterations2=r2.iterations)
+    for k in LATER_STEPS if codegen else ():  # steps from states the flow reached (the first: from the input)
+        rk = flow.step()
+        row.update({f"step{k}_s": rk.wall_time, f"iterations{k}": rk.iterations})
         if solver != "ipopt":
-            row.update(n_cg2=r2.stats.get("n_cg"), n_precond2=r2.stats.get("n_precond_builds", 0),
-                       factor2_s=r2.stats.get("t_wall_factor"), cg2_s=r2.stats.get("t_wall_cg"))
+            row.update({f"n_cg{k}": rk.stats.get("n_cg"), f"n_precond{k}": rk.stats.get("n_precond_builds", 0),
+                        f"factor{k}_s": rk.stats.get("t_wall_factor"), f"cg{k}_s": rk.stats.get("t_wall_cg")})
     if solver != "ipopt":
         row.update(rejected=list(r.rejected), rejected_iterations=st.get("rejected_iterations"),
                    tau_taken=r.tau / tau)
@@ -211,9 +215,11 @@ SOLVER_COLUMNS = [
     ("n_precond", "B fact"), ("shift", "max shift"), ("eval_s", "eval [s]"), ("factor_s", "fact [s]"),
     ("cg_s", "CG [s]"),
     ("ipopt_rss_gb", "IPOPT peak RSS [GB]"), ("peak_rss_gb", "peak RSS [GB]"), ("dx_h", "max abs dX / h"),
-    ("ipopt_step2_s", "IPOPT step 2 [s]"), ("step2_s", "step 2 [s]"), ("speedup2", "speed-up 2"),
-    ("ipopt_iterations2", "IPOPT it 2"), ("iterations2", "Newton it 2"), ("n_cg2", "CG it 2"),
-    ("n_precond2", "B fact 2"), ("blas", "BLAS"), ("ipopt_load", "IPOPT load"), ("load", "load"),
+    *[col for k in LATER_STEPS for col in (
+        (f"ipopt_step{k}_s", f"IPOPT step {k} [s]"), (f"step{k}_s", f"step {k} [s]"), (f"speedup{k}", f"speed-up {k}"),
+        (f"ipopt_iterations{k}", f"IPOPT it {k}"), (f"iterations{k}", f"Newton it {k}"), (f"n_cg{k}", f"CG it {k}"),
+        (f"n_precond{k}", f"B fact {k}"))],
+    ("blas", "BLAS"), ("ipopt_load", "IPOPT load"), ("load", "load"),
 ]
 
 
@@ -289,8 +295,8 @@ def _solver_table(rows: list[dict[str, Any]]) -> list[str]:
              "step; 'max abs dX / h' = largest difference of X^{k+1} from IPOPT's (tol 1e-9 both) in mean edge "
              "lengths; 'J_Y fact' and 'B fact' = factorisations of M + tt L and of the preconditioner; 'max shift' = "
              "largest shift delta of the Newton systems of step 1 (in units of D). "
-             "'step 2': the next step of the same flow (from X^1, as in a running flow; the first step "
-             "starts from the initial mesh); peak RSS covers both steps.", "",
+             "'step 2', 'step 3': the next steps of the same flow (from X^1 and X^2, as in a running flow; the "
+             "first step starts from the initial mesh); peak RSS covers all three steps.", "",
              "| " + " | ".join(t for _, t in SOLVER_COLUMNS) + " |", "|" + "---|" * len(SOLVER_COLUMNS)]
     for r in other:
         if "error" in r:
@@ -302,10 +308,10 @@ def _solver_table(rows: list[dict[str, Any]]) -> list[str]:
     for name in dict.fromkeys(r["solver"] for r in other):
         sph = [r for r in other if r["solver"] == name and str(r["case"]).startswith("sphere") and "step_s" in r]
         if len(sph) >= 2:
-            e1 = fit_order([r["N"] for r in sph], [r["step_s"] for r in sph])
-            e2 = fit_order([r["N"] for r in sph], [r["step2_s"] for r in sph])
-            lines += ["", f"Fitted exponent of {name}'s step time vs N (spheres): step 1 **{e1:.2f}**, "
-                      f"step 2 **{e2:.2f}**"]
+            fits = [f"step {k} **{fit_order([r['N'] for r in sph], [r[key] for r in sph]):.2f}**"
+                    for k, key in ((1, "step_s"), *((k, f"step{k}_s") for k in LATER_STEPS))
+                    if all(key in r for r in sph)]
+            lines += ["", f"Fitted exponent of {name}'s step time vs N (spheres): " + ", ".join(fits)]
     return lines
 
 
@@ -318,10 +324,12 @@ def _compare(row: dict[str, Any], ref: dict[str, Any], x: Path, x_ref: Path) -> 
     row["ipopt_rss_gb"] = ref["peak_rss_gb"]
     row["speedup"] = ref["step_s"] / row["step_s"]
     row["dx_h"] = float(np.abs(np.load(x) - np.load(x_ref)).max()) / row["h"]
-    row["ipopt_step2_s"] = ref["step2_s"]
     row["ipopt_load"] = f"{ref.get('load')}-{ref.get('load_end')}"
-    row["ipopt_iterations2"] = ref["iterations2"]
-    row["speedup2"] = ref["step2_s"] / row["step2_s"]
+    for k in LATER_STEPS:
+        if f"step{k}_s" in ref and f"step{k}_s" in row:
+            row[f"ipopt_step{k}_s"] = ref[f"step{k}_s"]
+            row[f"ipopt_iterations{k}"] = ref[f"iterations{k}"]
+            row[f"speedup{k}"] = ref[f"step{k}_s"] / row[f"step{k}_s"]
 
 
 def main(argv: list[str] | None = None) -> int:
