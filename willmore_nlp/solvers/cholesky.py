@@ -92,10 +92,11 @@ def one_blas_thread() -> Iterator[None]:
     The supernodal solves are sequences of small triangular and matrix products, for which OpenBLAS's
     threads cost more than they gain. Measured with two threads (the default on this 2-core machine,
     ``OPENBLAS_NUM_THREADS`` unset) against one, 10,242-vertex sphere, newton-krylov steps 1-3: CG 5.30 / 1.62 /
-    1.39 s against 1.92 / 0.61 / 0.45 s for the same 69 / 22 / 17 iterations, twice the CPU time; the
-    factorisations took the same time either way (1.65 / 0.95 / 0.88 s against 1.70 / 0.84 / 1.08 s) and keep
-    the process's count. A solve is then the same arithmetic whatever ``OPENBLAS_NUM_THREADS`` says. One
-    call pair costs under a microsecond.
+    1.39 s against 1.92 / 0.61 / 0.45 s for the same 69 / 22 / 17 iterations, twice the CPU time. The
+    factorisations keep the process's count: equal at 10,242 vertices (1.65 / 0.95 / 0.88 s with two threads,
+    1.70 / 0.84 / 1.08 s with one), faster with two at 40,962 (17.7 / 5.2 / 4.3 s against 23.9 / 5.6 / 5.6 s).
+    A solve is then the same arithmetic whatever ``OPENBLAS_NUM_THREADS`` says. One call pair costs under a
+    microsecond.
     """
     n = _OPENBLAS.openblas_get_num_threads() if _OPENBLAS is not None else 1
     if n == 1:
