@@ -49,7 +49,7 @@ BLAS_ENV = "WILLMORE_NLP_CHOLMOD_BLAS"
 """Environment variable: ``reference`` keeps the wheel's own reference BLAS for CHOLMOD (default: ``openblas``)."""
 
 
-def _use_casadi_openblas() -> str:
+def _use_casadi_openblas() -> ctypes.CDLL | None:
     """Put the OpenBLAS shipped with CasADi into the process's global symbol scope, before CHOLMOD is loaded.
 
     The extension of ``sksparse-minimal`` resolves its BLAS/LAPACK symbols (dgemm_, dsyrk_, dtrsm_, dpotrf_,
@@ -60,28 +60,24 @@ def _use_casadi_openblas() -> str:
     change). Measured on the preconditioner of the 10,242-vertex sphere (one thread): supernodal
     factorisation 0.73 s instead of 1.73 s, solve 16.5 ms instead of 24.5 ms (simplicial form).
 
-    Returns what CHOLMOD's BLAS is: ``"openblas"``, or ``"reference"`` (asked for by :data:`BLAS_ENV`,
-    library not found, or ``sksparse_minimal`` imported before this module).
+    Returns the loaded library (CHOLMOD's BLAS is then OpenBLAS), or None: the reference BLAS (asked for by
+    :data:`BLAS_ENV`, library not found, or ``sksparse_minimal`` imported before this module).
     """
     if os.environ.get(BLAS_ENV, "openblas").strip().lower() == "reference":
-        return "reference"
-    global _OPENBLAS
+        return None
     if "sksparse_minimal._cholespy_core" in sys.modules:  # pragma: no cover - bound to its own BLAS already
-        return "reference"
+        return None
     try:
         import casadi
 
         libs = sorted(Path(casadi.__file__).parent.glob("libcasadi-tp-openblas.so*"))
-        if not libs:
-            return "reference"
-        _OPENBLAS = ctypes.CDLL(str(libs[0]), mode=os.RTLD_GLOBAL | os.RTLD_NOW)
+        return ctypes.CDLL(str(libs[0]), mode=os.RTLD_GLOBAL | os.RTLD_NOW) if libs else None
     except (ImportError, OSError):  # pragma: no cover - depends on the installation
-        return "reference"
-    return "openblas"
+        return None
 
 
-_OPENBLAS: ctypes.CDLL | None = None
-BLAS = _use_casadi_openblas()
+_OPENBLAS = _use_casadi_openblas()
+BLAS = "reference" if _OPENBLAS is None else "openblas"
 """BLAS of CHOLMOD's supernodal factorisation and solves (:func:`_use_casadi_openblas`)."""
 
 
