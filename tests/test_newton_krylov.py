@@ -214,6 +214,39 @@ def test_cholmod_with_openblas_solves_like_its_reference_blas(tmp_path) -> None:
         assert np.abs(x[simplicial] - np.array(x_ref)).max() <= 1e-12 * np.abs(x_ref).max()
 
 
+def test_cholmod_analyses_a_pattern_once_and_refactorises_its_values() -> None:
+    """CHOLMOD's symbolic analysis is kept per sparsity pattern: refactorising new values of the same pattern
+    does no analysis (``n_symbolic`` stays 1) and solves to rounding, as SuperLU does; a new pattern is
+    analysed again; an indefinite matrix is a LinAlgError, not a wrong factor; both forms (supernodal and
+    simplicial) agree."""
+    import gc
+
+    import scipy.sparse as sp
+
+    pytest.importorskip("sksparse_minimal")
+    n = 30
+    T = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n))
+    G = sp.kronsum(T, T)
+    base = sp.kron(G @ G, np.eye(3) + 0.2).tocsc()
+    rng = np.random.default_rng(5)
+    b = rng.normal(size=(base.shape[0], 3))
+    for simplicial in (False, True):
+        F = SymmetricFactor("cholmod", simplicial=simplicial)
+        for shift in (1.0, 0.01, 3.0):
+            A = (base + shift * sp.identity(base.shape[0])).tocsc()
+            x = F.factor(A).solve(b)
+            x_lu = SymmetricFactor("scipy").factor(A).solve(b)
+            assert np.abs(x - x_lu).max() <= 1e-10 * np.abs(x_lu).max()
+            assert np.abs(A @ F.solve(b[:, 1]) - b[:, 1]).max() <= 1e-11 * np.abs(b).max()
+        assert (F.n_symbolic, F.n_numeric) == (1, 3)
+        F.factor(sp.identity(base.shape[0], format="csc") + base @ base)  # another pattern (the two-ring of B)
+        assert (F.n_symbolic, F.n_numeric) == (2, 4)
+        with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+            F.factor((base - 2.0 * sp.identity(base.shape[0])).tocsc())
+        del F
+        gc.collect()  # the finaliser frees CHOLMOD's factors and workspace
+
+
 def test_cholmod_solves_run_on_one_blas_thread_whatever_the_process_count(monkeypatch) -> None:
     """CHOLMOD's supernodal solves run with one OpenBLAS thread (two made newton-krylov's CG 2.7-3.1x slower on
     the 10,242-vertex sphere): every solve enters :func:`cholesky.one_blas_thread`, which sees one thread inside

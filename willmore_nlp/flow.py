@@ -735,11 +735,12 @@ class WillmoreFlow:
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before, "willmore_before_remesh": w_before}
 
-    def _isotropic_remesh(self, X: np.ndarray, F: np.ndarray, boundary: Any,
-                          smooth: bool = True) -> tuple[np.ndarray, np.ndarray, Any] | None:
+    def _isotropic_remesh(self, X: np.ndarray, F: np.ndarray, boundary: Any, smooth: bool = True,
+                          quality: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray, Any] | None:
         """(X', F', boundary') of an isotropic remeshing of (X, F) toward ``remesh_target`` (default: the equilateral
         edge) followed by flips, or None when it failed (a warning) or did not keep the smallest patch angle and
-        improve it or the edge ratio. ``smooth``: :func:`willmore_nlp.remesh.isotropic_remesh`."""
+        improve it or the edge ratio. ``smooth``: :func:`willmore_nlp.remesh.isotropic_remesh`; ``quality``: the
+        patch quality of (X, F) when the caller has it."""
         from willmore_nlp import remesh as rm
 
         free = None if boundary is None else boundary.free
@@ -750,7 +751,7 @@ class WillmoreFlow:
             warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=4)
             return None
         F2, _ = rm.delaunay_flips(r.vertices, r.simplices, r.free if boundary is not None else None)
-        qa = self._patch_quality(X, F, free)
+        qa = self._patch_quality(X, F, free) if quality is None else quality
         qb = self._patch_quality(r.vertices, F2, r.free if boundary is not None else None)
         # only a remeshing that keeps the smallest angle and improves it or the edge ratio (with the
         # light repair on, any result was taken: 0.6 deg on a coarse genus-2 flow, mesh_quality.md)
@@ -774,8 +775,9 @@ class WillmoreFlow:
         F1, n = rm.delaunay_flips(X, F, free)
         actions = ["flips"] if n else []
         X1, b1 = X, boundary
-        if self._below_thresholds(self._patch_quality(X1, F1, free)):
-            remeshed = self._isotropic_remesh(X1, F1, boundary, smooth=False)
+        q = self._patch_quality(X1, F1, free)
+        if self._below_thresholds(q):
+            remeshed = self._isotropic_remesh(X1, F1, boundary, smooth=False, quality=q)
             if remeshed is not None:
                 X1, F1, b1 = remeshed
                 actions.append("remesh")

@@ -7,23 +7,23 @@ Gauss-Newton preconditioner (two-ring coupling).
 Backends
 --------
 ``cholmod``
-    SuiteSparse's CHOLMOD through the registry wheel ``sksparse-minimal`` (a fork of ``cholespy``
-    that bundles CHOLMOD built with METIS and LAPACK/BLAS, so that it factorises supernodally and
-    tries METIS beside AMD; no system libraries). Each call orders and factorises (the binding has
-    no numeric-only refactorisation). The wheel's bundled BLAS is the reference (netlib) one; before
-    the extension is loaded, :func:`_use_casadi_openblas` puts the OpenBLAS that CasADi ships (IPOPT's
-    own) into the global symbol scope, so that CHOLMOD's dense kernels run in OpenBLAS
-    (:data:`BLAS`; ``WILLMORE_NLP_CHOLMOD_BLAS=reference`` keeps the reference BLAS). Measured on the
-    preconditioner B of the 10,242-vertex sphere (30,726 x 30,726, 1.75e6 nonzeros; one thread):
-    factorisation 0.73 s with OpenBLAS against 1.73 s with the reference BLAS (earlier, with the
-    reference BLAS: 2.01 s for ``cholespy``, CHOLMOD simplicial with AMD only, and 0.99 s for MKL
-    PARDISO, ``pypardiso``, whose ``mkl`` wheels weigh 270 MB to download and 0.9 GB installed);
-    solves with B 16.5 ms with the supernodal factor against 23.5 ms after conversion to the
-    simplicial form (24.5 ms with the reference BLAS, whose supernodal solves took 32 ms). Solves with
-    the N x N matrix M + tt L (three right-hand sides) stay faster in the simplicial form (1.5 ms
-    against 2.1 ms at 10,242 vertices). ``SymmetricFactor(simplicial=...)`` chooses the form;
-    by default simplicial only with the reference BLAS (the conversion costs about two solves).
-    ``cholespy`` itself cannot be loaded in the same process (both register the same nanobind type).
+    SuiteSparse's CHOLMOD through the registry wheel ``sksparse-minimal`` (a fork of ``cholespy`` that bundles
+    CHOLMOD built with METIS and LAPACK/BLAS, so that it factorises supernodally and tries METIS beside AMD;
+    no system libraries). Its Python class orders and factorises in every call; this module drives CHOLMOD's C
+    API, which the extension exports, through ctypes instead, so that a sparsity pattern is analysed once and
+    refactorised numerically (:class:`SymmetricFactor`). The wheel's bundled BLAS is the reference (netlib)
+    one; before the extension is loaded, :func:`_use_casadi_openblas` puts the OpenBLAS that CasADi ships
+    (IPOPT's own) into the global symbol scope, so that CHOLMOD's dense kernels run in OpenBLAS (:data:`BLAS`;
+    ``WILLMORE_NLP_CHOLMOD_BLAS=reference`` keeps the reference BLAS). Measured on the preconditioner B of the
+    10,242-vertex sphere (30,726 x 30,726, 1.75e6 nonzeros; one thread): factorisation 0.73 s with OpenBLAS
+    against 1.73 s with the reference BLAS (earlier, with the reference BLAS: 2.01 s for ``cholespy``, CHOLMOD
+    simplicial with AMD only, and 0.99 s for MKL PARDISO, ``pypardiso``, whose ``mkl`` wheels weigh 270 MB to
+    download and 0.9 GB installed); solves with B 16.5 ms with the supernodal factor against 23.5 ms after
+    conversion to the simplicial form (24.5 ms with the reference BLAS, whose supernodal solves took 32 ms).
+    Solves with the N x N matrix M + tt L (three right-hand sides) stay faster in the simplicial form (1.5 ms
+    against 2.1 ms at 10,242 vertices). ``SymmetricFactor(simplicial=...)`` chooses the form; by default
+    simplicial only with the reference BLAS (the conversion costs about two solves). ``cholespy`` itself
+    cannot be loaded in the same process (both register the same nanobind type).
 ``scipy``
     SuperLU (``scipy.sparse.linalg.splu``) with COLAMD ordering: used when ``sksparse-minimal`` is
     not installed, or when asked for.
@@ -34,6 +34,7 @@ from __future__ import annotations
 import ctypes
 import os
 import sys
+import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -104,10 +105,63 @@ def one_blas_thread() -> Iterator[None]:
     finally:
         _OPENBLAS.openblas_set_num_threads(n)
 
-try:
-    from sksparse_minimal._cholespy_core import CholeskySolver as _Cholmod
-except ImportError:  # pragma: no cover - the fallback itself is tested by forcing backend="scipy"
-    _Cholmod = None
+class _Sparse(ctypes.Structure):
+    """CHOLMOD's ``cholmod_sparse`` (a compressed-column matrix; the layout of CHOLMOD 2-5)."""
+
+    _fields_ = [("nrow", ctypes.c_size_t), ("ncol", ctypes.c_size_t), ("nzmax", ctypes.c_size_t),
+                ("p", ctypes.c_void_p), ("i", ctypes.c_void_p), ("nz", ctypes.c_void_p), ("x", ctypes.c_void_p),
+                ("z", ctypes.c_void_p), ("stype", ctypes.c_int), ("itype", ctypes.c_int), ("xtype", ctypes.c_int),
+                ("dtype", ctypes.c_int), ("sorted", ctypes.c_int), ("packed", ctypes.c_int)]
+
+
+class _Dense(ctypes.Structure):
+    """CHOLMOD's ``cholmod_dense`` (column-major, leading dimension d)."""
+
+    _fields_ = [("nrow", ctypes.c_size_t), ("ncol", ctypes.c_size_t), ("nzmax", ctypes.c_size_t),
+                ("d", ctypes.c_size_t), ("x", ctypes.c_void_p), ("z", ctypes.c_void_p), ("xtype", ctypes.c_int),
+                ("dtype", ctypes.c_int)]
+
+
+class _FactorHead(ctypes.Structure):
+    """The first fields of ``cholmod_factor``: minor < n after a factorisation means not positive definite."""
+
+    _fields_ = [("n", ctypes.c_size_t), ("minor", ctypes.c_size_t)]
+
+
+_REAL, _SOLVE_A = 1, 0  # CHOLMOD_REAL (xtype), CHOLMOD_A (solve A x = b)
+_COMMON_BYTES = 1 << 16  # cholmod_common is about 2-4 kB in CHOLMOD 3-5; cholmod_start fills it
+
+
+def _load_cholmod() -> ctypes.CDLL | None:
+    """CHOLMOD's C API from the extension of ``sksparse-minimal``, which exports it (SuiteSparse 5.4 in 0.3).
+
+    The package's Python class orders and factorises in one call; the C API separates the symbolic analysis
+    (fill-reducing ordering, elimination tree, supernodes: ``cholmod_analyze``) from the numeric factorisation
+    (``cholmod_factorize``), so that :class:`SymmetricFactor` analyses each sparsity pattern once. None when
+    the package is missing or its CHOLMOD is not a version whose structures this module declares.
+    """
+    try:
+        from sksparse_minimal import _cholespy_core
+    except ImportError:  # pragma: no cover - the fallback itself is tested by forcing backend="scipy"
+        return None
+    lib = ctypes.CDLL(_cholespy_core.__file__)
+    version = (ctypes.c_int * 3)()
+    if not hasattr(lib, "cholmod_analyze") or not 4 <= lib.SuiteSparse_version(version) // 1000 <= 7:
+        return None  # pragma: no cover - another build of the package
+    vp, sp_p, cp = ctypes.c_void_p, ctypes.POINTER(_Sparse), ctypes.c_void_p
+    for name, res, args in (("cholmod_start", ctypes.c_int, [cp]), ("cholmod_finish", ctypes.c_int, [cp]),
+                            ("cholmod_analyze", vp, [sp_p, cp]), ("cholmod_factorize", ctypes.c_int, [sp_p, vp, cp]),
+                            ("cholmod_copy_factor", vp, [vp, cp]),
+                            ("cholmod_change_factor", ctypes.c_int, [ctypes.c_int] * 5 + [vp, cp]),
+                            ("cholmod_solve", ctypes.POINTER(_Dense), [ctypes.c_int, vp, ctypes.POINTER(_Dense), cp]),
+                            ("cholmod_free_factor", ctypes.c_int, [ctypes.POINTER(vp), cp]),
+                            ("cholmod_free_dense", ctypes.c_int, [ctypes.POINTER(ctypes.POINTER(_Dense)), cp])):
+        fn = getattr(lib, name)
+        fn.restype, fn.argtypes = res, args
+    return lib
+
+
+_Cholmod = _load_cholmod()
 
 BACKENDS = ("auto", "cholmod", "scipy")
 
@@ -125,7 +179,12 @@ def resolve_backend(name: str) -> str:
 
 
 class SymmetricFactor:
-    """Factorisation of a symmetric positive definite sparse matrix.
+    """Factorisation of a symmetric positive definite sparse matrix, refactorised as its values change.
+
+    With CHOLMOD the symbolic analysis (ordering, elimination tree, supernodes) is done once per sparsity
+    pattern and kept; a later :meth:`factor` of a matrix with the same pattern is a numeric factorisation only.
+    Measured on newton-krylov's matrices of the 10,242-vertex sphere (one thread): the analysis is 0.43 of
+    1.58 s for the preconditioner B (30,726 rows) and 0.008 of 0.024 s for M + tt L (10,242 rows).
 
     Parameters
     ----------
@@ -137,6 +196,7 @@ class SymmetricFactor:
     Attributes
     ----------
     n_numeric : number of factorisations done
+    n_symbolic : number of symbolic analyses done (CHOLMOD; one per sparsity pattern met in a row)
     """
 
     def __init__(self, backend: str = "auto", simplicial: bool | None = None) -> None:
@@ -145,20 +205,51 @@ class SymmetricFactor:
         self._solver: Any = None
         self._n = 0
         self.n_numeric = 0
+        self.n_symbolic = 0
+        if self.backend == "cholmod":
+            self._common = ctypes.create_string_buffer(_COMMON_BYTES)
+            _Cholmod.cholmod_start(self._common)
+            # [symbolic, numeric] factors; freed with the workspace when this object goes
+            self._factors = [ctypes.c_void_p(), ctypes.c_void_p()]
+            self._pattern: tuple[np.ndarray, np.ndarray] | None = None
+            weakref.finalize(self, _release, self._factors, self._common)
 
     def factor(self, A: sp.spmatrix) -> SymmetricFactor:
-        """Factorise the SPD (n, n) matrix ``A`` (both triangles given); returns self."""
+        """Factorise the SPD (n, n) matrix ``A`` (both triangles given); returns self.
+
+        Raises
+        ------
+        numpy.linalg.LinAlgError
+            CHOLMOD: ``A`` is not positive definite.
+        """
         A = sp.csc_matrix(A)
         self._n = A.shape[0]
-        self._solver = None  # the previous factor goes first: never two alive (0.65 GB each for B at 40,962 vertices)
         if self.backend == "scipy":
+            self._solver = None  # the previous factor goes first: never two alive (0.65 GB each for B at 40,962 v)
             self._solver = spla.splu(A, permc_spec="COLAMD")
-        else:
-            A.sort_indices()
-            indptr, indices = (a.astype(np.int32, copy=False) for a in (A.indptr, A.indices))
-            self._solver = _Cholmod(self._n, indptr, indices, np.ascontiguousarray(A.data, dtype=float))
-            if self.simplicial:  # supernodal factorisation, simplicial LL' solves (module docstring)
-                self._solver.change_factor(True, False)
+            self.n_numeric += 1
+            return self
+        A.sum_duplicates()  # sorted row indices, no duplicates: CHOLMOD's packed form
+        indptr, indices = (a.astype(np.int32, copy=False) for a in (A.indptr, A.indices))
+        data = np.ascontiguousarray(A.data, dtype=float)
+        M = _Sparse(self._n, self._n, A.nnz, indptr.ctypes.data, indices.ctypes.data, None, data.ctypes.data,
+                    None, 1, 0, _REAL, 0, 1, 1)  # stype 1: the upper triangle is read
+        symbolic, numeric = self._factors
+        _free_factor(numeric, self._common)  # never two numeric factors alive
+        known = self._pattern is not None and all(map(np.array_equal, self._pattern, (indptr, indices)))
+        if not known:
+            _free_factor(symbolic, self._common)
+            symbolic.value = _Cholmod.cholmod_analyze(ctypes.byref(M), self._common)
+            self._pattern = (indptr.copy(), indices.copy())
+            self.n_symbolic += 1
+        numeric.value = _Cholmod.cholmod_copy_factor(symbolic, self._common)
+        if not symbolic or not numeric or not _Cholmod.cholmod_factorize(ctypes.byref(M), numeric, self._common):
+            raise MemoryError(f"CHOLMOD could not factorise a {self._n} x {self._n} matrix with {A.nnz} nonzeros")
+        minor = ctypes.cast(numeric, ctypes.POINTER(_FactorHead)).contents.minor
+        if minor < self._n:
+            raise np.linalg.LinAlgError(f"matrix not positive definite (CHOLMOD: leading minor {minor} of {self._n})")
+        if self.simplicial:  # supernodal factorisation, simplicial LL' solves (module docstring)
+            _Cholmod.cholmod_change_factor(_REAL, 1, 0, 1, 1, numeric, self._common)
         self.n_numeric += 1
         return self
 
@@ -167,10 +258,31 @@ class SymmetricFactor:
         b = np.ascontiguousarray(b, dtype=float)
         if self.backend == "scipy":
             return self._solver.solve(b)
-        x = np.empty_like(b)
+        k = 1 if b.ndim == 1 else b.shape[1]
+        B = np.asfortranarray(b.reshape(self._n, k))
+        rhs = _Dense(self._n, k, B.size, self._n, B.ctypes.data, None, _REAL, 0)
         with one_blas_thread():
-            self._solver.solve(b, x, 0)  # mode 0: CHOLMOD_A
-        return x
+            X = _Cholmod.cholmod_solve(_SOLVE_A, self._factors[1], ctypes.byref(rhs), self._common)
+        if not X:
+            raise MemoryError(f"CHOLMOD could not solve with a {self._n} x {self._n} factor")
+        try:
+            x = np.ctypeslib.as_array(ctypes.cast(X.contents.x, ctypes.POINTER(ctypes.c_double)), (k, self._n)).T
+            return x.reshape(b.shape).copy() if b.ndim == 1 else np.ascontiguousarray(x)
+        finally:
+            _Cholmod.cholmod_free_dense(ctypes.byref(X), self._common)
+
+
+def _free_factor(factor: ctypes.c_void_p, common: Any) -> None:
+    """Free a CHOLMOD factor held in ``factor`` (which is then NULL); nothing if it is NULL."""
+    if factor:
+        _Cholmod.cholmod_free_factor(ctypes.byref(factor), common)
+
+
+def _release(factors: list[ctypes.c_void_p], common: Any) -> None:
+    """Free a :class:`SymmetricFactor`'s CHOLMOD factors and workspace (its finaliser)."""
+    for f in factors:
+        _free_factor(f, common)
+    _Cholmod.cholmod_finish(common)
 
 
 class KronFactor:
