@@ -211,7 +211,8 @@ class SymmetricFactor:
             _Cholmod.cholmod_start(self._common)
             # [symbolic, numeric] factors; freed with the workspace when this object goes
             self._factors = [ctypes.c_void_p(), ctypes.c_void_p()]
-            self._pattern: tuple[np.ndarray, np.ndarray] | None = None
+            self._pattern: tuple[np.ndarray, np.ndarray] | None = None  # analysed (indptr, indices)
+            self._embedded: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # a contained pattern's positions
             weakref.finalize(self, _release, self._factors, self._common)
 
     def factor(self, A: sp.spmatrix) -> SymmetricFactor:
@@ -232,19 +233,21 @@ class SymmetricFactor:
         A.sum_duplicates()  # sorted row indices, no duplicates: CHOLMOD's packed form
         indptr, indices = (a.astype(np.int32, copy=False) for a in (A.indptr, A.indices))
         data = np.ascontiguousarray(A.data, dtype=float)
-        M = _Sparse(self._n, self._n, A.nnz, indptr.ctypes.data, indices.ctypes.data, None, data.ctypes.data,
-                    None, 1, 0, _REAL, 0, 1, 1)  # stype 1: the upper triangle is read
         symbolic, numeric = self._factors
         _free_factor(numeric, self._common)  # never two numeric factors alive
         known = self._pattern is not None and all(map(np.array_equal, self._pattern, (indptr, indices)))
         if not known:
+            indptr, indices, data, known = self._on_pattern(indptr, indices, data)
+        M = _Sparse(self._n, self._n, data.size, indptr.ctypes.data, indices.ctypes.data, None, data.ctypes.data,
+                    None, 1, 0, _REAL, 0, 1, 1)  # stype 1: the upper triangle is read
+        if not known:
             _free_factor(symbolic, self._common)
             symbolic.value = _Cholmod.cholmod_analyze(ctypes.byref(M), self._common)
-            self._pattern = (indptr.copy(), indices.copy())
+            self._pattern, self._embedded = (indptr, indices), None
             self.n_symbolic += 1
         numeric.value = _Cholmod.cholmod_copy_factor(symbolic, self._common)
         if not symbolic or not numeric or not _Cholmod.cholmod_factorize(ctypes.byref(M), numeric, self._common):
-            raise MemoryError(f"CHOLMOD could not factorise a {self._n} x {self._n} matrix with {A.nnz} nonzeros")
+            raise MemoryError(f"CHOLMOD could not factorise a {self._n} x {self._n} matrix with {data.size} nonzeros")
         minor = ctypes.cast(numeric, ctypes.POINTER(_FactorHead)).contents.minor
         if minor < self._n:
             raise np.linalg.LinAlgError(f"matrix not positive definite (CHOLMOD: leading minor {minor} of {self._n})")
@@ -252,6 +255,41 @@ class SymmetricFactor:
             _Cholmod.cholmod_change_factor(_REAL, 1, 0, 1, 1, numeric, self._common)
         self.n_numeric += 1
         return self
+
+    def _on_pattern(self, indptr: np.ndarray, indices: np.ndarray,
+                    data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        """(indptr, indices, data, analysed): the matrix on the analysed pattern with explicit zeros when its pattern
+        is contained in it (analysed True), else on the union of both patterns (a new analysis).
+
+        scipy's sparse products and sums drop entries that come out exactly zero, so the pattern of a matrix
+        assembled from the same operators can lose entries from one point to the next (newton-krylov's B on the
+        642-vertex sphere, its third step); the union keeps the analysis of the operators' structural pattern.
+        """
+        n = self._n
+        last = self._embedded
+        if last is not None and all(map(np.array_equal, last[:2], (indptr, indices))):
+            full = np.zeros(self._pattern[1].size)
+            full[last[2]] = data
+            return *self._pattern, full, True
+        keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr)) * n + indices  # column-major: sorted
+        if self._pattern is None or self._pattern[0].size != n + 1:
+            return indptr.copy(), indices.copy(), data, False
+        old = np.repeat(np.arange(n, dtype=np.int64), np.diff(self._pattern[0])) * n + self._pattern[1]
+        pos = np.minimum(np.searchsorted(old, keys), old.size - 1)
+        analysed = bool(np.array_equal(old[pos], keys))
+        if analysed:
+            self._embedded = (indptr.copy(), indices.copy(), pos)  # the positions of the pattern met last
+        if not analysed:
+            old = np.sort(np.concatenate([old, keys]), kind="stable")  # two sorted runs: a merge
+            old = old[np.r_[True, old[1:] != old[:-1]]]
+            pos = np.searchsorted(old, keys)
+        full = np.zeros(old.size)
+        full[pos] = data
+        if analysed:
+            return *self._pattern, full, True
+        cols, rows = np.divmod(old, n)
+        indptr = np.searchsorted(cols, np.arange(n + 1)).astype(np.int32)
+        return indptr, rows.astype(np.int32), full, False
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """A^-1 b for b of shape (n,) or (n, k)."""

@@ -404,12 +404,14 @@ class NewtonKrylovSolver(ReducedSolver):
             scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
         self._count("n_eval_grad_f")
         gtol = self._gtol = self.tol * scale
+        symbolic = self._jy.n_symbolic + self._pre.n_symbolic  # (CHOLMOD: once per pattern, kept across solves)
         pt = self._feasible(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
         D = self._distance_hessian(pt.z, p)
         self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
         self._delta = self._delta_max = 0.0
         stats: dict[str, Any] = {}
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
+        stats["n_symbolic"] = self._jy.n_symbolic + self._pre.n_symbolic - symbolic
         stats["iteration"] = "full-space" if self._counts.get("n_full_space") else "reduced"
         stats.update(self._counts)
         stats["newton_iterations"] = it
