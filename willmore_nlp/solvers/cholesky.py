@@ -91,7 +91,9 @@ def one_blas_thread() -> Iterator[None]:
     ``OPENBLAS_NUM_THREADS`` unset) against one, 10,242-vertex sphere, newton-krylov steps 1-3: CG 5.30 / 1.62 /
     1.39 s against 1.92 / 0.61 / 0.45 s for the same 69 / 22 / 17 iterations, twice the CPU time. The
     factorisations keep the process's count: equal at 10,242 vertices (1.65 / 0.95 / 0.88 s with two threads,
-    1.70 / 0.84 / 1.08 s with one), faster with two at 40,962 (17.7 / 5.2 / 4.3 s against 23.9 / 5.6 / 5.6 s).
+    1.70 / 0.84 / 1.08 s with one), faster with two at 40,962 (17.7 / 5.2 / 4.3 s against 23.9 / 5.6 / 5.6 s);
+    numeric refactorisations of B alone (:class:`SymmetricFactor`, idle machine): two threads 1.16 / 1.27 / 1.56x
+    faster at 2,562 / 10,242 / 40,962 vertices.
     A solve is then the same arithmetic whatever ``OPENBLAS_NUM_THREADS`` says. One call pair costs under a
     microsecond.
     """
@@ -183,8 +185,10 @@ class SymmetricFactor:
 
     With CHOLMOD the symbolic analysis (ordering, elimination tree, supernodes) is done once per sparsity
     pattern and kept; a later :meth:`factor` of a matrix with the same pattern is a numeric factorisation only.
-    Measured on newton-krylov's matrices of the 10,242-vertex sphere (one thread): the analysis is 0.43 of
-    1.58 s for the preconditioner B (30,726 rows) and 0.008 of 0.024 s for M + tt L (10,242 rows).
+    Measured on newton-krylov's preconditioner B of the benchmark's spheres (one thread, idle machine): the
+    package's call (analysis and factorisation) 0.70 s at 10,242 vertices (30,726 rows), of which the analysis
+    0.22 s, against 0.45-0.50 s for a refactorisation; 6.75 s at 40,962 vertices, analysis 0.84 s, against
+    3.7-4.6 s (CHOLMOD's default postordering, which the package turns off, also makes the factor faster).
 
     Parameters
     ----------
