@@ -5,6 +5,7 @@ import pytest
 import trimesh
 
 from willmore_nlp import FlowError, registry
+from willmore_nlp.errors import UserInputError
 
 
 def test_raw_capsule_takes_its_first_step_within_the_file_problems_retries(tmp_path) -> None:
@@ -37,8 +38,9 @@ def test_raw_capsule_takes_its_first_step_within_the_file_problems_retries(tmp_p
     assert first.retries == 0 and first.tau == pb.tau and first.energy < w0
 
 
-def test_closed_file_surface_of_genus_one_gets_the_torus_weight(tmp_path) -> None:
-    """A torus read from a file gets the ``torus`` problem's ``tangential_weight = 10`` (a sphere keeps the paper's 1):
+def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tmp_path) -> None:
+    """A torus read from a file gets the ``torus`` problem's ``tangential_weight = 10`` and ``conformal_gauge`` (a
+    sphere keeps the paper's 1 and no gauge; the gauge yields to a volume constraint):
     its first step at tau = h fights the scheme's tangential descent with weight 1 (IPOPT cut at the 100-iteration
     first-step budget at h, h/2, h/4 and h/8, taken at h/16: measured 4 retries, 400 rejected iterations on this
     16x8 grid torus) and is taken at h/4 after 2 with weight 10."""
@@ -48,8 +50,13 @@ def test_closed_file_surface_of_genus_one_gets_the_torus_weight(tmp_path) -> Non
     save_mesh(shapes.torus(1.0, 0.5, 16, 8), tmp_path / "torus.obj")
     save_mesh(shapes.icosphere(1), tmp_path / "sphere.obj")
     pb, _ = registry.build("file", path=str(tmp_path / "torus.obj"))
-    assert pb.flow_options["tangential_weight"] == 10.0
-    assert "tangential_weight" not in registry.build("file", path=str(tmp_path / "sphere.obj"))[0].flow_options
+    assert pb.flow_options["tangential_weight"] == 10.0 and pb.flow_options["conformal_gauge"] is True
+    sphere_options = registry.build("file", path=str(tmp_path / "sphere.obj"))[0].flow_options
+    assert "tangential_weight" not in sphere_options and "conformal_gauge" not in sphere_options
+    # the problem's gauge gives way to a constraint the user asks for; asking for both is the flow's error
+    assert not pb.make_flow(volume="initial").settings.conformal_gauge
+    with pytest.raises(UserInputError, match="conformal_gauge=True is for closed surfaces"):
+        pb.make_flow(volume="initial", conformal_gauge=True)
     out = {}
     for weight in (1.0, None):
         flow = pb.make_flow() if weight is None else pb.make_flow(tangential_weight=weight)
@@ -58,3 +65,35 @@ def test_closed_file_surface_of_genus_one_gets_the_torus_weight(tmp_path) -> Non
         assert first.energy < w0
         out[weight] = (first.retries, first.stats["rejected_iterations"], first.tau / pb.tau)
     assert out[None][0] < out[1.0][0] and out[None][1] < out[1.0][1] and out[None][2] > out[1.0][2]
+
+
+def test_a_file_torus_run_from_before_the_gauge_default_resumes_without_it(tmp_path) -> None:
+    """A run directory of a file torus written before the problem turned ``conformal_gauge`` on (its config.json
+    has no such option) resumes with the gauge off, as it ran: 1 + 1 steps equal 2 uninterrupted steps with
+    ``conformal_gauge=false`` bit for bit (the gauge moves the state after every step, so resuming with the new
+    default would not)."""
+    import json
+    import subprocess
+    import sys
+
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.mesh.io import save_mesh
+    from willmore_nlp.rundir import load_run
+
+    save_mesh(shapes.torus(1.0, 0.5, 16, 8), tmp_path / "torus.obj")
+    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "torus.obj"), "--quiet"]
+    ref, old = tmp_path / "ref", tmp_path / "old"
+    for out, steps in ((ref, "2"), (old, "1")):
+        r = subprocess.run([*cli, "--set", "conformal_gauge=false", "--steps", steps, "--out", str(out)],
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+    cfg = json.loads((old / "config.json").read_text())
+    del cfg["flow_options"]["conformal_gauge"], cfg["effective_flow_options"]["conformal_gauge"]
+    (old / "config.json").write_text(json.dumps(cfg))
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "--resume", str(old), "--steps", "2",
+                        "--quiet"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    a, b = load_run(ref).states, load_run(old).states
+    assert len(a) == len(b) == 3
+    for sa, sb in zip(a, b, strict=True):
+        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)

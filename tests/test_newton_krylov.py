@@ -328,8 +328,8 @@ def test_preconditioner_is_rebuilt_after_the_first_newton_step_of_a_time_step() 
     moved X by 0.16-0.42 h: with the earlier 0.5 h the previous step's B served that system and then failed the
     next, tighter one after ``cg_stale`` iterations. On the 642-vertex ellipsoid 1:1:1.3 at tau = 0.2 h (tol
     1e-10), steps 2-4: measured 53 / 62 / 79 CG iterations with 0.5 h, 22 / 19 / 17 with 0.1 h, one build of B per
-    step either way; the steps land on the same X (the iterates differ, the solution does not). The factorisations after the
-    first step need (almost) no symbolic analysis."""
+    step either way; the steps land on the same X (the iterates differ, the solution does not). The factorisations
+    after the first step need (almost) no symbolic analysis."""
     mesh = _ellipsoid(3)
     args = (mesh, 0.2 * mesh.h, mesh.h**2 / 100)
     off = {"mesh_control": "off", "max_retries": 0, "solver": "newton-krylov", "tol": 1e-10}

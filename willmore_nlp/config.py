@@ -78,7 +78,7 @@ class RunSpec:
             "tau_tilde": self.problem.tau_tilde,
             "lam": self.problem.lam,
             "flow_options": self.flow_options,
-            "effective_flow_options": {**self.problem.flow_options, **self.flow_options},
+            "effective_flow_options": self.problem.effective_options(self.flow_options),
             "steps": self.steps,
             "t_end": self.t_end,
             "mesh": {"n_vertices": self.problem.mesh.n_vertices, "n_simplices": self.problem.mesh.n_simplices,

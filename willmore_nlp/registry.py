@@ -56,11 +56,22 @@ class Problem:
 
     def make_flow(self, **overrides: Any) -> WillmoreFlow:
         """The problem's :class:`~willmore_nlp.flow.WillmoreFlow`; ``overrides`` (``tau``, flow and solver
-        options) replace the problem's values."""
+        options) replace the problem's values (:meth:`effective_options`)."""
         from willmore_nlp.flow import WillmoreFlow
 
-        kw = {"tau": self.tau, "tau_tilde": self.tau_tilde, "lam": self.lam, **self.flow_options, **overrides}
+        kw = {"tau": self.tau, "tau_tilde": self.tau_tilde, "lam": self.lam, **self.effective_options(overrides)}
         return WillmoreFlow(self.mesh, **kw)
+
+    def effective_options(self, overrides: dict[str, Any]) -> dict[str, Any]:
+        """The flow options of :meth:`make_flow`: the problem's, replaced by ``overrides``. A ``conformal_gauge`` of
+        the problem's own (the ``file`` problem's closed surfaces of genus >= 1) gives way to a volume or area
+        constraint among the overrides: the gauge is for unconstrained flows, and only asking for both at once is
+        an error."""
+        options = dict(self.flow_options)
+        if (overrides.get("volume") is not None or overrides.get("area") is not None) \
+                and "conformal_gauge" not in overrides:
+            options.pop("conformal_gauge", None)
+        return {**options, **overrides}
 
 
 @dataclass(frozen=True)

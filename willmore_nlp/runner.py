@@ -267,17 +267,20 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
 
 
 def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
-    """The tangential control and input repair a run directory's flow ran with, as flow options (a resumed run keeps
-    them even when the library's defaults changed): ``config.json``'s ``tangential_control`` entry, or, for runs
-    written before it existed (when the default was "off" at weight 0.3), the options they gave; and
-    ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their
-    initial state is the input as given, and the repair would give the flow another connectivity)."""
+    """The tangential control, conformal gauge and input repair a run directory's flow ran with, as flow options (a
+    resumed run keeps them even when the library's defaults changed): ``config.json``'s ``tangential_control``
+    entry, or, for runs written before it existed (when the default was "off" at weight 0.3), the options they gave;
+    the ``conformal_gauge`` of its effective options (false for ``file`` tori written before the problem turned it
+    on, 2026-11-27); and ``input_repair = false`` for runs written before the input repair existed (no
+    ``input_repair`` record: their initial state is the input as given, and the repair would give the flow another
+    connectivity)."""
+    given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
     stored = cfg.get("tangential_control")
     if stored is None:
-        given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
         stored = {"method": given.get("tangential_control", "off"),
                   "weight": given.get("tangential_control_weight", 0.3)}
-    out = {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"]}
+    out = {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"],
+           "conformal_gauge": given.get("conformal_gauge", False)}
     return out if "input_repair" in cfg else {**out, "input_repair": False}
 
 
