@@ -242,6 +242,10 @@ def test_cholmod_analyses_a_pattern_once_and_refactorises_its_values() -> None:
         x_lu = SymmetricFactor("scipy").factor(A).solve(b)
         assert np.abs(x - x_lu).max() <= 1e-10 * np.abs(x_lu).max()
         assert np.abs(A @ F.solve(b[:, 1]) - b[:, 1]).max() <= 1e-11 * np.abs(b).max()
+        one = F.solve(b[:, :1])  # an (n, 1) right-hand side keeps its shape and owns its memory
+        F.solve(b)
+        assert one.shape == (b.shape[0], 1) and one.flags.owndata
+        assert np.abs(A @ one - b[:, :1]).max() <= 1e-11 * np.abs(b).max()
 
     for simplicial in (False, True):
         F = SymmetricFactor("cholmod", simplicial=simplicial)

@@ -108,7 +108,7 @@ def one_blas_thread() -> Iterator[None]:
         _OPENBLAS.openblas_set_num_threads(n)
 
 class _Sparse(ctypes.Structure):
-    """CHOLMOD's ``cholmod_sparse`` (a compressed-column matrix; the layout of CHOLMOD 2-5)."""
+    """CHOLMOD's ``cholmod_sparse`` (a compressed-column matrix; the layout of CHOLMOD 2-5, SuiteSparse 4-7)."""
 
     _fields_ = [("nrow", ctypes.c_size_t), ("ncol", ctypes.c_size_t), ("nzmax", ctypes.c_size_t),
                 ("p", ctypes.c_void_p), ("i", ctypes.c_void_p), ("nz", ctypes.c_void_p), ("x", ctypes.c_void_p),
@@ -270,30 +270,23 @@ class SymmetricFactor:
         642-vertex sphere, its third step); the union keeps the analysis of the operators' structural pattern.
         """
         n = self._n
-        last = self._embedded
-        if last is not None and all(map(np.array_equal, last[:2], (indptr, indices))):
-            full = np.zeros(self._pattern[1].size)
-            full[last[2]] = data
-            return *self._pattern, full, True
-        keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr)) * n + indices  # column-major: sorted
         if self._pattern is None or self._pattern[0].size != n + 1:
             return indptr.copy(), indices.copy(), data, False
-        old = np.repeat(np.arange(n, dtype=np.int64), np.diff(self._pattern[0])) * n + self._pattern[1]
-        pos = np.minimum(np.searchsorted(old, keys), old.size - 1)
-        analysed = bool(np.array_equal(old[pos], keys))
-        if analysed:
-            self._embedded = (indptr.copy(), indices.copy(), pos)  # the positions of the pattern met last
-        if not analysed:
-            old = np.sort(np.concatenate([old, keys]), kind="stable")  # two sorted runs: a merge
-            old = old[np.r_[True, old[1:] != old[:-1]]]
-            pos = np.searchsorted(old, keys)
-        full = np.zeros(old.size)
-        full[pos] = data
-        if analysed:
-            return *self._pattern, full, True
-        cols, rows = np.divmod(old, n)
-        indptr = np.searchsorted(cols, np.arange(n + 1)).astype(np.int32)
-        return indptr, rows.astype(np.int32), full, False
+        last = self._embedded
+        if last is None or not all(map(np.array_equal, last[:2], (indptr, indices))):
+            keys, analysed = _keys(indptr, indices), _keys(*self._pattern)
+            pos = np.minimum(np.searchsorted(analysed, keys), analysed.size - 1)
+            if not np.array_equal(analysed[pos], keys):  # new entries: the union, analysed anew
+                union = np.sort(np.concatenate([analysed, keys]), kind="stable")  # two sorted runs: a merge
+                union = union[np.r_[True, union[1:] != union[:-1]]]
+                cols, rows = np.divmod(union, n)
+                full = np.zeros(union.size)
+                full[np.searchsorted(union, keys)] = data
+                return np.searchsorted(cols, np.arange(n + 1)).astype(np.int32), rows.astype(np.int32), full, False
+            last = self._embedded = (indptr.copy(), indices.copy(), pos)  # the positions of the pattern met last
+        full = np.zeros(self._pattern[1].size)
+        full[last[2]] = data
+        return *self._pattern, full, True
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """A^-1 b for b of shape (n,) or (n, k)."""
@@ -309,9 +302,15 @@ class SymmetricFactor:
             raise MemoryError(f"CHOLMOD could not solve with a {self._n} x {self._n} factor")
         try:
             x = np.ctypeslib.as_array(ctypes.cast(X.contents.x, ctypes.POINTER(ctypes.c_double)), (k, self._n)).T
-            return x.reshape(b.shape).copy() if b.ndim == 1 else np.ascontiguousarray(x)
+            return x.reshape(b.shape).copy()  # a copy in C order: CHOLMOD's array is freed below
         finally:
             _Cholmod.cholmod_free_dense(ctypes.byref(X), self._common)
+
+
+def _keys(indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """(nnz,) int64 keys col * n + row of a compressed-column pattern with sorted rows: sorted, unique."""
+    n = indptr.size - 1
+    return np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr)) * n + indices
 
 
 def _free_factor(factor: ctypes.c_void_p, common: Any) -> None:
