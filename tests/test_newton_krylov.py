@@ -304,6 +304,45 @@ def test_cholmod_solves_run_on_one_blas_thread_whatever_the_process_count(monkey
     assert np.abs(A @ x[2] - b).max() <= 1e-11 * np.abs(b).max()
 
 
+def test_numpy_and_scipy_blas_run_on_one_thread_during_a_solve_and_cholmods_keeps_its_count(monkeypatch) -> None:
+    """newton-krylov's solve runs with numpy's and scipy's BLAS on one thread (their idle threads spinning after a
+    vector product slowed CHOLMOD's two-thread refactorisations of M + tt L 5-7x on this 2-core machine): seen
+    from inside a solve every library threadpoolctl controls has one thread, CHOLMOD's OpenBLAS (CasADi's) keeps
+    the process count, and the counts are as before after the solve."""
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    from willmore_nlp.solvers import cholesky
+
+    lib = cholesky._OPENBLAS
+    if lib is None or cholesky._Cholmod is None:
+        pytest.skip("CHOLMOD does not run on CasADi's OpenBLAS here")
+    before = {d["filepath"]: d["num_threads"] for d in threadpoolctl.threadpool_info() if d["user_api"] == "blas"}
+    assert before, "threadpoolctl finds numpy's BLAS"
+    assert not any("casadi" in path for path in before)
+    saved = lib.openblas_get_num_threads()
+    lib.openblas_set_num_threads(2)
+    seen = []
+    real = StepEvaluator.f_grad
+
+    def f_grad(self, z, p):
+        seen.append(({d["num_threads"] for d in threadpoolctl.threadpool_info() if d["user_api"] == "blas"},
+                     lib.openblas_get_num_threads()))
+        return real(self, z, p)
+
+    monkeypatch.setattr(StepEvaluator, "f_grad", f_grad)
+    try:
+        mesh = shapes.icosphere(1)
+        flow = WillmoreFlow(mesh.with_vertices(mesh.vertices * [1.0, 1.0, 1.3]), 0.05, 0.01,
+                            solver="newton-krylov", mesh_control="off")
+        assert flow.step().converged
+        after = lib.openblas_get_num_threads()
+    finally:
+        lib.openblas_set_num_threads(saved)
+    assert seen and all(s == ({1}, 2) for s in seen)
+    assert after == 2
+    assert before == {d["filepath"]: d["num_threads"] for d in threadpoolctl.threadpool_info()
+                      if d["user_api"] == "blas"}
+
+
 def test_stale_preconditioner_is_rebuilt_and_steps_agree() -> None:
     """A CG solve with a preconditioner built at another point that reaches ``cg_stale`` iterations restarts
     with B rebuilt at the current point: with cg_stale=2 the rule fires (more builds than with the default),

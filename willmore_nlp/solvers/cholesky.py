@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import threadpoolctl
 
 from willmore_nlp.errors import UserInputError
 
@@ -106,6 +107,24 @@ def one_blas_thread() -> Iterator[None]:
         yield
     finally:
         _OPENBLAS.openblas_set_num_threads(n)
+
+@contextmanager
+def other_blas_one_thread() -> Iterator[None]:
+    """Run the block with numpy's and scipy's BLAS libraries on one thread; CHOLMOD's (:data:`BLAS`) keeps its count.
+
+    numpy and scipy ship OpenBLAS builds of their own beside the one CHOLMOD runs on (CasADi's). After a threaded
+    call, and numpy's dot of two vectors of more than 10,000 entries is one, OpenBLAS's idle worker threads spin for
+    a while before they sleep; on a machine with no more cores than threads they hold the core that CHOLMOD's second
+    thread needs. Measured on this 2-core machine: a numeric refactorisation of M + tt L at 10,242 vertices
+    0.013-0.017 s on its own, 0.09-0.12 s right after a 400 x 400 numpy product; in newton-krylov's steps 2-3 at
+    10,242 vertices the 6-7 such refactorisations took 0.32-0.47 s per step, 0.10 s with numpy's and scipy's BLAS on
+    one thread (and B's 0.56-0.60 s, 0.40-0.48 s). The vector operations of CG gain nothing from threads.
+    threadpoolctl finds those libraries by their file names (CasADi's ``libcasadi-tp-openblas`` is not among them,
+    tested).
+    """
+    with threadpoolctl.threadpool_limits(limits=1, user_api="blas"):
+        yield
+
 
 class _Sparse(ctypes.Structure):
     """CHOLMOD's ``cholmod_sparse`` (a compressed-column matrix; the layout of CHOLMOD 2-5, SuiteSparse 4-7)."""

@@ -88,7 +88,14 @@ from willmore_nlp.mesh.topology import edge_lengths, unique_edges
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.settings import integer, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
-from willmore_nlp.solvers.cholesky import BACKENDS, BLAS, FullFactor, KronFactor, SymmetricFactor
+from willmore_nlp.solvers.cholesky import (
+    BACKENDS,
+    BLAS,
+    FullFactor,
+    KronFactor,
+    SymmetricFactor,
+    other_blas_one_thread,
+)
 from willmore_nlp.solvers.ipopt import SolveMonitor
 from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, _Point
 
@@ -392,7 +399,12 @@ class NewtonKrylovSolver(ReducedSolver):
         return d, bool(delta)
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
-        """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used)."""
+        """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used); numpy's and
+        scipy's BLAS on one thread meanwhile (:func:`~willmore_nlp.solvers.cholesky.other_blas_one_thread`)."""
+        with other_blas_one_thread():
+            return self._solve(z0, p)
+
+    def _solve(self, z0: np.ndarray, p: np.ndarray) -> SolveResult:
         t0 = time.perf_counter()
         self._counts, self._times = {}, {}
         P = self.P
