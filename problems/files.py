@@ -44,6 +44,11 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     they end at R/r 1.420-1.425, t = 1.2-2.1, no failed step (mesh_quality.md, "To 150 steps"); a volume or area
     constraint turns the problem's gauge off (:meth:`~willmore_nlp.registry.Problem.effective_options`).
     ``--set tangential_weight=1 --set conformal_gauge=false`` is the paper's scheme.
+
+    The surface step sizes this problem chooses (tau = h, tau_tilde = h^2 / 100; not those given) are those of
+    the mesh the flow runs on: when ``input_repair`` remeshes the input they follow its mean edge
+    (``steps_from_h``; a 128-vertex washer repaired to 1,401 vertices with ``remesh_target = 0.08`` had run with
+    tau = 4.8 h and tau_tilde = 0.23 h^2 of its own mesh, and its first step failed 7 times, 462 s).
     """
     if not path:
         raise ProblemError("problem 'file' needs path=... (a mesh file)")
@@ -60,6 +65,9 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     elif mesh.d == 2 and euler_characteristic(mesh.simplices) <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True)
+    if mesh.d == 2:  # tau = h and tau_tilde = h^2/100 of the mesh flowed, also when input_repair remeshes it
+        chosen = [name for name, given in (("tau", tau), ("tau_tilde", tau_tilde)) if given is None]
+        options["steps_from_h"] = "both" if len(chosen) == 2 else (chosen[0] if chosen else "none")
     h = mesh.h
     tt_factor = 0.25 if mesh.d == 1 else 0.01
     return Problem(mesh, h if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,

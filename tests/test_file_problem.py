@@ -35,7 +35,8 @@ def test_raw_capsule_takes_its_first_step_within_the_file_problems_retries(tmp_p
     assert repaired.state().remeshed.endswith("remesh") and repaired.state().quality["min_angle"] > 30
     w0 = repaired.discrete_energy(repaired.X)
     first = repaired.step()
-    assert first.retries == 0 and first.tau == pb.tau and first.energy < w0
+    # tau = h of the mesh flowed (the repaired one: steps_from_h), not of the input
+    assert first.retries == 0 and first.tau == repaired.tau == repaired.mesh.h != pb.tau and first.energy < w0
 
 
 def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tmp_path) -> None:
@@ -94,6 +95,68 @@ def test_a_file_torus_run_from_before_the_gauge_default_resumes_without_it(tmp_p
                         "--quiet"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     a, b = load_run(ref).states, load_run(old).states
+    assert len(a) == len(b) == 3
+    for sa, sb in zip(a, b, strict=True):
+        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)
+
+
+def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None:
+    """tau = h and tau_tilde = h^2 / 100, chosen by the ``file`` problem, are those of the mesh the flow runs on
+    (``steps_from_h``): a 128-vertex trimesh washer (square section, 4.7 deg) remeshed by ``input_repair`` toward
+    ``remesh_target = 0.12`` flows with its own h (the measured case, target 0.08, 1,401 v, had run with tau = 4.8 h
+    and tau_tilde = 0.23 h^2 and failed its first step 7 times); a tau given by the user is kept while tau_tilde
+    follows; the floor min_tau is 0.01 h^4 of the repaired mesh; ``WillmoreFlow`` itself keeps what it is given. A
+    CLI run records the step sizes it flows with, resumes bit for bit, and a run written before the option existed
+    resumes with the input's step sizes."""
+    import json
+    import subprocess
+    import sys
+
+    from willmore_nlp import WillmoreFlow
+    from willmore_nlp.mesh import Mesh
+    from willmore_nlp.rundir import load_run
+    from willmore_nlp.runner import stored_control
+
+    washer = trimesh.creation.annulus(r_min=0.3, r_max=1.0, height=0.3, sections=32)
+    washer.export(tmp_path / "washer.obj")
+    path = str(tmp_path / "washer.obj")
+    pb, _ = registry.build("file", path=path)
+    h0 = pb.mesh.h
+    assert pb.tau == h0 and pb.flow_options["steps_from_h"] == "both"
+    with pytest.warns(UserWarning, match=r"follow the repaired mesh's \(h 0.3825 -> 0.1"):
+        flow = pb.make_flow(remesh_target=0.12)
+    h = flow.mesh.h
+    assert flow.mesh.n_vertices > 3 * pb.mesh.n_vertices and h < 0.4 * h0
+    assert flow.tau == pytest.approx(h, rel=1e-12) and flow.tau_tilde == pytest.approx(h * h / 100, rel=1e-12)
+    assert flow.min_tau == pytest.approx(1e-2 * h**4, rel=1e-12) and flow.relax_max_tau == pytest.approx(100 * h)
+    given, _ = registry.build("file", path=path, tau=0.05)
+    assert given.flow_options["steps_from_h"] == "tau_tilde"
+    kept = given.make_flow(remesh_target=0.12)
+    assert kept.mesh.n_vertices == flow.mesh.n_vertices
+    assert kept.tau == 0.05 and kept.tau_tilde == pytest.approx(h * h / 100, rel=1e-12)
+    plain = WillmoreFlow(pb.mesh, pb.tau, pb.tau_tilde, remesh_target=0.12)
+    assert plain.mesh.n_vertices == flow.mesh.n_vertices and (plain.tau, plain.tau_tilde) == (pb.tau, pb.tau_tilde)
+    assert stored_control({"effective_flow_options": {}, "input_repair": ""})["steps_from_h"] == "none"
+
+    # the CLI on a noisy capsule (repaired 258 -> 241 v, first steps at h): recorded, and resumed bit for bit
+    capsule = trimesh.creation.capsule(height=1.0, radius=0.5, count=[16, 16])
+    capsule.vertices += 0.01 * np.random.default_rng(3).standard_normal(capsule.vertices.shape)
+    capsule.export(tmp_path / "capsule.obj")
+    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "capsule.obj"), "--quiet"]
+    ref, cut = tmp_path / "ref", tmp_path / "cut"
+    for out, steps in ((ref, "2"), (cut, "1")):
+        r = subprocess.run([*cli, "--steps", steps, "--out", str(out)], capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+    cfg = json.loads((ref / "config.json").read_text())
+    run = load_run(ref)
+    h1 = Mesh(run.states[0].vertices, run.states[0].simplices).h  # the repaired initial state's mean edge
+    assert cfg["flow_steps"]["h"] == pytest.approx(h1, rel=1e-12) and cfg["flow_steps"]["tau"] == cfg["flow_steps"]["h"]
+    assert cfg["tau"] != cfg["flow_steps"]["tau"]  # the problem's (the input's h), kept for the resume check
+    assert [float(r["tau"]) for r in run.history[1:]] == [cfg["flow_steps"]["tau"]] * 2
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "--resume", str(cut), "--steps", "2",
+                        "--quiet"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    a, b = load_run(ref).states, load_run(cut).states
     assert len(a) == len(b) == 3
     for sa, sb in zip(a, b, strict=True):
         assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)

@@ -293,13 +293,6 @@ class WillmoreFlow:
 
             check_connected(mesh, "set allow_components=true to flow them together")
         _check_initial_mesh(mesh, s.min_angle, s.max_edge_ratio)
-        h = mesh.h
-        if tau_tilde > TAU_TILDE_WARN_FACTOR * h * h:
-            warnings.warn(StepSizeWarning(
-                f"tau_tilde = {tau_tilde:.3g} is {tau_tilde / (h * h):.3g} h^2 (h = {h:.3g}, the mean edge "
-                f"length): above about h^2 the step loses tangential convexity and the optimiser clusters "
-                f"nodes (docs/theory/tau_tilde.md); use tau_tilde <= h^2 and take large steps in tau instead"),
-                stacklevel=2)
         self.mesh = mesh
         self.tau, self.tau_tilde, self.lam = tau, tau_tilde, lam
         t0 = time.perf_counter()
@@ -312,11 +305,7 @@ class WillmoreFlow:
                                  "conditions or volume/area constraints")
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
         self.initial_mesh = mesh
-        self.min_tau = 1e-2 * h**4 if s.min_tau is None else s.min_tau
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
-        self.relax_max_tau = 100 * self.tau if s.relax_max_tau is None else s.relax_max_tau
-        if self.relax_max_tau < self.tau:
-            raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {s.relax_max_tau!r}")
         self.relaxed = False
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
@@ -326,6 +315,7 @@ class WillmoreFlow:
         self.input_repair = ""  # what input_repair did to the initial mesh ("": nothing)
         if self.remesh and s.input_repair:
             mesh, boundary = self._repair_input(mesh, boundary)
+        self._step_scales(mesh)
         self._variational = "variational" in solver_capabilities(s.solver)  # the semi-implicit baseline is not
         method = resolve_method(s.tangential_control, mesh, s.mesh_control, self._variational,
                                 None if boundary is None else boundary.free)
@@ -358,7 +348,7 @@ class WillmoreFlow:
         self._relax_start(geometry.willmore_energy(self.mesh, self.energy_nodes))
         self._X_prev = self.X
         # rest_tau_tilde: the scheme's drift of closed surfaces at rest (see _rest_tau_tilde)
-        self.tau_tilde_initial = tau_tilde
+        self.tau_tilde_initial = self.tau_tilde
         self._rest = (self.remesh and boundary is None and mesh.is_closed and not s.relax and not self.problem.nh
                       and s.rest_tau_tilde < 1)
         self._rest_steps = 0
@@ -792,6 +782,35 @@ class WillmoreFlow:
                       f"{q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g} (input_repair=false flows it as "
                       f"given)", stacklevel=3)
         return new, b1
+
+    def _step_scales(self, mesh: Mesh) -> None:
+        """What depends on the mean edge h of the mesh the flow runs on (``mesh``, after ``input_repair``): tau and
+        tau_tilde named by ``steps_from_h`` rescaled from the input's h (tau ~ h, tau_tilde ~ h^2; a warning says
+        so), the floor ``min_tau`` (0.01 h^4 unless given), ``relax_max_tau`` (100 tau unless given), and a warning
+        when tau_tilde exceeds about h^2."""
+        s = self.settings
+        h = mesh.h
+        ratio = h / self.initial_mesh.h
+        if ratio != 1.0 and s.steps_from_h != "none":
+            old = (self.tau, self.tau_tilde)
+            if s.steps_from_h in ("tau", "both"):
+                self.tau *= ratio
+            if s.steps_from_h in ("tau_tilde", "both"):
+                self.tau_tilde *= ratio * ratio
+            warnings.warn(f"{mesh.source}: the step sizes chosen from the input's mean edge follow the repaired "
+                          f"mesh's (h {self.initial_mesh.h:.4g} -> {h:.4g}): tau {old[0]:.4g} -> {self.tau:.4g}, "
+                          f"tau_tilde {old[1]:.4g} -> {self.tau_tilde:.4g} (steps_from_h = {s.steps_from_h!r})",
+                          stacklevel=3)
+        if self.tau_tilde > TAU_TILDE_WARN_FACTOR * h * h:
+            warnings.warn(StepSizeWarning(
+                f"tau_tilde = {self.tau_tilde:.3g} is {self.tau_tilde / (h * h):.3g} h^2 (h = {h:.3g}, the mean edge "
+                f"length): above about h^2 the step loses tangential convexity and the optimiser clusters "
+                f"nodes (docs/theory/tau_tilde.md); use tau_tilde <= h^2 and take large steps in tau instead"),
+                stacklevel=3)
+        self.min_tau = 1e-2 * h**4 if s.min_tau is None else s.min_tau
+        self.relax_max_tau = 100 * self.tau if s.relax_max_tau is None else s.relax_max_tau
+        if self.relax_max_tau < self.tau:
+            raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {s.relax_max_tau!r}")
 
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""

@@ -254,6 +254,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     cfg["environment"] = thread_environment()
     cfg["tangential_control"] = {"method": flow.tangential_control.method, "weight": flow.tangential_control.weight}
     cfg["input_repair"] = flow.input_repair
+    cfg["flow_steps"] = {"tau": flow.tau, "tau_tilde": flow.tau_tilde, "h": flow.mesh.h}  # of the mesh flowed
     with SignalGuard(ignore_late_signals) as guard:
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
         try:
@@ -267,20 +268,21 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
 
 
 def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
-    """The tangential control, conformal gauge and input repair a run directory's flow ran with, as flow options (a
-    resumed run keeps them even when the library's defaults changed): ``config.json``'s ``tangential_control``
-    entry, or, for runs written before it existed (when the default was "off" at weight 0.3), the options they gave;
-    the ``conformal_gauge`` of its effective options (false for ``file`` tori written before the problem turned it
-    on, 2026-11-27); and ``input_repair = false`` for runs written before the input repair existed (no
-    ``input_repair`` record: their initial state is the input as given, and the repair would give the flow another
-    connectivity)."""
+    """The tangential control, conformal gauge, steps_from_h and input repair a run directory's flow ran with, as flow
+    options (a resumed run keeps them even when the library's defaults changed): ``config.json``'s
+    ``tangential_control`` entry, or, for runs written before it existed (when the default was "off" at weight 0.3),
+    the options they gave; the ``conformal_gauge`` of its effective options (false for ``file`` tori written before
+    the problem turned it on, 2026-11-27) and its ``steps_from_h`` ("none" for runs written before it existed: their
+    tau and tau_tilde were the input's); and ``input_repair = false`` for runs written before the input repair
+    existed (no ``input_repair`` record: their initial state is the input as given, and the repair would give the
+    flow another connectivity)."""
     given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
     stored = cfg.get("tangential_control")
     if stored is None:
         stored = {"method": given.get("tangential_control", "off"),
                   "weight": given.get("tangential_control_weight", 0.3)}
     out = {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"],
-           "conformal_gauge": given.get("conformal_gauge", False)}
+           "conformal_gauge": given.get("conformal_gauge", False), "steps_from_h": given.get("steps_from_h", "none")}
     return out if "input_repair" in cfg else {**out, "input_repair": False}
 
 

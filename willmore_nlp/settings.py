@@ -375,6 +375,12 @@ class FlowSettings(Settings):
         warning says so; default true). That cone (770 v, 4.2 deg) failed its first step at every tau down to
         h/256 as given and flows to a sphere after it (docs/guide/mesh_quality.md). Not with an explicit clamp
         (``conormal``/``ring`` data).
+    steps_from_h : {"none", "tau", "tau_tilde", "both"}
+        Which of ``tau`` and ``tau_tilde`` were chosen from the input mesh's mean edge h (tau proportional to h,
+        tau_tilde to h^2): when ``input_repair`` changes the mesh they are rescaled to the repaired mesh's h, so
+        that they refer to the mesh the flow runs on (default "none": as given). The ``file`` problem sets it for
+        the step sizes it chose itself (tau = h, tau_tilde = h^2 / 100): a 128-vertex washer repaired to 1,401
+        vertices with ``remesh_target = 0.08`` had run with tau = 4.8 h and tau_tilde = 0.23 h^2 of its own mesh.
     remesh_min_angle : float
         Smallest patch angle (degrees) that triggers the stronger repairs (default 15). The isotropic
         remeshing comes earlier, while the repaired patch's smallest angle is below this plus its fall in
@@ -448,6 +454,7 @@ class FlowSettings(Settings):
     mesh_control: str = option("auto", one_of("auto", "off"))
     remesh: str = option("auto", one_of("auto", "off"))
     input_repair: bool = option(True, BOOL)
+    steps_from_h: str = option("none", one_of("none", "tau", "tau_tilde", "both"))
     remesh_min_angle: float = option(15.0, real(0, 60))
     remesh_max_edge_ratio: float = option(10.0, real(1, finite=False))
     remesh_target: float | None = option(None, real(0, lo_open=True, unset="the initial mean edge"))
