@@ -1,11 +1,30 @@
 """The ``file`` problem's surface defaults on a raw input mesh a user did not make for us."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
 
 from willmore_nlp import FlowError, registry
 from willmore_nlp.errors import UserInputError
+
+
+def _resume_to_two_steps_equals(cut: Path, ref: Path) -> None:
+    """Resume the one-step run directory ``cut`` to two steps with the CLI: its states equal those of the two-step
+    run ``ref`` bit for bit."""
+    import subprocess
+    import sys
+
+    from willmore_nlp.rundir import load_run
+
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "--resume", str(cut), "--steps", "2",
+                        "--quiet"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    a, b = load_run(ref).states, load_run(cut).states
+    assert len(a) == len(b) == 3
+    for sa, sb in zip(a, b, strict=True):
+        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)
 
 
 def test_raw_capsule_takes_its_first_step_within_the_file_problems_retries(tmp_path) -> None:
@@ -79,7 +98,6 @@ def test_a_file_torus_run_from_before_the_gauge_default_resumes_without_it(tmp_p
 
     from willmore_nlp.mesh import shapes
     from willmore_nlp.mesh.io import save_mesh
-    from willmore_nlp.rundir import load_run
 
     save_mesh(shapes.torus(1.0, 0.5, 16, 8), tmp_path / "torus.obj")
     cli = [sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "torus.obj"), "--quiet"]
@@ -91,13 +109,7 @@ def test_a_file_torus_run_from_before_the_gauge_default_resumes_without_it(tmp_p
     cfg = json.loads((old / "config.json").read_text())
     del cfg["flow_options"]["conformal_gauge"], cfg["effective_flow_options"]["conformal_gauge"]
     (old / "config.json").write_text(json.dumps(cfg))
-    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "--resume", str(old), "--steps", "2",
-                        "--quiet"], capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr
-    a, b = load_run(ref).states, load_run(old).states
-    assert len(a) == len(b) == 3
-    for sa, sb in zip(a, b, strict=True):
-        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)
+    _resume_to_two_steps_equals(old, ref)
 
 
 def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None:
@@ -153,10 +165,4 @@ def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None
     assert cfg["flow_steps"]["h"] == pytest.approx(h1, rel=1e-12) and cfg["flow_steps"]["tau"] == cfg["flow_steps"]["h"]
     assert cfg["tau"] != cfg["flow_steps"]["tau"]  # the problem's (the input's h), kept for the resume check
     assert [float(r["tau"]) for r in run.history[1:]] == [cfg["flow_steps"]["tau"]] * 2
-    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "--resume", str(cut), "--steps", "2",
-                        "--quiet"], capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr
-    a, b = load_run(ref).states, load_run(cut).states
-    assert len(a) == len(b) == 3
-    for sa, sb in zip(a, b, strict=True):
-        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)
+    _resume_to_two_steps_equals(cut, ref)

@@ -116,6 +116,45 @@ def clifford_nodes(V: np.ndarray) -> np.ndarray:
     return np.column_stack([ring * np.cos(phi), ring * np.sin(phi), np.sin(theta)])
 
 
+RESOLUTION_GAP = 0.03
+"""A run warns when its last state's discrete Willmore energy lies more than this fraction below the least smooth
+value of its topology (:func:`willmore_lower_bound`). The gap of an exact shape's mesh is O(h^2): the Clifford torus
+on n x n/2 grids is 13.5 / 4.4 / 1.2 / 0.30 % below 4 pi^2 for n = 12 / 24 / 48 / 96 (orders 1.63, 1.90, 1.99;
+tests/test_lower_bound.py), the 642-vertex icosphere 0.4 % below 8 pi; a 24 x 12 grid warns, a 48 x 24 one not."""
+
+
+def willmore_lower_bound(mesh: Mesh) -> tuple[float, str] | None:
+    """The least Willmore energy w = 1/2 int (k1 + k2)^2 of a smooth closed surface with the topology of ``mesh``.
+
+    8 pi for every closed surface (Willmore 1965: int H^2 >= 4 pi, H = (k1 + k2)/2, equality for round spheres
+    only) and 4 pi^2 for genus >= 1 (Marques and Neves 2014, the Willmore conjecture: int H^2 >= 2 pi^2, equality
+    for the Clifford torus and its Moebius images). A discrete energy below it measures the discretisation error
+    (the smooth flow cannot go there).
+
+    Returns
+    -------
+    (bound, label), or None for curves, surfaces with boundary and meshes of several components
+    """
+    if mesh.d != 2 or mesh.m != 3 or not mesh.is_closed or _components(mesh) != 1:
+        return None
+    chi = mesh.n_vertices - len(mesh.edges) + mesh.n_simplices
+    if chi == 2:
+        return 8 * np.pi, "8 pi, the least of any closed surface (Willmore)"
+    return 4 * np.pi**2, f"4 pi^2, the least of any closed surface of genus {(2 - chi) // 2} (Marques-Neves)"
+
+
+def resolution_warning(mesh: Mesh, willmore: float) -> str:
+    """A one-line warning when ``willmore`` (the discrete Willmore energy of ``mesh``) lies more than
+    :data:`RESOLUTION_GAP` below :func:`willmore_lower_bound`: the mesh does not resolve the shape to better than
+    that gap; "" otherwise (or when there is no bound)."""
+    bound = willmore_lower_bound(mesh)
+    if bound is None or willmore >= (1 - RESOLUTION_GAP) * bound[0]:
+        return ""
+    return (f"the Willmore energy of the last state, {willmore:.5g}, is {100 * (1 - willmore / bound[0]):.1f} % below "
+            f"{bound[1]}: on {mesh.n_vertices} vertices the discretisation error is at least that large; refine the "
+            f"mesh (the file problem: --set remesh_target=H with H below the mean edge {mesh.h:.3g})")
+
+
 def _outward(mesh: Mesh, V: np.ndarray) -> bool:
     """Whether every triangle of ``mesh`` with vertices ``V`` keeps the orientation it has in the mesh."""
     S = mesh.simplices

@@ -38,6 +38,8 @@ import numpy as np
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
 from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS
 from willmore_nlp.flow import RELAX_WINDOW, FlowError, StepInterrupted, StepResult, WillmoreFlow
+from willmore_nlp.geometry import willmore_energy
+from willmore_nlp.references import resolution_warning
 from willmore_nlp.rundir import (
     RunError,
     RunWriter,
@@ -186,6 +188,10 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
             if not quiet:
                 bar.close()
                 print(f"wrote {out} ({flow.k} steps, t = {flow.t:.6g}{'; ' + relaxed if relaxed else ''})")
+            last = flow.mesh.with_vertices(flow.X)
+            coarse = resolution_warning(last, willmore_energy(last))
+            if coarse:
+                print(f"willmore-nlp: warning: {coarse}", file=sys.stderr)
             return 0
         raise _StopRequestedError
     except (_StopRequestedError, StepInterrupted) as exc:
