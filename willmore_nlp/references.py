@@ -22,6 +22,7 @@ from scipy.sparse.csgraph import connected_components
 from willmore_nlp.analysis import polygon_equilibrium_radius
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import Mesh
+from willmore_nlp.mesh.topology import euler_characteristic
 from willmore_nlp.mesh.validate import face_normals
 
 
@@ -137,7 +138,7 @@ def willmore_lower_bound(mesh: Mesh) -> tuple[float, str] | None:
     """
     if mesh.d != 2 or mesh.m != 3 or not mesh.is_closed or _components(mesh) != 1:
         return None
-    chi = mesh.n_vertices - len(mesh.edges) + mesh.n_simplices
+    chi = euler_characteristic(mesh.simplices)
     if chi == 2:
         return 8 * np.pi, "8 pi, the least of any closed surface (Willmore)"
     return 4 * np.pi**2, f"4 pi^2, the least of any closed surface of genus {(2 - chi) // 2} (Marques-Neves)"
@@ -206,7 +207,7 @@ def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,
         return [Reference("willmore_energy", "pi / R(t), R(t) = (R0^4 + 2t)^(1/4)", np.pi / R, w1 / R,
                           f"regular {mesh.n_vertices}-gon of radius R(t)"),
                 Reference("radius", "R(t) = (R0^4 + 2t)^(1/4)", R)], "expanding circle"
-    chi = mesh.n_vertices - len(mesh.edges) + mesh.n_simplices
+    chi = euler_characteristic(mesh.simplices)
     if chi == 2:
         target, smooth, label, what = sphere_nodes(V), 8 * np.pi, "8 pi (round sphere)", "sphere"
     elif chi == 0:

@@ -108,6 +108,7 @@ def one_blas_thread() -> Iterator[None]:
     finally:
         _OPENBLAS.openblas_set_num_threads(n)
 
+
 @contextmanager
 def other_blas_one_thread() -> Iterator[None]:
     """Run the block with numpy's and scipy's BLAS libraries on one thread; CHOLMOD's (:data:`BLAS`) keeps its count.
