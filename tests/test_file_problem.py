@@ -10,6 +10,14 @@ from willmore_nlp import FlowError, registry
 from willmore_nlp.errors import UserInputError
 
 
+def _noisy_capsule(tmp_path: Path) -> str:
+    """Path of an OBJ of a trimesh capsule (count 16 x 16, 258 v) with normal noise of 1 % of its radius (seed 3)."""
+    capsule = trimesh.creation.capsule(height=1.0, radius=0.5, count=[16, 16])
+    capsule.vertices += 0.01 * np.random.default_rng(3).standard_normal(capsule.vertices.shape)
+    capsule.export(tmp_path / "capsule.obj")
+    return str(tmp_path / "capsule.obj")
+
+
 def _resume_to_two_steps_equals(cut: Path, ref: Path) -> None:
     """Resume the one-step run directory ``cut`` to two steps with the CLI: its states equal those of the two-step
     run ``ref`` bit for bit."""
@@ -35,10 +43,7 @@ def test_raw_capsule_takes_its_first_step_within_the_file_problems_retries(tmp_p
     again (back at h by step 19 of a 20-step run). With the default ``input_repair`` the mesh is remeshed before the
     first step (flips and remeshing, 258 -> 241 v, 42.9 deg, the vertices on the input's triangles) and the first
     step is taken at h without a retry."""
-    capsule = trimesh.creation.capsule(height=1.0, radius=0.5, count=[16, 16])
-    capsule.vertices += 0.01 * np.random.default_rng(3).standard_normal(capsule.vertices.shape)
-    capsule.export(tmp_path / "capsule.obj")
-    pb, _ = registry.build("file", path=str(tmp_path / "capsule.obj"))
+    pb, _ = registry.build("file", path=_noisy_capsule(tmp_path))
     assert pb.flow_options["max_retries"] == 8
     with pytest.raises(FlowError, match="failed after 4 retries"):
         pb.make_flow(max_retries=4, input_repair=False).step()
@@ -151,10 +156,7 @@ def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None
     assert stored_control({"effective_flow_options": {}, "input_repair": ""})["steps_from_h"] == "none"
 
     # the CLI on a noisy capsule (repaired 258 -> 241 v, first steps at h): recorded, and resumed bit for bit
-    capsule = trimesh.creation.capsule(height=1.0, radius=0.5, count=[16, 16])
-    capsule.vertices += 0.01 * np.random.default_rng(3).standard_normal(capsule.vertices.shape)
-    capsule.export(tmp_path / "capsule.obj")
-    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "capsule.obj"), "--quiet"]
+    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", _noisy_capsule(tmp_path), "--quiet"]
     ref, cut = tmp_path / "ref", tmp_path / "cut"
     for out, steps in ((ref, "2"), (cut, "1")):
         r = subprocess.run([*cli, "--steps", steps, "--out", str(out)], capture_output=True, text=True, timeout=600)

@@ -44,8 +44,8 @@ def test_a_run_that_ends_below_the_bound_says_the_mesh_is_too_coarse(tmp_path) -
     r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "t12.obj"), "--steps", "3",
                         "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
-    last = load_run(out).states[-1]
-    w = float(load_run(out).history[-1]["willmore_energy"])
+    run = load_run(out)
+    last, w = run.states[-1], float(run.history[-1]["willmore_energy"])
     gap = 1 - w / (4 * np.pi**2)
     assert gap > RESOLUTION_GAP
     lines = [line for line in r.stderr.splitlines() if "discretisation error" in line]
