@@ -7,6 +7,11 @@ from willmore_nlp.mesh.io import load_mesh
 from willmore_nlp.mesh.topology import euler_characteristic
 from willmore_nlp.registry import Problem, ProblemError, register
 
+FIRST_STEP_BUDGET = 30
+"""IPOPT iterations of a surface's first-step attempt before it is cut and retried at tau/2 (the flow's default is
+100; 30 is ``iteration_budget_min``, the floor of every later step's budget). With ``adaptive`` steps an attempt cut
+early costs little: the step continues from the step size that worked and grows back."""
+
 
 @register("file")
 def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None = None,
@@ -24,7 +29,10 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     with ``input_repair = false``: every attempt from h to h/16 failed, the 100-iteration budget or a collapsed
     edge, and the run stopped after the default 4 retries; h/128 converges in 16 iterations and the adaptive steps
     are back at h by step 19; the default ``input_repair`` remeshes it before step 0, 241 v and 42.9 deg, and the
-    first step is taken at h without a retry). Curves: tau_tilde = h^2 / 4, fixed tau.
+    first step is taken at h without a retry), and ``first_step_budget = 30`` (:data:`FIRST_STEP_BUDGET`; the
+    failing first attempts of tori and creased inputs do not converge however long they run: step 1 of a 48x24 grid
+    torus 117 -> 36 s, of the Lawson genus-2 surface 164 -> 48 s, the same trajectories; docs/guide/mesh_quality.md,
+    "Noisy inputs: the first step"). Curves: tau_tilde = h^2 / 4, fixed tau.
 
     A mesh with a boundary needs ``clamp``: its outermost strip of simplices (every simplex with a
     vertex on the mesh boundary) is held fixed and clamps the rest, position and tangent plane
@@ -55,7 +63,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     if clamp and clamp not in VARIANTS:
         raise ProblemError(f"problem 'file': clamp must be one of {', '.join(VARIANTS)} (or empty), got {clamp!r}")
     mesh = load_mesh(path)
-    options: dict[str, object] = {"adaptive": True, "max_retries": 8} if mesh.d == 2 else {}
+    options: dict[str, object] = ({"adaptive": True, "max_retries": 8, "first_step_budget": FIRST_STEP_BUDGET}
+                                  if mesh.d == 2 else {})
     if clamp:
         options["boundary"] = Boundary.outer_strip(mesh, clamp)
         if mesh.d == 2:

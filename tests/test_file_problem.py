@@ -66,9 +66,9 @@ def test_raw_capsule_takes_its_first_step_within_the_file_problems_retries(tmp_p
 def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tmp_path) -> None:
     """A torus read from a file gets the ``torus`` problem's ``tangential_weight = 10`` and ``conformal_gauge`` (a
     sphere keeps the paper's 1 and no gauge; the gauge yields to a volume constraint):
-    its first step at tau = h fights the scheme's tangential descent with weight 1 (IPOPT cut at the 100-iteration
-    first-step budget at h, h/2, h/4 and h/8, taken at h/16: measured 4 retries, 400 rejected iterations on this
-    16x8 grid torus) and is taken at h/4 after 2 with weight 10."""
+    its first step at tau = h fights the scheme's tangential descent with weight 1 (IPOPT cut at the problem's
+    30-iteration first-step budget at h, h/2, h/4 and h/8, taken at h/16: measured 4 retries, 120 rejected iterations
+    on this 16x8 grid torus; 400 with the flow's default budget of 100) and is taken at h/4 after 2 with weight 10."""
     from willmore_nlp.mesh import shapes
     from willmore_nlp.mesh.io import save_mesh
 
@@ -83,12 +83,15 @@ def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tm
     with pytest.raises(UserInputError, match="conformal_gauge=True is for closed surfaces"):
         pb.make_flow(volume="initial", conformal_gauge=True)
     out = {}
+    budget = registry.problem_module("files").FIRST_STEP_BUDGET
     for weight in (1.0, None):
         flow = pb.make_flow() if weight is None else pb.make_flow(tangential_weight=weight)
         w0 = flow.discrete_energy(flow.X)
         first = flow.step()
         assert first.energy < w0
         out[weight] = (first.retries, first.stats["rejected_iterations"], first.tau / pb.tau)
+        assert flow.settings.first_step_budget == budget == 30
+        assert 0 < first.stats["rejected_iterations"] <= budget * first.retries  # every cut at the budget
     assert out[None][0] < out[1.0][0] and out[None][1] < out[1.0][1] and out[None][2] > out[1.0][2]
 
 
