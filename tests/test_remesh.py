@@ -17,7 +17,7 @@ from willmore_nlp.analysis import fit_order, torus_distance, torus_grid_asymmetr
 from willmore_nlp.boundary import boundary_data
 from willmore_nlp.export import export_run
 from willmore_nlp.mesh import shapes
-from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.core import Mesh, MeshError
 
 
 def _jittered_sphere(amp: float, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -422,6 +422,25 @@ def test_input_repair_remeshes_a_poor_input_on_its_own_polyhedron() -> None:
     ico = shapes.icosphere(2)
     assert WillmoreFlow(ico, ico.h, ico.h**2 / 100).mesh is ico
 
+
+
+def test_the_step_limits_are_checked_after_the_input_repair() -> None:
+    """An input beyond the limits every step must keep (``max_edge_ratio``, ``min_angle``) is flowed when the input
+    repair brings it within them (a trimesh capsule of count 64 subdivided once has pole fans with edge ratio 1.97e3
+    > 1000 and was refused; repaired: 2.66); refused as before without the repair, and when the repaired mesh is
+    still beyond them (the message says so). The capsule of count 32 (edge ratio 105) with the limit lowered to 50
+    stands for them."""
+    c = trimesh.creation.capsule(height=1.0, radius=0.5, count=[32, 32])
+    capsule = Mesh(c.vertices, c.faces, "capsule")
+    with pytest.warns(UserWarning, match="repaired before the first step"):
+        flow = WillmoreFlow(capsule, capsule.h, capsule.h**2 / 100, max_edge_ratio=50)
+    ell = flow.mesh.edge_lengths()
+    assert flow.input_repair and ell.max() / ell.min() < 50
+    with pytest.raises(MeshError, match=r"^capsule: longest/shortest edge = 105 exceeds max_edge_ratio = 50.*remesh"):
+        WillmoreFlow(capsule, capsule.h, capsule.h**2 / 100, max_edge_ratio=50, input_repair=False)
+    with (pytest.warns(UserWarning, match="repaired before the first step"),
+          pytest.raises(MeshError, match=r"^capsule \(after input_repair's remesh\): .* exceeds max_edge_ratio = 1.5")):
+        WillmoreFlow(capsule, capsule.h, capsule.h**2 / 100, max_edge_ratio=1.5)
 
 def test_input_repair_keeps_the_inputs_volume_target() -> None:
     """``volume = "initial"`` is the input's enclosed volume also when ``input_repair`` remeshed it: the repaired

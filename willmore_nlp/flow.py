@@ -207,8 +207,8 @@ class StepResult:
         return r
 
 
-def _check_initial_mesh(mesh: Mesh, min_angle: float, max_edge_ratio: float) -> None:
-    """Refuse an initial mesh the flow cannot work on, naming the simplex (MeshError)."""
+def _check_scale(mesh: Mesh) -> None:
+    """Refuse an initial mesh too wide for the solvers' absolute tolerances (MeshError); warn when it is tiny."""
     size = float(np.ptp(mesh.vertices, axis=0).max())
     if size > MAX_MESH_SIZE:
         raise MeshError(f"{mesh.source}: the mesh is {size:.3g} wide, beyond {MAX_MESH_SIZE:g} where the solver's "
@@ -218,17 +218,24 @@ def _check_initial_mesh(mesh: Mesh, min_angle: float, max_edge_ratio: float) -> 
         warnings.warn(f"{mesh.source}: the mesh is only {size:.3g} wide: IPOPT's absolute tolerance (tol) is then met "
                       f"by steps that barely move; rescale it to a size about 1 (X -> X/L takes t -> t/L^4)",
                       stacklevel=3)
+
+
+def _check_quality(mesh: Mesh, min_angle: float, max_edge_ratio: float, repaired: str) -> None:
+    """Refuse an initial mesh (after ``input_repair``, which did ``repaired``: "" for nothing) whose edge ratio or
+    smallest angle is beyond the limits every step must keep, naming the simplex (MeshError)."""
+    where = f"{mesh.source} (after input_repair's {repaired})" if repaired else mesh.source
+    hint = "" if repaired else "remesh, or "
     ell = mesh.edge_lengths()
     if ell.max() / ell.min() > max_edge_ratio:
-        raise MeshError(f"{mesh.source}: longest/shortest edge = {ell.max() / ell.min():.3g} exceeds max_edge_ratio = "
-                        f"{max_edge_ratio:g}, which every step must keep: remesh, or raise max_edge_ratio")
+        raise MeshError(f"{where}: longest/shortest edge = {ell.max() / ell.min():.3g} exceeds max_edge_ratio = "
+                        f"{max_edge_ratio:g}, which every step must keep: {hint}raise max_edge_ratio")
     if mesh.d == 2:
         ang = geometry.min_angles(mesh.vertices, mesh.simplices)
         k = int(np.argmin(ang))
         if ang[k] < min_angle:
-            raise MeshError(f"{mesh.source}: triangle {k} (vertices {mesh.simplices[k].tolist()}) has an angle of "
+            raise MeshError(f"{where}: triangle {k} (vertices {mesh.simplices[k].tolist()}) has an angle of "
                             f"{ang[k]:.3g} degrees, below min_angle = {min_angle:g} that every step must keep: "
-                            f"remesh, or lower min_angle")
+                            f"{hint}lower min_angle")
 
 
 def _improves(before: dict[str, float], after: dict[str, float]) -> bool:
@@ -292,7 +299,7 @@ class WillmoreFlow:
             from willmore_nlp.mesh.topology import check_connected
 
             check_connected(mesh, "set allow_components=true to flow them together")
-        _check_initial_mesh(mesh, s.min_angle, s.max_edge_ratio)
+        _check_scale(mesh)
         self.mesh = mesh
         self.tau, self.tau_tilde, self.lam = tau, tau_tilde, lam
         t0 = time.perf_counter()
@@ -315,6 +322,7 @@ class WillmoreFlow:
         self.input_repair = ""  # what input_repair did to the initial mesh ("": nothing)
         if self.remesh and s.input_repair:
             mesh, boundary = self._repair_input(mesh, boundary)
+        _check_quality(mesh, s.min_angle, s.max_edge_ratio, self.input_repair)  # the limits every step must keep
         self._step_scales(mesh)
         self._variational = "variational" in solver_capabilities(s.solver)  # the semi-implicit baseline is not
         method = resolve_method(s.tangential_control, mesh, s.mesh_control, self._variational,
