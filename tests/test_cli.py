@@ -121,15 +121,19 @@ def test_bad_meshes_are_one_line_errors(tmp_path, case: str, capsys) -> None:
     elif case == "beyond_1e150":
         np.savez(f, vertices=e.vertices * 1e155, simplices=e.simplices)
         want = "has a coordinate beyond 1e+150"
-    else:
+    else:  # flowed as given: the input repair would flip the sliver away (below)
         m = _sliver_sphere()
         np.savez(f, vertices=m.vertices, simplices=m.simplices)
         want = "triangle 0 (vertices"
     out = tmp_path / "run"
-    assert cli.main(["run", str(f), "--out", str(out), "--steps", "1", "--quiet"]) == 2
+    as_given = ["--set", "input_repair=false"] if case == "sliver" else []
+    assert cli.main(["run", str(f), "--out", str(out), "--steps", "1", "--quiet", *as_given]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and want in err and str(f) in err, err
     assert not out.exists()
+    if case == "sliver":  # the limits every step must keep are checked after the input repair
+        assert cli.main(["run", str(f), "--out", str(out), "--steps", "1", "--quiet"]) == 0
+        assert "repaired before the first step by flips" in capsys.readouterr().err
 
 
 def test_compiler_errors_are_one_line_errors(tmp_path, monkeypatch, capsys) -> None:
