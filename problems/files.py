@@ -6,11 +6,12 @@ from willmore_nlp.boundary import VARIANTS, Boundary
 from willmore_nlp.mesh.io import load_mesh
 from willmore_nlp.mesh.topology import euler_characteristic
 from willmore_nlp.registry import Problem, ProblemError, register
+from willmore_nlp.settings import FlowSettings
 
-FIRST_STEP_BUDGET = 30
-"""IPOPT iterations of a surface's first-step attempt before it is cut and retried at tau/2 (the flow's default is
-100; 30 is ``iteration_budget_min``, the floor of every later step's budget). With ``adaptive`` steps an attempt cut
-early costs little: the step continues from the step size that worked and grows back."""
+FIRST_STEP_BUDGET = FlowSettings().iteration_budget_min
+"""IPOPT iterations of a surface's first-step attempt before it is cut and retried at tau/2: ``iteration_budget_min``
+(30), the floor of every later step's budget (the flow's own first-step default is 100). With ``adaptive`` steps an
+attempt cut early costs little: the step continues from the step size that worked and grows back."""
 
 
 @register("file")

@@ -423,7 +423,6 @@ def test_input_repair_remeshes_a_poor_input_on_its_own_polyhedron() -> None:
     assert WillmoreFlow(ico, ico.h, ico.h**2 / 100).mesh is ico
 
 
-
 def test_the_step_limits_are_checked_after_the_input_repair() -> None:
     """An input beyond the limits every step must keep (``max_edge_ratio``, ``min_angle``) is flowed when the input
     repair brings it within them (a trimesh capsule of count 64 subdivided once has pole fans with edge ratio 1.97e3
@@ -441,6 +440,7 @@ def test_the_step_limits_are_checked_after_the_input_repair() -> None:
     with (pytest.warns(UserWarning, match="repaired before the first step"),
           pytest.raises(MeshError, match=r"^capsule \(after input_repair's remesh\): .* exceeds max_edge_ratio = 1.5")):
         WillmoreFlow(capsule, capsule.h, capsule.h**2 / 100, max_edge_ratio=1.5)
+
 
 def test_input_repair_keeps_the_inputs_volume_target() -> None:
     """``volume = "initial"`` is the input's enclosed volume also when ``input_repair`` remeshed it: the repaired
