@@ -13,6 +13,13 @@ FIRST_STEP_BUDGET = FlowSettings().iteration_budget_min
 (30), the floor of every later step's budget (the flow's own first-step default is 100). With ``adaptive`` steps an
 attempt cut early costs little: the step continues from the step size that worked and grows back."""
 
+NEWTON_KRYLOV_FROM = 500
+"""Surfaces of at least this many vertices (as read) flow with ``solver = "newton-krylov"`` after an IPOPT first step
+(``first_step_solver = "ipopt"``). Measured on 13 users' closed surfaces of 106-2,562 vertices and a clamped noisy cap
+of 2,091, 20 steps each (docs/guide/performance.md, "The default for large files"): the same step sizes and retries as
+IPOPT on all but one, steps 2-20 1.9-5.0x faster from 550 vertices, 1.4-1.5x below 400 (where a step costs under half a
+second); newton-krylov alone fails the first step of noisy inputs that IPOPT takes."""
+
 
 @register("file")
 def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None = None,
@@ -33,7 +40,10 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     first step is taken at h without a retry), and ``first_step_budget = 30`` (:data:`FIRST_STEP_BUDGET`; the
     failing first attempts of tori and creased inputs do not converge however long they run: step 1 of a 48x24 grid
     torus 117 -> 36 s, of the Lawson genus-2 surface 164 -> 48 s, the same trajectories; docs/guide/mesh_quality.md,
-    "Noisy inputs: the first step"). Curves: tau_tilde = h^2 / 4, fixed tau.
+    "Noisy inputs: the first step"). A surface of at least :data:`NEWTON_KRYLOV_FROM` (500) vertices gets
+    ``solver = "newton-krylov"`` after an IPOPT first step (``first_step_solver = "ipopt"``): the same trajectories
+    on the measured inputs, 2-5x faster (``--set solver=ipopt`` runs every step with IPOPT). Curves: tau_tilde =
+    h^2 / 4, fixed tau.
 
     A mesh with a boundary needs ``clamp``: its outermost strip of simplices (every simplex with a
     vertex on the mesh boundary) is held fixed and clamps the rest, position and tangent plane
@@ -75,6 +85,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     elif mesh.d == 2 and euler_characteristic(mesh.simplices) <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True)
+    if mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
+        options.update(solver="newton-krylov", first_step_solver="ipopt")
     if mesh.d == 2:  # tau = h and tau_tilde = h^2/100 of the mesh flowed, also when input_repair remeshes it
         chosen = [name for name, given in (("tau", tau), ("tau_tilde", tau_tilde)) if given is None]
         options["steps_from_h"] = "both" if len(chosen) == 2 else (chosen[0] if chosen else "none")

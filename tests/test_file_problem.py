@@ -171,3 +171,53 @@ def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None
     assert cfg["tau"] != cfg["flow_steps"]["tau"]  # the problem's (the input's h), kept for the resume check
     assert [float(r["tau"]) for r in run.history[1:]] == [cfg["flow_steps"]["tau"]] * 2
     _resume_to_two_steps_equals(cut, ref)
+
+
+def test_large_file_surfaces_take_newton_krylov_steps_after_an_ipopt_first_step(tmp_path) -> None:
+    """A closed surface of at least ``NEWTON_KRYLOV_FROM`` vertices (a trimesh icosphere(3), 642 v, noise 0.2 % of
+    its radius) flows with newton-krylov after an IPOPT first step (history's ``solver`` column), clamped ones too,
+    smaller ones with IPOPT; ``--set solver=...`` runs every step with that solver. A run cut after its IPOPT step
+    resumes with newton-krylov bit for bit, and a run of the same file written before the choice existed (no
+    solver in its config.json) resumes with IPOPT, as it ran: 1 + 1 steps equal 2 steps of ``solver=ipopt``."""
+    import json
+    import subprocess
+    import sys
+
+    from willmore_nlp._problems.files import NEWTON_KRYLOV_FROM
+
+    from willmore_nlp.rundir import load_run
+    from willmore_nlp.runner import stored_control
+
+    sphere = trimesh.creation.icosphere(3)
+    sphere.vertices += 0.002 * np.random.default_rng(5).standard_normal(sphere.vertices.shape)
+    sphere.export(tmp_path / "sphere.obj")
+    assert len(sphere.vertices) >= NEWTON_KRYLOV_FROM > 258
+    pb, _ = registry.build("file", path=str(tmp_path / "sphere.obj"))
+    assert (pb.flow_options["solver"], pb.flow_options["first_step_solver"]) == ("newton-krylov", "ipopt")
+    small, _ = registry.build("file", path=_noisy_capsule(tmp_path))
+    assert "solver" not in small.flow_options and "first_step_solver" not in small.flow_options
+    assert "first_step_solver" not in pb.effective_options({"solver": "sqp"})
+    assert "first_step_solver" not in pb.effective_options({"solver": "ipopt"})  # every step IPOPT's
+    open_part = trimesh.Trimesh(sphere.vertices, sphere.faces[sphere.triangles_center[:, 2] < 0.6])
+    open_part.remove_unreferenced_vertices()
+    open_part.export(tmp_path / "open.obj")
+    assert len(open_part.vertices) >= NEWTON_KRYLOV_FROM
+    clamped, _ = registry.build("file", path=str(tmp_path / "open.obj"), clamp="conormal")
+    assert clamped.flow_options["solver"] == "newton-krylov" and clamped.flow_options["first_step_solver"] == "ipopt"
+    assert stored_control({"effective_flow_options": {}, "input_repair": ""})["solver"] == "ipopt"
+
+    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "sphere.obj"), "--quiet"]
+    ref, cut, old, ipopt = (tmp_path / n for n in ("ref", "cut", "old", "ipopt"))
+    for out, steps, extra in ((ref, "2", []), (cut, "1", []), (old, "1", []), (ipopt, "2", ["--set", "solver=ipopt"])):
+        r = subprocess.run([*cli, "--steps", steps, "--out", str(out), *extra], capture_output=True, text=True,
+                           timeout=600)
+        assert r.returncode == 0, r.stderr
+    assert [row["solver"] for row in load_run(ref).history] == ["", "ipopt", "newton-krylov"]
+    assert [row["solver"] for row in load_run(ipopt).history] == ["", "ipopt", "ipopt"]
+    a, b = load_run(ref).states[2].vertices, load_run(ipopt).states[2].vertices
+    assert 0 < np.abs(a - b).max() <= 1e-6 * pb.mesh.h  # two solvers, one step: the same X
+    _resume_to_two_steps_equals(cut, ref)
+    cfg = json.loads((old / "config.json").read_text())
+    del cfg["effective_flow_options"]["solver"], cfg["effective_flow_options"]["first_step_solver"]
+    (old / "config.json").write_text(json.dumps(cfg))
+    _resume_to_two_steps_equals(old, ipopt)

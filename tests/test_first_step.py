@@ -59,3 +59,34 @@ def test_first_step_budget_leaves_converging_first_steps_alone() -> None:
     assert c._first_step_limit() is None and c._iteration_limit() is None
     rc = c.step()  # k = 1 and no recorded iterations: neither budget applies
     assert rc.retries == 0 and rc.iterations > 1
+
+
+def test_first_step_solver_takes_the_first_step_and_hands_over() -> None:
+    """``first_step_solver = "ipopt"`` with ``solver = "newton-krylov"``: step 1 is IPOPT's, bit for bit that of
+    an IPOPT flow; step 2 is newton-krylov's and agrees with IPOPT's step 2 from the same state to 1e-6 h (a second
+    solver); ``ipopt.KEY`` options are the first step's only, the others newton-krylov's (``cg_max_iter``, which
+    IPOPT does not know, is no error), and the first step's iterations stay out of the iteration budget."""
+    import pytest
+
+    from willmore_nlp.errors import UserInputError
+
+    mesh = _ellipsoid()
+    tau, tt = mesh.h, 0.01 * mesh.h**2
+    flow = WillmoreFlow(mesh, tau, tt, solver="newton-krylov", first_step_solver="ipopt",
+                        **{"ipopt.max_iter": 500, "cg_max_iter": 200})
+    ref = WillmoreFlow(mesh, tau, tt, **{"ipopt.max_iter": 500})
+    assert flow.solver.name == "ipopt"
+    r1, q1 = flow.step(), ref.step()
+    assert r1.stats["solver"] == q1.stats["solver"] == "ipopt" and r1.row()["solver"] == "ipopt"
+    assert r1.retries == q1.retries == 0 and r1.iterations == q1.iterations
+    np.testing.assert_array_equal(r1.vertices, q1.vertices)
+    assert flow._accepted_iterations == [] and ref._accepted_iterations == [q1.iterations]
+    r2, q2 = flow.step(), ref.step()
+    assert flow.solver.name == "newton-krylov" and flow.solver.max_iter == 50 and flow.solver.cg_max_iter == 200
+    assert r2.stats["solver"] == "newton-krylov" and r2.retries == q2.retries == 0 and r2.tau == q2.tau
+    assert np.abs(r2.vertices - q2.vertices).max() <= 1e-6 * mesh.h
+    assert flow._accepted_iterations == [r2.iterations]
+    with pytest.raises(UserInputError, match="unknown solver 'nope'"):
+        WillmoreFlow(mesh, tau, tt, solver="newton-krylov", first_step_solver="nope")
+    with pytest.raises(UserInputError, match="solver newton-krylov: unknown option"):  # refused before step 2
+        WillmoreFlow(mesh, tau, tt, solver="newton-krylov", first_step_solver="ipopt", mu_init=0.1)

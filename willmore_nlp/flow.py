@@ -20,7 +20,7 @@ from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
 from willmore_nlp.settings import FlowSettings, check_run_value
-from willmore_nlp.solvers import make_solver, solver_capabilities
+from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
 from willmore_nlp.tangential import TangentialControl, resolve_method
 
 
@@ -131,7 +131,7 @@ class StepResult:
     retries : how many times tau was halved
     stats : solver statistics (evaluations, timings, KKT residual; ``rejected_iterations``: solver
         iterations spent on the step's rejected attempts; ``t_wall_control``: seconds of the mesh control
-        after the accepted attempt, part of ``wall_time``)
+        after the accepted attempt, part of ``wall_time``; ``solver``: the solver that took the step)
     rejected : reasons of rejected attempts
     simplices : (K, d + 1) connectivity of the state (changes when the mesh control remeshes)
     free : (N,) bool free-vertex mask of a clamped problem on that connectivity (None without boundary)
@@ -198,6 +198,7 @@ class StepResult:
             "relaxed": int(self.relaxed),
             "tau_tilde": self.tau_tilde,
             "rest_steps": self.rest_steps,
+            "solver": self.stats.get("solver", ""),
         }
         r.update({f"q_{k}": v for k, v in self.quality.items()})
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "t_wall_control", "n_eval_hess",
@@ -324,7 +325,8 @@ class WillmoreFlow:
             mesh, boundary = self._repair_input(mesh, boundary)
         _check_quality(mesh, s.min_angle, s.max_edge_ratio, self.input_repair)  # the limits every step must keep
         self._step_scales(mesh)
-        self._variational = "variational" in solver_capabilities(s.solver)  # the semi-implicit baseline is not
+        self._variational = all("variational" in solver_capabilities(n)  # the semi-implicit baseline is not
+                                for n in {s.solver, s.first_step_solver or s.solver})
         method = resolve_method(s.tangential_control, mesh, s.mesh_control, self._variational,
                                 None if boundary is None else boundary.free)
         self._control = TangentialControl(method, s.tangential_control_weight, s.tangential_control_time)
@@ -337,7 +339,6 @@ class WillmoreFlow:
                               "(slower; set $CC or install gcc to compile them)", stacklevel=2)
         self._codegen = bool(codegen)
         self._compiled: dict[str, Any] | None = None
-        self.solver_name = s.solver
         self.stop_requested: Callable[[], bool] = _never
         self._build(mesh, boundary)
         self.build_time = time.perf_counter() - t0
@@ -389,7 +390,30 @@ class WillmoreFlow:
         if self._compiled is not None:
             kernels = self._compiled
         self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
-        self.solver = make_solver(self.solver_name, self.evaluator, self._options)
+        name = self._step_solver()
+        self._make_solver(name)
+        for other in {self.settings.solver, self.settings.first_step_solver or self.settings.solver} - {name}:
+            check_solver(other, self.problem, self._solver_options(other))  # its errors now, not at its first step
+
+    def _step_solver(self) -> str:
+        """The solver of the next step: ``first_step_solver`` (when set) for the first, else ``solver``."""
+        s = self.settings
+        return s.first_step_solver if self.k == 0 and s.first_step_solver else s.solver
+
+    def _solver_options(self, name: str) -> dict[str, Any]:
+        """The solver options of ``name``: all of them, or with a ``first_step_solver`` other than ``solver`` the
+        ``FIRST.KEY`` ones (as KEY) for the first step's solver and the others for ``solver``."""
+        first = self.settings.first_step_solver
+        if not first or first == self.settings.solver:
+            return self._options
+        prefix = first + "."
+        if name == first:
+            return {k.removeprefix(prefix): v for k, v in self._options.items() if k.startswith(prefix)}
+        return {k: v for k, v in self._options.items() if not k.startswith(prefix)}
+
+    def _make_solver(self, name: str) -> None:
+        """``self.solver``: the solver ``name`` for the current step problem, with the flow's stop and stall tests."""
+        self.solver = make_solver(name, self.evaluator, self._solver_options(name))
         self.solver.should_stop = lambda: self.stop_requested()
         if hasattr(self.solver, "stall_iterations"):
             self.solver.stall_iterations = self.settings.stall_iterations
@@ -530,6 +554,8 @@ class WillmoreFlow:
             tau = min(self.tau, self._tau_adapt) if self.settings.adaptive else self.tau
         rejected: list[str] = []
         spent = 0  # solver iterations of this step's attempts
+        if self.solver.name != self._step_solver():  # the step after a first step of first_step_solver
+            self._make_solver(self._step_solver())
         floor = min(self.min_tau, self.tau)
         for attempt in range(self.settings.max_retries + 1):
             if self.stop_requested():
@@ -582,7 +608,9 @@ class WillmoreFlow:
                 self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
                 self.lam_g = res.lam_g
                 self._grow_tau(tau, attempt)
-                self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
+                if self.solver.name == self.settings.solver:  # not a first_step_solver's: no measure of solver's
+                    self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
+                solver_name = self.solver.name
                 t_control = time.perf_counter()
                 action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
                 mstats["t_wall_control"] = time.perf_counter() - t_control
@@ -595,6 +623,7 @@ class WillmoreFlow:
                 result.stats.update(moved)
                 result.stats.update(mstats)
                 result.stats["rejected_iterations"] = spent - res.iterations
+                result.stats["solver"] = solver_name
                 result.remeshed = action
                 if self.settings.relax:
                     # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
@@ -913,7 +942,8 @@ class WillmoreFlow:
             NLP is rebuilt for it); None: the current connectivity
         free : (N,) bool free-vertex mask of a clamped problem on that connectivity
         iterations : solver iterations of the accepted steps up to this state (the iteration budget
-            is a multiple of their median over the last ``BUDGET_WINDOW``); None: an empty history
+            is a multiple of their median over the last ``BUDGET_WINDOW``), those of ``solver`` (not of a
+            ``first_step_solver``: history's ``solver`` column); None: an empty history
         history : rows (:meth:`StepResult.row`, e.g. read from history.csv) of the states up to this one, from
             the initial state on: the relax test continues from its window over them; None: from this state
         tau_tilde, rest_steps : the state's tau_tilde and count of steps at rest (``rest_tau_tilde``; columns of

@@ -274,21 +274,23 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
 
 
 def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
-    """The tangential control, conformal gauge, steps_from_h and input repair a run directory's flow ran with, as flow
-    options (a resumed run keeps them even when the library's defaults changed): ``config.json``'s
+    """The tangential control, conformal gauge, steps_from_h, solvers and input repair a run directory's flow ran with,
+    as flow options (a resumed run keeps them even when the library's defaults changed): ``config.json``'s
     ``tangential_control`` entry, or, for runs written before it existed (when the default was "off" at weight 0.3),
     the options they gave; the ``conformal_gauge`` of its effective options (false for ``file`` tori written before
     the problem turned it on, 2026-11-27) and its ``steps_from_h`` ("none" for runs written before it existed: their
-    tau and tau_tilde were the input's); and ``input_repair = false`` for runs written before the input repair
-    existed (no ``input_repair`` record: their initial state is the input as given, and the repair would give the
-    flow another connectivity)."""
+    tau and tau_tilde were the input's); its ``solver`` and ``first_step_solver`` ("ipopt" and "" for runs written
+    before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28); and ``input_repair = false`` for
+    runs written before the input repair existed (no ``input_repair`` record: their initial state is the input as
+    given, and the repair would give the flow another connectivity)."""
     given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
     stored = cfg.get("tangential_control")
     if stored is None:
         stored = {"method": given.get("tangential_control", "off"),
                   "weight": given.get("tangential_control_weight", 0.3)}
     out = {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"],
-           "conformal_gauge": given.get("conformal_gauge", False), "steps_from_h": given.get("steps_from_h", "none")}
+           "conformal_gauge": given.get("conformal_gauge", False), "steps_from_h": given.get("steps_from_h", "none"),
+           "solver": given.get("solver", "ipopt"), "first_step_solver": given.get("first_step_solver", "")}
     return out if "input_repair" in cfg else {**out, "input_repair": False}
 
 
@@ -379,7 +381,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                 flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)),
                              simplices=ck.simplices, free=ck.free,
                              iterations=[int(float(r["iterations"])) for r in writer.rows
-                                         if int(float(r["step"])) > 0 and "iterations" in r],
+                                         if int(float(r["step"])) > 0 and "iterations" in r
+                                         and r.get("solver") in (None, "", flow.settings.solver)],
                              history=writer.rows,
                              tau_tilde=last.get("tau_tilde"), rest_steps=int(float(last.get("rest_steps") or 0)))
                 writer.set_status("running")

@@ -7,6 +7,7 @@ from willmore_nlp.solvers import semi_implicit as _semi  # noqa: F401  (register
 from willmore_nlp.solvers import sqp as _sqp  # noqa: F401  (registers "sqp")
 from willmore_nlp.solvers.base import (
     SolveResult,
+    check_solver,
     make_solver,
     register_solver,
     solver_capabilities,
@@ -14,4 +15,5 @@ from willmore_nlp.solvers.base import (
     solver_settings,
 )
 
-__all__ = ["SolveResult", "make_solver", "register_solver", "solver_capabilities", "solver_names", "solver_settings"]
+__all__ = ["SolveResult", "check_solver", "make_solver", "register_solver", "solver_capabilities", "solver_names",
+           "solver_settings"]

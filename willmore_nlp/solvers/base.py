@@ -95,11 +95,23 @@ def solver_capabilities(name: str) -> frozenset[str]:
     return _CAPABILITIES[name][0]
 
 
-def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | None = None) -> StepSolver:
-    """Build the solver ``name`` for a step problem; ``options`` are validated by its settings class."""
+def check_solver(name: str, problem: Any, options: dict[str, Any] | None = None) -> SolverSettings:
+    """The settings of solver ``name`` from ``options``, checked against what the step problem needs.
+
+    Raises
+    ------
+    UserInputError
+        An unknown solver or option, or a problem term the solver cannot handle (``solver NAME: ... has no ...``).
+    """
     settings = solver_settings(name).from_options(dict(options or {}))
     capabilities, noun = _CAPABILITIES[name]
-    for cap, term in evaluator.problem.requires().items():
+    for cap, term in problem.requires().items():
         if cap not in capabilities:
             raise UserInputError(f"solver {name}: {noun} has no {term.label} ({_WHY[cap]}); {term.hint}")
+    return settings
+
+
+def make_solver(name: str, evaluator: StepEvaluator, options: dict[str, Any] | None = None) -> StepSolver:
+    """Build the solver ``name`` for a step problem; ``options`` are validated by its settings class."""
+    settings = check_solver(name, evaluator.problem, options)
     return _SOLVERS[name][0](evaluator, settings)
