@@ -14,11 +14,12 @@ FIRST_STEP_BUDGET = FlowSettings().iteration_budget_min
 attempt cut early costs little: the step continues from the step size that worked and grows back."""
 
 NEWTON_KRYLOV_FROM = 500
-"""Surfaces of at least this many vertices (as read) flow with ``solver = "newton-krylov"`` after an IPOPT first step
-(``first_step_solver = "ipopt"``). Measured on 13 users' closed surfaces of 106-2,562 vertices and a clamped noisy cap
-of 2,091, 20 steps each (docs/guide/performance.md, "The default for large files"): the same step sizes and retries as
-IPOPT on all but one, steps 2-20 1.9-5.0x faster from 550 vertices, 1.4-1.5x below 400 (where a step costs under half a
-second); newton-krylov alone fails the first step of noisy inputs that IPOPT takes."""
+"""Surfaces of at least this many vertices (as read) flow with ``solver = "newton-krylov"`` and ``fallback_solver =
+"ipopt"`` (a step newton-krylov fails at every tau is taken over by IPOPT). Measured, 20 steps each (docs/guide/
+performance.md, "The default for large files"): 12 users' surfaces of 550-2,562 vertices, 10 closed and 2 clamped, in
+1.5-11.7x less time than IPOPT (7.3x on a 2,562-vertex ellipsoid), no step left to the fallback; newton-krylov's
+first steps are sometimes taken at a smaller tau than IPOPT's. At 10,000-17,000 vertices: a smooth ellipsoid's 10 steps
+in 166 s instead of 1,288 s; a noisy torus whose first step newton-krylov fails at every tau is taken by IPOPT."""
 
 
 @register("file")
@@ -41,9 +42,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     failing first attempts of tori and creased inputs do not converge however long they run: step 1 of a 48x24 grid
     torus 117 -> 36 s, of the Lawson genus-2 surface 164 -> 48 s, the same trajectories; docs/guide/mesh_quality.md,
     "Noisy inputs: the first step"). A surface of at least :data:`NEWTON_KRYLOV_FROM` (500) vertices gets
-    ``solver = "newton-krylov"`` after an IPOPT first step (``first_step_solver = "ipopt"``): the same trajectories
-    on the measured inputs, 2-5x faster (``--set solver=ipopt`` runs every step with IPOPT). Curves: tau_tilde =
-    h^2 / 4, fixed tau.
+    ``solver = "newton-krylov"`` with ``fallback_solver = "ipopt"``: 1.5-12x faster than IPOPT over 20 steps on the
+    measured inputs (``--set solver=ipopt`` runs every step with IPOPT). Curves: tau_tilde = h^2 / 4, fixed tau.
 
     A mesh with a boundary needs ``clamp``: its outermost strip of simplices (every simplex with a
     vertex on the mesh boundary) is held fixed and clamps the rest, position and tangent plane
@@ -86,7 +86,7 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     elif mesh.d == 2 and euler_characteristic(mesh.simplices) <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True)
     if mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
-        options.update(solver="newton-krylov", first_step_solver="ipopt")
+        options.update(solver="newton-krylov", fallback_solver="ipopt")
     if mesh.d == 2:  # tau = h and tau_tilde = h^2/100 of the mesh flowed, also when input_repair remeshes it
         chosen = [name for name, given in (("tau", tau), ("tau_tilde", tau_tilde)) if given is None]
         options["steps_from_h"] = "both" if len(chosen) == 2 else (chosen[0] if chosen else "none")

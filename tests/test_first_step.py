@@ -90,3 +90,36 @@ def test_first_step_solver_takes_the_first_step_and_hands_over() -> None:
         WillmoreFlow(mesh, tau, tt, solver="newton-krylov", first_step_solver="nope")
     with pytest.raises(UserInputError, match="solver newton-krylov: unknown option"):  # refused before step 2
         WillmoreFlow(mesh, tau, tt, solver="newton-krylov", first_step_solver="ipopt", mu_init=0.1)
+
+
+def test_fallback_solver_takes_over_a_step_that_every_attempt_of_solver_failed() -> None:
+    """``fallback_solver = "ipopt"``: when newton-krylov fails every attempt of a step (here ``max_iter = 1``: no
+    solve converges), IPOPT's attempts start again from the step's first tau, and its step is bit for bit that of an
+    IPOPT flow; the rejected attempts name their solver, ``retries`` counts them all, the fallback's iterations stay
+    out of the budget, and the next step starts with newton-krylov again. Without a fallback, or when both fail, the
+    step fails with one FlowError naming both."""
+    import pytest
+
+    from willmore_nlp import FlowError
+
+    mesh = _ellipsoid()
+    tau, tt = mesh.h, 0.01 * mesh.h**2
+    flow = WillmoreFlow(mesh, tau, tt, solver="newton-krylov", fallback_solver="ipopt", max_retries=1, max_iter=1)
+    ref = WillmoreFlow(mesh, tau, tt)
+    ref.evaluator.cholesky = flow.evaluator.cholesky  # newton-krylov gives the flow's Y[X] solves its Cholesky
+    ref.Y = ref._solve_y(ref.X, tau)  # (the initial Y[X] differs from LU's in the last bits)
+    r, q = flow.step(), ref.step()
+    assert r.stats["solver"] == "ipopt" and r.retries == 2 and r.tau == q.tau == tau
+    assert [x.split(":")[1].strip() for x in r.rejected] == ["newton-krylov", "newton-krylov"]
+    assert r.iterations == q.iterations and flow._accepted_iterations == []
+    np.testing.assert_array_equal(r.vertices, q.vertices)
+    r2 = flow.step()
+    assert r2.rejected[0].split(":")[1].strip() == "newton-krylov" and r2.stats["solver"] == "ipopt"  # again
+    both = WillmoreFlow(mesh, tau, tt, solver="newton-krylov", fallback_solver="ipopt", max_retries=1, max_iter=1,
+                        **{"ipopt.max_iter": 1})
+    with pytest.raises(FlowError, match="failed after 1 retries with each of newton-krylov and ipopt"):
+        both.step()
+    assert both.k == 0 and both.solver.name == "ipopt"
+    alone = WillmoreFlow(mesh, tau, tt, solver="newton-krylov", max_retries=1, max_iter=1)
+    with pytest.raises(FlowError, match=r"failed after 1 retries: tau="):
+        alone.step()

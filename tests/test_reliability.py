@@ -471,6 +471,29 @@ def test_resume_with_a_shorter_length_is_refused_and_changes_nothing(tmp_path: P
     assert (out / "config.json").read_text() == config and len(load_run(out).states) == 4
 
 
+def test_a_signal_during_an_atomic_write_is_delivered_after_it(tmp_path: Path) -> None:
+    """A SIGINT whose handler raises (a run's second Ctrl-C) that arrives while a file is written atomically is
+    held back until the file is in place: the write completes, no temporary file is left, and the handler's
+    KeyboardInterrupt comes after (it used to come between the temporary file's creation and its cleanup)."""
+    from willmore_nlp.mesh.io import atomic_write
+
+    def raising(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    def write(t: Path) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        t.write_text("complete")
+
+    old = signal.signal(signal.SIGINT, raising)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            atomic_write(tmp_path / "status.json", write)
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert (tmp_path / "status.json").read_text() == "complete"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["status.json"]
+
+
 def test_rapid_double_signals_never_leave_status_running(tmp_path: Path) -> None:
     """Two signals a few milliseconds apart at random moments: a clean exit 130 always records its status."""
     rng = random.Random(11)

@@ -326,7 +326,7 @@ class WillmoreFlow:
         _check_quality(mesh, s.min_angle, s.max_edge_ratio, self.input_repair)  # the limits every step must keep
         self._step_scales(mesh)
         self._variational = all("variational" in solver_capabilities(n)  # the semi-implicit baseline is not
-                                for n in {s.solver, s.first_step_solver or s.solver})
+                                for n in {s.solver, s.first_step_solver or s.solver, s.fallback_solver or s.solver})
         method = resolve_method(s.tangential_control, mesh, s.mesh_control, self._variational,
                                 None if boundary is None else boundary.free)
         self._control = TangentialControl(method, s.tangential_control_weight, s.tangential_control_time)
@@ -392,24 +392,29 @@ class WillmoreFlow:
         self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
         name = self._step_solver()
         self._make_solver(name)
-        for other in {self.settings.solver, self.settings.first_step_solver or self.settings.solver} - {name}:
+        s = self.settings
+        for other in {s.solver, s.first_step_solver or s.solver, s.fallback_solver or s.solver} - {name}:
             check_solver(other, self.problem, self._solver_options(other))  # its errors now, not at its first step
 
-    def _step_solver(self) -> str:
-        """The solver of the next step: ``first_step_solver`` (when set) for the first, else ``solver``."""
+    def _step_solvers(self) -> tuple[str, ...]:
+        """The solvers of the next step, in turn: ``first_step_solver`` (when set) for the first step, else
+        ``solver``; then ``fallback_solver`` (when set and not that one) if every attempt of the first fails."""
         s = self.settings
-        return s.first_step_solver if self.k == 0 and s.first_step_solver else s.solver
+        first = s.first_step_solver if self.k == 0 and s.first_step_solver else s.solver
+        return (first,) if s.fallback_solver in ("", first) else (first, s.fallback_solver)
+
+    def _step_solver(self) -> str:
+        """The solver that starts the next step."""
+        return self._step_solvers()[0]
 
     def _solver_options(self, name: str) -> dict[str, Any]:
-        """The solver options of ``name``: all of them, or with a ``first_step_solver`` other than ``solver`` the
-        ``FIRST.KEY`` ones (as KEY) for the first step's solver and the others for ``solver``."""
-        first = self.settings.first_step_solver
-        if not first or first == self.settings.solver:
-            return self._options
-        prefix = first + "."
-        if name == first:
-            return {k.removeprefix(prefix): v for k, v in self._options.items() if k.startswith(prefix)}
-        return {k: v for k, v in self._options.items() if not k.startswith(prefix)}
+        """The solver options of ``name``: with a ``first_step_solver`` or ``fallback_solver`` other than ``solver``,
+        the ``NAME.KEY`` ones (as KEY) are that solver's and the others ``solver``'s; else all of them."""
+        s = self.settings
+        others = {n for n in (s.first_step_solver, s.fallback_solver) if n and n != s.solver}
+        if name in others:
+            return {k.removeprefix(name + "."): v for k, v in self._options.items() if k.startswith(name + ".")}
+        return {k: v for k, v in self._options.items() if not any(k.startswith(o + ".") for o in others)}
 
     def _make_solver(self, name: str) -> None:
         """``self.solver``: the solver ``name`` for the current step problem, with the flow's stop and stall tests."""
@@ -554,89 +559,99 @@ class WillmoreFlow:
             tau = min(self.tau, self._tau_adapt) if self.settings.adaptive else self.tau
         rejected: list[str] = []
         spent = 0  # solver iterations of this step's attempts
-        if self.solver.name != self._step_solver():  # the step after a first step of first_step_solver
-            self._make_solver(self._step_solver())
         floor = min(self.min_tau, self.tau)
-        for attempt in range(self.settings.max_retries + 1):
-            if self.stop_requested():
-                raise StepInterrupted(self.k + 1)
-            if tau < floor:
-                rejected.append(f"tau={tau:.6g}: step size below min_tau = {floor:.3g}")
-                raise FlowError(f"step {self.k + 1} at t={self.t:.6g} failed: the step size fell to {tau:.3g}, "
-                                f"below min_tau = {floor:.3g} (the clock would freeze); rejected: "
-                                + "; ".join(rejected), step=self.k + 1, t=self.t, rejected=rejected)
-            p = self.params(self.X, tau)
-            z0 = self.problem.pack_z(self.X, self.Y)
-            f0 = self.evaluator.f(z0, p)
-            if hasattr(self.solver, "iteration_limit"):
-                last = attempt >= self.settings.max_retries
-                self.solver.iteration_limit = None if last else self._iteration_limit() or self._first_step_limit()
-            try:
-                res = self.solver.solve(z0, p, self.lam_g)
-            except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
-                reason: str | None = f"solver error: {str(exc).strip().splitlines()[-1]}"
-            else:
-                spent += res.iterations
-                X, Y = self.problem.unpack_z(res.z, self.X)
-                reason = self._reject_reason(res, f0, X)
-            moved: dict[str, float] = {}
-            if reason is None and self.settings.redistribute:
-                e_step = self.discrete_energy(X, Y)
-                Xr = geometry.redistribute_curve(self.mesh.with_vertices(X))
-                moved = {"redistribution_shift": float(np.abs(Xr - X).max()), "energy_before_redistribution": e_step}
-                X = Xr
-            if reason is None and self.problem.nh:
-                moved["constraint_violation_solver"] = self.constraint_violation(X)
+        below: float | None = None  # a step size that fell below min_tau
+        tau0, tries = tau, -1  # tries: attempts so far (the step's retries when it is accepted)
+        solvers = self._step_solvers()
+        for name in solvers:
+            if self.solver.name != name:  # after a first step of first_step_solver, or the fallback_solver's turn
+                self._make_solver(name)
+            tau = tau0
+            for attempt in range(self.settings.max_retries + 1):
+                tries += 1
+                if self.stop_requested():
+                    raise StepInterrupted(self.k + 1)
+                if tau < floor:
+                    rejected.append(f"tau={tau:.6g}: step size below min_tau = {floor:.3g}")
+                    below = tau
+                    break
+                p = self.params(self.X, tau)
+                z0 = self.problem.pack_z(self.X, self.Y)
+                f0 = self.evaluator.f(z0, p)
+                if hasattr(self.solver, "iteration_limit"):
+                    last = attempt >= self.settings.max_retries
+                    self.solver.iteration_limit = None if last else self._iteration_limit() or self._first_step_limit()
                 try:
-                    X = self._restore(X)
-                except (RuntimeError, np.linalg.LinAlgError) as exc:
-                    reason = str(exc)
-            if reason is None and self.settings.conformal_gauge:
-                b, centre, scale = geometry.conformal_motion(self.mesh.with_vertices(self.X), X)
-                Xg = geometry.special_conformal_map(X, -b, centre, scale)
-                moved["conformal_gauge_shift"] = float(np.abs(Xg - X).max())
-                X = Xg
-            if reason is None:
-                try:
-                    Y = self._solve_y(X, tau, Y)
-                except (RuntimeError, ValueError, ArithmeticError) as exc:
-                    reason = f"inner equation Y[X] failed: {exc}"
+                    res = self.solver.solve(z0, p, self.lam_g)
+                except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
+                    reason: str | None = f"solver error: {str(exc).strip().splitlines()[-1]}"
                 else:
-                    if not np.all(np.isfinite(Y)):
-                        reason = "inner equation Y[X] gave non-finite values"
-            if reason is None:
-                self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
-                self.lam_g = res.lam_g
-                self._grow_tau(tau, attempt)
-                if self.solver.name == self.settings.solver:  # not a first_step_solver's: no measure of solver's
-                    self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
-                solver_name = self.solver.name
-                t_control = time.perf_counter()
-                action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
-                mstats["t_wall_control"] = time.perf_counter() - t_control
-                result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt, rejected)
-                if self._rest and self._rest_tau_tilde(attempt, tau, result.willmore, result.measure):
-                    # Y, the discrete energy and tau_tilde of the state are those of the halved tau_tilde
-                    result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, attempt,
-                                          rejected)
-                result.rest_steps = self._rest_steps
-                result.stats.update(moved)
-                result.stats.update(mstats)
-                result.stats["rejected_iterations"] = spent - res.iterations
-                result.stats["solver"] = solver_name
-                result.remeshed = action
-                if self.settings.relax:
-                    # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
-                    # energy changed by less than relax_tol relative per nominal step, or rose without a flip
-                    result.relaxed = self.relaxed = self._relax_test(result.willmore, tau, action)
-                return result
-            if self.stop_requested():  # the solve was cut short (or failed): do not retry
-                raise StepInterrupted(self.k + 1)
-            rejected.append(f"tau={tau:.6g}: {reason}")
-            tau /= 2
+                    spent += res.iterations
+                    X, Y = self.problem.unpack_z(res.z, self.X)
+                    reason = self._reject_reason(res, f0, X)
+                moved: dict[str, float] = {}
+                if reason is None and self.settings.redistribute:
+                    e_step = self.discrete_energy(X, Y)
+                    Xr = geometry.redistribute_curve(self.mesh.with_vertices(X))
+                    moved = {"redistribution_shift": float(np.abs(Xr - X).max()),
+                             "energy_before_redistribution": e_step}
+                    X = Xr
+                if reason is None and self.problem.nh:
+                    moved["constraint_violation_solver"] = self.constraint_violation(X)
+                    try:
+                        X = self._restore(X)
+                    except (RuntimeError, np.linalg.LinAlgError) as exc:
+                        reason = str(exc)
+                if reason is None and self.settings.conformal_gauge:
+                    b, centre, scale = geometry.conformal_motion(self.mesh.with_vertices(self.X), X)
+                    Xg = geometry.special_conformal_map(X, -b, centre, scale)
+                    moved["conformal_gauge_shift"] = float(np.abs(Xg - X).max())
+                    X = Xg
+                if reason is None:
+                    try:
+                        Y = self._solve_y(X, tau, Y)
+                    except (RuntimeError, ValueError, ArithmeticError) as exc:
+                        reason = f"inner equation Y[X] failed: {exc}"
+                    else:
+                        if not np.all(np.isfinite(Y)):
+                            reason = "inner equation Y[X] gave non-finite values"
+                if reason is None:
+                    self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
+                    self.lam_g = res.lam_g
+                    self._grow_tau(tau, tries)
+                    if self.solver.name == self.settings.solver:  # another solver's count is no measure of solver's
+                        self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
+                    solver_name = self.solver.name
+                    t_control = time.perf_counter()
+                    action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
+                    mstats["t_wall_control"] = time.perf_counter() - t_control
+                    result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
+                    if self._rest and self._rest_tau_tilde(tries, tau, result.willmore, result.measure):
+                        # Y, the discrete energy and tau_tilde of the state are those of the halved tau_tilde
+                        result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries,
+                                              rejected)
+                    result.rest_steps = self._rest_steps
+                    result.stats.update(moved)
+                    result.stats.update(mstats)
+                    result.stats["rejected_iterations"] = spent - res.iterations
+                    result.stats["solver"] = solver_name
+                    result.remeshed = action
+                    if self.settings.relax:
+                        # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
+                        # energy changed by less than relax_tol relative per nominal step, or rose without a flip
+                        result.relaxed = self.relaxed = self._relax_test(result.willmore, tau, action)
+                    return result
+                if self.stop_requested():  # the solve was cut short (or failed): do not retry
+                    raise StepInterrupted(self.k + 1)
+                rejected.append(f"tau={tau:.6g}: {name + ': ' if len(solvers) > 1 else ''}{reason}")
+                tau /= 2
+        if below is not None:
+            raise FlowError(f"step {self.k + 1} at t={self.t:.6g} failed: the step size fell to {below:.3g}, below "
+                            f"min_tau = {floor:.3g} (the clock would freeze); rejected: " + "; ".join(rejected),
+                            step=self.k + 1, t=self.t, rejected=rejected)
         raise FlowError(
-            f"step {self.k + 1} at t={self.t:.6g} failed after {self.settings.max_retries} retries: "
-            + "; ".join(rejected),
+            f"step {self.k + 1} at t={self.t:.6g} failed after {self.settings.max_retries} retries"
+            + (f" with each of {' and '.join(solvers)}" if len(solvers) > 1 else "") + ": " + "; ".join(rejected),
             step=self.k + 1, t=self.t, rejected=rejected,
         )
 

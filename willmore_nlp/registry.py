@@ -66,14 +66,15 @@ class Problem:
         """The flow options of :meth:`make_flow`: the problem's, replaced by ``overrides``. A ``conformal_gauge`` of
         the problem's own (the ``file`` problem's closed surfaces of genus >= 1) gives way to a volume or area
         constraint among the overrides: the gauge is for unconstrained flows, and only asking for both at once is
-        an error. A ``first_step_solver`` of the problem's own (the ``file`` problem's large surfaces) gives way to
-        a ``solver`` among the overrides: ``--set solver=sqp`` runs every step with sqp."""
+        an error. A ``first_step_solver`` or ``fallback_solver`` of the problem's own (the ``file`` problem's large
+        surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp`` runs every step with sqp."""
         options = dict(self.flow_options)
         if (overrides.get("volume") is not None or overrides.get("area") is not None) \
                 and "conformal_gauge" not in overrides:
             options.pop("conformal_gauge", None)
-        if "solver" in overrides and "first_step_solver" not in overrides:
-            options.pop("first_step_solver", None)
+        for key in ("first_step_solver", "fallback_solver"):
+            if "solver" in overrides and key not in overrides:
+                options.pop(key, None)
         return {**options, **overrides}
 
 

@@ -279,10 +279,10 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
     ``tangential_control`` entry, or, for runs written before it existed (when the default was "off" at weight 0.3),
     the options they gave; the ``conformal_gauge`` of its effective options (false for ``file`` tori written before
     the problem turned it on, 2026-11-27) and its ``steps_from_h`` ("none" for runs written before it existed: their
-    tau and tau_tilde were the input's); its ``solver`` and ``first_step_solver`` ("ipopt" and "" for runs written
-    before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28); and ``input_repair = false`` for
-    runs written before the input repair existed (no ``input_repair`` record: their initial state is the input as
-    given, and the repair would give the flow another connectivity)."""
+    tau and tau_tilde were the input's); its ``solver``, ``first_step_solver`` and ``fallback_solver`` ("ipopt", ""
+    and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28); and
+    ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their
+    initial state is the input as given, and the repair would give the flow another connectivity)."""
     given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
     stored = cfg.get("tangential_control")
     if stored is None:
@@ -290,7 +290,8 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
                   "weight": given.get("tangential_control_weight", 0.3)}
     out = {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"],
            "conformal_gauge": given.get("conformal_gauge", False), "steps_from_h": given.get("steps_from_h", "none"),
-           "solver": given.get("solver", "ipopt"), "first_step_solver": given.get("first_step_solver", "")}
+           "solver": given.get("solver", "ipopt"), "first_step_solver": given.get("first_step_solver", ""),
+           "fallback_solver": given.get("fallback_solver", "")}
     return out if "input_repair" in cfg else {**out, "input_repair": False}
 
 

@@ -229,12 +229,18 @@ class FlowSettings(Settings):
         Registered solver name (``"ipopt"`` default).
     first_step_solver : str
         The solver of the run's first step when it is not ``solver`` ("" default: ``solver``); every later step,
-        and a resumed run's steps after the first, use ``solver``. "ipopt" with ``solver = "newton-krylov"`` is
-        the ``file`` problem's default for large surfaces: newton-krylov fails the first step of noisy inputs
-        that IPOPT takes, and is 5-12x faster than IPOPT on the steps after it (docs/guide/performance.md). With
-        two solvers, options written ``NAME.KEY`` (NAME the first step's solver, e.g. ``ipopt.max_iter``) are the
-        first step's, the others ``solver``'s; the first step's iterations do not enter the iteration budget of
-        the steps after it.
+        and a resumed run's steps after the first, use ``solver``. "ipopt" with ``solver = "newton-krylov"``
+        starts a flow with IPOPT's first step (measured: docs/guide/performance.md). With two or
+        three solvers, options written ``NAME.KEY`` (NAME the first step's or the fallback solver, e.g.
+        ``ipopt.max_iter``) are that solver's, the others ``solver``'s; only ``solver``'s iteration counts enter the
+        iteration budget.
+    fallback_solver : str
+        A solver that takes a step over when every attempt of ``solver`` (``max_retries`` halvings of tau) failed:
+        its attempts start again from the step's first tau ("" default: none, the step fails). The ``file``
+        problem's default for surfaces of 500 vertices or more is ``solver = "newton-krylov"`` with
+        ``fallback_solver = "ipopt"``: newton-krylov fails the first step of some noisy inputs at every tau (its
+        reduced Hessian too indefinite), IPOPT takes it, and newton-krylov is several times faster on the steps it
+        takes (docs/guide/performance.md). The rejected attempts then name their solver.
     codegen : bool or None
         Compile the element kernels to C and cache the library (:mod:`willmore_nlp.codegen`).
         None (default): when a C compiler is found, else CasADi's virtual machine with a warning.
@@ -438,6 +444,7 @@ class FlowSettings(Settings):
     solver: str = option("ipopt", Kind("a solver name", lambda v: isinstance(v, str), parse=str))
     first_step_solver: str = option("", Kind("a solver name or '' (solver's)", lambda v: isinstance(v, str),
                                              parse=str))
+    fallback_solver: str = option("", Kind("a solver name or '' (none)", lambda v: isinstance(v, str), parse=str))
     codegen: bool | None = option(None, BOOL_OR_UNSET)
     max_retries: int = option(4, integer(0))
     check_energy: bool = option(True, BOOL)
