@@ -108,7 +108,12 @@ def test_fallback_solver_takes_over_a_step_that_every_attempt_of_solver_failed()
     ref = WillmoreFlow(mesh, tau, tt)
     ref.evaluator.cholesky = flow.evaluator.cholesky  # newton-krylov gives the flow's Y[X] solves its Cholesky
     ref.Y = ref._solve_y(ref.X, tau)  # (the initial Y[X] differs from LU's in the last bits)
+    notes: list[str] = []
+    flow.on_retry = notes.append
     r, q = flow.step(), ref.step()
+    assert [n.split("; ")[1] for n in notes] == [f"attempt 2: newton-krylov at tau={tau / 2:.3g}",
+                                                 f"attempt 3: ipopt at tau={tau:.3g}"]
+    assert notes[0].startswith(f"step 1: tau={tau:.6g} rejected (newton-krylov: solver did not converge")
     assert r.stats["solver"] == "ipopt" and r.retries == 2 and r.tau == q.tau == tau
     assert [x.split(":")[1].strip() for x in r.rejected] == ["newton-krylov", "newton-krylov"]
     assert r.iterations == q.iterations and flow._accepted_iterations == []
@@ -123,3 +128,21 @@ def test_fallback_solver_takes_over_a_step_that_every_attempt_of_solver_failed()
     alone = WillmoreFlow(mesh, tau, tt, solver="newton-krylov", max_retries=1, max_iter=1)
     with pytest.raises(FlowError, match=r"failed after 1 retries: tau="):
         alone.step()
+
+
+def test_the_command_line_shows_a_retry_under_way(tmp_path) -> None:
+    """A long first step is not silent: the progress bar (on stderr) says which attempt was rejected and which
+    comes next while the step goes on (the 162-vertex ellipsoid with ``first_step_budget = 2``: its first attempt
+    is cut and retried)."""
+    import subprocess
+    import sys
+
+    from willmore_nlp.mesh.io import save_mesh
+
+    save_mesh(_ellipsoid(), tmp_path / "ellipsoid.obj")
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "ellipsoid.obj"), "--steps",
+                        "1", "--out", str(tmp_path / "run"), "--set", "first_step_budget=2"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "step 1: tau=" in r.stderr and "rejected (solver did not converge (Iteration_Budget, 2 iterations)" \
+        in r.stderr and "attempt 2: ipopt at tau=" in r.stderr

@@ -422,8 +422,11 @@ def test_cli_runs_newton_krylov(tmp_path) -> None:
     run = load_run(out)
     assert run.config["flow_options"]["solver"] == "newton-krylov"
     with open(out / "history.csv") as fh:
-        status = [row["status"] for row in csv.DictReader(fh)]
-    assert status == ["initial", "converged", "converged", "converged"]  # IPOPT would say Solve_Succeeded
+        rows = list(csv.DictReader(fh))
+    assert [row["status"] for row in rows] == ["initial", "converged", "converged", "converged"]  # IPOPT: Solve_...
+    for row in rows[1:]:  # its own counts and time split (CG iterations, Cholesky factorisations) per step
+        assert int(row["n_cg"]) >= int(row["iterations"]) >= 1 and int(row["n_factorizations"]) >= 1
+        assert float(row["t_wall_factor"]) > 0 and float(row["t_wall_cg"]) > 0 and row["solver"] == "newton-krylov"
     R = [np.linalg.norm(s.vertices, axis=1).mean() for s in run.states]
     assert len(R) == 4 and np.all(np.diff(R) > 0)
     np.testing.assert_allclose(R[-1], (2.0**4 + 2 * 0.03) ** 0.25, rtol=1e-3)

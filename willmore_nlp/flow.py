@@ -62,6 +62,10 @@ def _never() -> bool:
     return False
 
 
+def _ignore(text: str) -> None:
+    return None
+
+
 class StepSizeWarning(UserWarning):
     """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (docs/theory/tau_tilde.md)."""
 
@@ -202,7 +206,8 @@ class StepResult:
         }
         r.update({f"q_{k}": v for k, v in self.quality.items()})
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "t_wall_control", "n_eval_hess",
-                  "energy_before_redistribution", "redistribution_shift", "rejected_iterations"):
+                  "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
+                  "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg"):  # (the last four: newton-krylov's)
             if k in self.stats:
                 r[k] = self.stats[k]
         return r
@@ -289,6 +294,11 @@ class WillmoreFlow:
         True the step under way is abandoned and :meth:`step` raises :class:`StepInterrupted`
         instead of retrying (a truncated solve is never retried or accepted, so a stop never
         changes a result). The runner sets it from its signal handler.
+    on_retry : callable (str) -> None
+        Called before every attempt after a rejected one with a line saying what was rejected and what comes
+        next (``"step 1: tau=0.05 rejected (ipopt: solver did not converge ...); attempt 2: ipopt at
+        tau=0.025"``): the command line shows it in its progress bar, so that a first step of many minutes is
+        not silent. Default: nothing.
     """
 
     def __init__(self, mesh: Mesh, tau: float, tau_tilde: float, *, lam: float = 0.0, boundary: Any = None,
@@ -340,6 +350,7 @@ class WillmoreFlow:
         self._codegen = bool(codegen)
         self._compiled: dict[str, Any] | None = None
         self.stop_requested: Callable[[], bool] = _never
+        self.on_retry: Callable[[str], None] = _ignore
         self._build(mesh, boundary)
         self.build_time = time.perf_counter() - t0
         try:
@@ -571,6 +582,9 @@ class WillmoreFlow:
                 tries += 1
                 if self.stop_requested():
                     raise StepInterrupted(self.k + 1)
+                if rejected:
+                    self.on_retry(f"step {self.k + 1}: {rejected[-1].replace(': ', ' rejected (', 1)[:100]}); "
+                                  f"attempt {tries + 1}: {name} at tau={tau:.3g}")
                 if tau < floor:
                     rejected.append(f"tau={tau:.6g}: step size below min_tau = {floor:.3g}")
                     below = tau

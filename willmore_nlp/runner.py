@@ -150,12 +150,16 @@ class _Bar:
                         if self.by_time else None)
 
     def update(self, r: StepResult) -> None:
+        self.bar.set_postfix(step=r.step, t=f"{r.t:.4g}", it=r.iterations, W=f"{r.willmore:.5g}",
+                             **({"retries": r.retries} if r.retries else {}), refresh=False)
         if self.by_time:
             self.bar.update(r.t - self.bar.n)
         else:
             self.bar.update(1)
-        self.bar.set_postfix(step=r.step, t=f"{r.t:.4g}", it=r.iterations, W=f"{r.willmore:.5g}",
-                             **({"retries": r.retries} if r.retries else {}))
+
+    def note(self, text: str) -> None:
+        """Show ``text`` in place of the step figures until the next step (a retry under way)."""
+        self.bar.set_postfix_str(text)
 
     def close(self) -> None:
         self.bar.close()
@@ -178,6 +182,7 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
             raise _StopRequestedError
 
     flow.stop_requested = guard.stop_requested
+    flow.on_retry = bar.note
     try:
         if guard.signum is None and (remaining is None or remaining > 0):
             flow.run(t_end=t_end, steps=remaining, callback=on_step)

@@ -451,19 +451,31 @@ def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
 
 @contextlib.contextmanager
 def signals_deferred() -> Iterator[None]:
-    """SIGINT and SIGTERM blocked in the main thread for the block; one that arrived meanwhile is delivered (its
-    handler runs) when the block ends. Elsewhere (other threads, systems without ``pthread_sigmask``) a no-op.
+    """SIGINT and SIGTERM held back for the block: their handlers are replaced by one that notes the signal, and on
+    exit the old handlers are restored and every noted signal is raised again (so a handler that raises, a run's
+    second Ctrl-C, does so after the block). Only in the main thread (the only one that may set handlers; elsewhere a
+    no-op). Blocking the signals with ``pthread_sigmask`` was not enough: a signal sent to the process is delivered
+    to any thread that does not block it (tqdm's monitor, BLAS threads), and Python then runs the handler in the
+    main thread at once.
 
     Found: a second SIGINT a few milliseconds after the first (tests/test_reliability.py, rapid double signals)
     once left a ``.status.json.XXXX.json`` temporary file behind (a full test run of 2026-11-28)."""
-    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    noted: list[int] = []
+
+    def note(signum: int, frame: object) -> None:
+        noted.append(signum)
+
+    old = {s: signal.signal(s, note) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for s, handler in old.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
+        for s in noted:
+            signal.raise_signal(s)
 
 
 def _umask() -> int:
