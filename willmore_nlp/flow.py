@@ -31,7 +31,8 @@ class FlowError(RuntimeError):
     ----------
     step : the step that failed
     t : time of the last accepted state
-    rejected : reasons of the rejected attempts, ``"tau=...: reason"``
+    rejected : reasons of the rejected attempts, ``"tau=...: reason"`` (``"tau=...: SOLVER: reason"`` with a
+        ``fallback_solver``)
     """
 
     def __init__(self, message: str, *, step: int = -1, t: float = float("nan"),
@@ -132,7 +133,8 @@ class StepResult:
     status : solver status
     wall_time : seconds for the step, retries included
     quality : mesh-quality figures (:func:`willmore_nlp.geometry.quality`)
-    retries : how many times tau was halved
+    retries : rejected attempts before the accepted one (tau is halved after each; with a ``fallback_solver``
+        its attempts start again from the step's first tau)
     stats : solver statistics (evaluations, timings, KKT residual; ``rejected_iterations``: solver
         iterations spent on the step's rejected attempts; ``t_wall_control``: seconds of the mesh control
         after the accepted attempt, part of ``wall_time``; ``solver``: the solver that took the step)
@@ -548,7 +550,8 @@ class WillmoreFlow:
 
     # -- stepping ----------------------------------------------------------------------
     def step(self) -> StepResult:
-        """Advance by one step of size tau; retry with tau/2 (at most ``max_retries`` times).
+        """Advance by one step of size tau; retry with tau/2 (at most ``max_retries`` times), then, when every
+        attempt failed and a ``fallback_solver`` is set, with that solver from the first tau again.
 
         An attempt is rejected when the solver fails (raises, does not converge or returns
         non-finite values), the energy inequality is violated, the mesh collapses or its
@@ -582,13 +585,13 @@ class WillmoreFlow:
                 tries += 1
                 if self.stop_requested():
                     raise StepInterrupted(self.k + 1)
-                if rejected:
-                    self.on_retry(f"step {self.k + 1}: {rejected[-1].replace(': ', ' rejected (', 1)[:100]}); "
-                                  f"attempt {tries + 1}: {name} at tau={tau:.3g}")
                 if tau < floor:
                     rejected.append(f"tau={tau:.6g}: step size below min_tau = {floor:.3g}")
                     below = tau
                     break
+                if rejected:
+                    self.on_retry(f"step {self.k + 1}: {rejected[-1].replace(': ', ' rejected (', 1)[:100]}); "
+                                  f"attempt {tries + 1}: {name} at tau={tau:.3g}")
                 p = self.params(self.X, tau)
                 z0 = self.problem.pack_z(self.X, self.Y)
                 f0 = self.evaluator.f(z0, p)
