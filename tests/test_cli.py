@@ -37,6 +37,19 @@ def test_closed_problems_build(name: str) -> None:
     assert set(resolved) == set(registry.get(name).defaults())
 
 
+def test_large_registry_surfaces_default_to_newton_krylov_with_the_ipopt_fallback() -> None:
+    """A built-in surface problem of at least ``LARGE_SURFACE`` vertices (the sphere at subdivisions 5: 10,242) flows
+    with newton-krylov and the IPOPT fallback unless a solver is given; the reproduction's sizes (the default sphere,
+    642) and curves keep IPOPT; a user's solver replaces both."""
+    big, _ = registry.build("sphere", subdivisions=5)
+    assert big.mesh.n_vertices >= registry.LARGE_SURFACE > registry.build("sphere")[0].mesh.n_vertices
+    options = big.effective_options({})
+    assert (options["solver"], options["fallback_solver"]) == ("newton-krylov", "ipopt")
+    assert big.effective_options({"solver": "ipopt"}) == {**big.flow_options, "solver": "ipopt"}
+    for small in (registry.build("sphere")[0], registry.build("circle", n=20_000)[0]):
+        assert "solver" not in small.effective_options({})
+
+
 def test_public_api_names() -> None:
     for n in ("Mesh", "WillmoreFlow", "StepResult", "willmore_energy", "load_run"):
         assert hasattr(willmore_nlp, n)

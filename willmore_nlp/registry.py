@@ -27,6 +27,13 @@ from willmore_nlp.settings import RUN_KINDS, auto, is_number, parse_bool
 if TYPE_CHECKING:
     from willmore_nlp.flow import WillmoreFlow
 
+LARGE_SURFACE = 10_000
+"""Surfaces of at least this many vertices flow with ``solver = "newton-krylov"`` and ``fallback_solver = "ipopt"``
+when the problem and the user name no solver (:meth:`Problem.effective_options`): above every size of the paper's
+reproduction (at most 4,608 vertices, whose reference solver stays IPOPT), where IPOPT's step costs 8-9x
+newton-krylov's on the benchmark spheres and a 10,242-vertex ellipsoid's 10 steps took 1,288 s against 166 s
+(docs/guide/performance.md). The ``file`` problem chooses the same from 500 vertices (its own measurements)."""
+
 
 class ProblemError(UserInputError):
     """Unknown problem or parameter, or a parameter of the wrong type."""
@@ -66,9 +73,13 @@ class Problem:
         """The flow options of :meth:`make_flow`: the problem's, replaced by ``overrides``. A ``conformal_gauge`` of
         the problem's own (the ``file`` problem's closed surfaces of genus >= 1) gives way to a volume or area
         constraint among the overrides: the gauge is for unconstrained flows, and only asking for both at once is
-        an error. A ``first_step_solver`` or ``fallback_solver`` of the problem's own (the ``file`` problem's large
-        surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp`` runs every step with sqp."""
+        an error. A surface of at least :data:`LARGE_SURFACE` vertices whose problem names no solver gets
+        newton-krylov with the IPOPT fallback. A ``first_step_solver`` or ``fallback_solver`` of the problem's own
+        (the ``file`` problem's large surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp``
+        runs every step with sqp."""
         options = dict(self.flow_options)
+        if self.mesh.d == 2 and self.mesh.n_vertices >= LARGE_SURFACE and "solver" not in options:
+            options.update(solver="newton-krylov", fallback_solver="ipopt")
         if (overrides.get("volume") is not None or overrides.get("area") is not None) \
                 and "conformal_gauge" not in overrides:
             options.pop("conformal_gauge", None)
