@@ -35,6 +35,7 @@ def test_report_artefacts(tmp_path, problem: str, sets: list[str]) -> None:
     for link in links:
         assert f'src="{link}"' in page
     assert f"# Run report: {problem}" in md
+    assert "| steps by solver | ipopt 3 |" in md  # history.csv's solver column, counted
 
 
 def test_snapshot_indices_and_html() -> None:

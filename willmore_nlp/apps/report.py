@@ -8,6 +8,7 @@ snapshots of the shape (curves as line plots; surfaces rendered shaded from a fi
 
 from __future__ import annotations
 
+import collections
 import html
 import os
 from collections.abc import Sequence
@@ -233,7 +234,10 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
         wt = np.array([float(r["wall_time"]) for r in steps])
         summary += [["iterations per step (mean / max)", f"{it.mean():.3g} / {it.max():.0f}"],
                     ["wall time per step (median / total) [s]", f"{np.median(wt):.3g} / {wt.sum():.3g}"],
-                    ["retries (tau halved)", int(sum(int(r.get("retries") or 0) for r in steps))]]
+                    ["retries (rejected attempts)", int(sum(int(r.get("retries") or 0) for r in steps))]]
+        solvers = collections.Counter(r["solver"] for r in steps if r.get("solver"))
+        if solvers:  # (runs written before 2026-11-28 have no solver column)
+            summary.append(["steps by solver", ", ".join(f"{name} {n}" for name, n in solvers.most_common())])
     else:
         summary.append(["steps taken", "none (only the initial state)"])
     remeshes = [r for r in steps if int(r.get("remeshed") or 0)]
