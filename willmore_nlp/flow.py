@@ -338,7 +338,7 @@ class WillmoreFlow:
         _check_quality(mesh, s.min_angle, s.max_edge_ratio, self.input_repair)  # the limits every step must keep
         self._step_scales(mesh)
         self._variational = all("variational" in solver_capabilities(n)  # the semi-implicit baseline is not
-                                for n in {s.solver, s.first_step_solver or s.solver, s.fallback_solver or s.solver})
+                                for n in self._solver_names())
         method = resolve_method(s.tangential_control, mesh, s.mesh_control, self._variational,
                                 None if boundary is None else boundary.free)
         self._control = TangentialControl(method, s.tangential_control_weight, s.tangential_control_time)
@@ -354,6 +354,8 @@ class WillmoreFlow:
         self.stop_requested: Callable[[], bool] = _never
         self.on_retry: Callable[[str], None] = _ignore
         self._build(mesh, boundary)
+        for other in self._solver_names() - {self.solver.name}:  # their errors now, not at their first step
+            check_solver(other, self.problem, self._solver_options(other))
         self.build_time = time.perf_counter() - t0
         try:
             self.X = self._restore(np.array(mesh.vertices, float))
@@ -403,11 +405,12 @@ class WillmoreFlow:
         if self._compiled is not None:
             kernels = self._compiled
         self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
-        name = self._step_solver()
-        self._make_solver(name)
+        self._make_solver(self._step_solvers()[0])
+
+    def _solver_names(self) -> set[str]:
+        """Every solver the flow may use: ``solver``, ``first_step_solver`` and ``fallback_solver``."""
         s = self.settings
-        for other in {s.solver, s.first_step_solver or s.solver, s.fallback_solver or s.solver} - {name}:
-            check_solver(other, self.problem, self._solver_options(other))  # its errors now, not at its first step
+        return {n for n in (s.solver, s.first_step_solver, s.fallback_solver) if n}
 
     def _step_solvers(self) -> tuple[str, ...]:
         """The solvers of the next step, in turn: ``first_step_solver`` (when set) for the first step, else
@@ -415,10 +418,6 @@ class WillmoreFlow:
         s = self.settings
         first = s.first_step_solver if self.k == 0 and s.first_step_solver else s.solver
         return (first,) if s.fallback_solver in ("", first) else (first, s.fallback_solver)
-
-    def _step_solver(self) -> str:
-        """The solver that starts the next step."""
-        return self._step_solvers()[0]
 
     def _solver_options(self, name: str) -> dict[str, Any]:
         """The solver options of ``name``: with a ``first_step_solver`` or ``fallback_solver`` other than ``solver``,
