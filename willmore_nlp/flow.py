@@ -954,11 +954,12 @@ class WillmoreFlow:
                 lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0,
                 simplices: np.ndarray | None = None, free: np.ndarray | None = None,
                 iterations: list[int] | None = None, history: list[dict[str, Any]] | None = None,
-                tau_tilde: float | None = None, rest_steps: int = 0) -> None:
+                tau_tilde: float | None = None, rest_steps: int = 0,
+                warm: dict[str, Any] | None = None) -> None:
         """Continue from a saved state (X^k, Y[X^k], t, k), e.g. a run directory's checkpoint.
 
-        With the ``Y`` and multipliers ``lam_g`` that the flow held at that state (both are in
-        every checkpoint), the following steps are bit-identical to those of a flow that was
+        With the ``Y``, multipliers ``lam_g`` and solver state ``warm`` that the flow held at that state (all
+        are in every checkpoint), the following steps are bit-identical to those of a flow that was
         never interrupted.
 
         Parameters
@@ -979,6 +980,8 @@ class WillmoreFlow:
             the initial state on: the relax test continues from its window over them; None: from this state
         tau_tilde, rest_steps : the state's tau_tilde and count of steps at rest (``rest_tau_tilde``; columns of
             its row); None: the flow's tau_tilde is kept
+        warm : :meth:`warm_state` at that state (what the step solver carried into the next solve); None or {}:
+            a new solver
         """
         X = np.array(X, dtype=float)
         Y = np.array(Y, dtype=float)
@@ -1019,6 +1022,19 @@ class WillmoreFlow:
             self.tau_tilde = float(tau_tilde)
         self._rest_steps = int(rest_steps)
         self._rest_w = w0
+        if warm:
+            name = str(warm["solver"])
+            if name in self._step_solvers():
+                if self.solver.name != name:
+                    self._make_solver(name)
+                self.solver.set_warm_state({k: v for k, v in warm.items() if k != "solver"})
+
+    def warm_state(self) -> dict[str, Any]:
+        """What the step solver carries into its next solve (newton-krylov: where its preconditioner was built,
+        :meth:`~willmore_nlp.solvers.newton_krylov.NewtonKrylovSolver.warm_state`) with the solver's name, for a
+        checkpoint (:meth:`restart`); {} when it carries nothing beyond ``lam_g``."""
+        state = self.solver.warm_state() if hasattr(self.solver, "warm_state") else {}
+        return {"solver": self.solver.name, **state} if state else {}
 
     def run(
         self,

@@ -46,10 +46,14 @@ from willmore_nlp.mesh.io import atomic_write
 STATE_RE = re.compile(r"^state_(\d{6,})\.npz$")
 """File names of accepted states."""
 
-RUN_FILES = ("config.json", "mesh.npz", "history.csv", "status.json", "run.lock")
+SOLVER_STATE = "solver_state.npz"
+"""What the step solver carried into the next step after the last state written (:func:`load_solver_state`)."""
+
+RUN_FILES = ("config.json", "mesh.npz", "history.csv", "status.json", "run.lock", SOLVER_STATE)
 """Files the program writes at the top of a run directory (besides ``states/``)."""
 
-TEMP_RE = re.compile(r"^\.(state_\d{6,}\.npz|config\.json|mesh\.npz|history\.csv|status\.json)\.[A-Za-z0-9_]+"
+TEMP_RE = re.compile(r"^\.(state_\d{6,}\.npz|config\.json|mesh\.npz|history\.csv|status\.json|solver_state\.npz)"
+                     r"\.[A-Za-z0-9_]+"
                      r"\.(npz|json|csv)$")
 """Temporary files of :func:`~willmore_nlp.mesh.io.atomic_write` (``.NAME.XXXXXXXX.SUFFIX``) for the run's
 files; only these, the state files and :data:`RUN_FILES` are ever deleted from a run directory."""
@@ -117,6 +121,21 @@ class Checkpoint:
     row: dict[str, Any]
     simplices: np.ndarray | None = None
     free: np.ndarray | None = None
+
+
+def load_solver_state(run_dir: Path, step: int) -> dict[str, Any]:
+    """The step solver's warm state written after state ``step`` (:meth:`RunWriter.add`); {} when the file is missing,
+    unreadable or of another step (a resume then starts with a new solver: the same flow, not bit for bit)."""
+    try:
+        with np.load(Path(run_dir) / SOLVER_STATE, allow_pickle=False) as s:
+            if int(s["step"]) != step:
+                return {}
+            warm: dict[str, Any] = {k: np.array(s[k]) for k in s.files if k != "step"}
+    except Exception:  # np.load/zipfile raise many types; without a warm state a resume is not bit for bit, no more
+        return {}
+    if "solver" in warm:
+        warm["solver"] = str(warm["solver"])
+    return warm
 
 
 def _parse(v: str | None) -> Any:
@@ -425,7 +444,7 @@ class RunWriter:
     def _rewrite_history(self) -> None:
         write_text_atomic(self.out / "history.csv", _csv_text(self.rows, self.keys, header=True))
 
-    def add(self, r: StepResult, lam_g: np.ndarray | None = None) -> None:
+    def add(self, r: StepResult, lam_g: np.ndarray | None = None, warm: dict[str, Any] | None = None) -> None:
         """Write the state of ``r`` (atomically), then append its row to history.csv.
 
         Parameters
@@ -433,6 +452,9 @@ class RunWriter:
         r : the accepted state
         lam_g : the flow's constraint multipliers after it (needed for bit-identical resumes
             with warm starts)
+        warm : the flow's :meth:`~willmore_nlp.flow.WillmoreFlow.warm_state` after it (the same), written to
+            :data:`SOLVER_STATE` with the step number after the state (one file, replaced at every step that has
+            one: newton-krylov's is 2-3 times the size of a state)
         """
         row = r.row()
         extra: dict[str, np.ndarray] = {} if lam_g is None else {"lam_g": np.asarray(lam_g, dtype=float)}
@@ -451,6 +473,8 @@ class RunWriter:
         else:
             with open(self.out / "history.csv", "a", encoding="utf-8") as fh:
                 fh.write(_csv_text([row], self.keys, header=False))
+        if warm:
+            _write_npz(self.out / SOLVER_STATE, step=r.step, **{k: np.asarray(v) for k, v in warm.items()})
 
     # -- status ------------------------------------------------------------------------------
     def set_status(self, state: str, **info: Any) -> None:

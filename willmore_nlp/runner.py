@@ -45,6 +45,7 @@ from willmore_nlp.rundir import (
     RunWriter,
     check_new_run_dir,
     clear_run_dir,
+    load_solver_state,
     read_config,
     read_mesh_npz,
     write_text_atomic,
@@ -176,7 +177,7 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
                initial=flow.t if t_end is not None else flow.k)
 
     def on_step(r: StepResult) -> None:
-        writer.add(r, flow.lam_g)
+        writer.add(r, flow.lam_g, flow.warm_state())
         bar.update(r)
         if guard.signum is not None:
             raise _StopRequestedError
@@ -270,7 +271,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
         try:
             writer.set_status("running")
-            writer.add(flow.state(), flow.lam_g)
+            writer.add(flow.state(), flow.lam_g, flow.warm_state())
             return _advance(flow, writer, spec.steps, spec.t_end, guard, quiet)
         except KeyboardInterrupt:
             return _abandoned(writer, guard)
@@ -381,7 +382,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                 write_text_atomic(d / "config.json", json.dumps(cfg, indent=2, sort_keys=True, default=str))
             if ck is None:
                 writer.set_status("running")
-                writer.add(flow.state(), flow.lam_g)
+                writer.add(flow.state(), flow.lam_g, flow.warm_state())
             else:
                 last = ck.row if ck.step > 0 else {}
                 flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)),
@@ -390,7 +391,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                                          if int(float(r["step"])) > 0 and "iterations" in r
                                          and r.get("solver") in (None, "", flow.settings.solver)],
                              history=writer.rows,
-                             tau_tilde=last.get("tau_tilde"), rest_steps=int(float(last.get("rest_steps") or 0)))
+                             tau_tilde=last.get("tau_tilde"), rest_steps=int(float(last.get("rest_steps") or 0)),
+                             warm=load_solver_state(d, ck.step))
                 writer.set_status("running")
             if not quiet:
                 print(f"resuming {d} at step {flow.k} (t = {flow.t:.6g})")

@@ -27,7 +27,13 @@ differs is the linear algebra and the globalisation:
   ``precond_move`` h (h the mean edge length of Xk; ``precond_move_indefinite`` h once CG met negative
   curvature in the solve) since it was built, or when a CG solve with a B
   built at another point reaches ``cg_stale`` iterations (then CG restarts with the new B). (A rule
-  on measured times would make the iterates depend on the machine's load.)
+  on measured times would make the iterates depend on the machine's load.) A B carried into the next
+  solve makes that step depend on more than the flow's state: :meth:`NewtonKrylovSolver.warm_state`
+  gives B's build point to the run directory (``solver_state.npz``) and
+  :meth:`NewtonKrylovSolver.set_warm_state` rebuilds the same B on resuming, so that a resumed run takes
+  the same steps bit for bit (without it the steps of a flow near rest differed by 1e-9 after a resume;
+  building B afresh in every solve instead took two factorisations of B per step where one did, steps
+  2-5 of the 10,242-vertex benchmark sphere).
 * Indefiniteness. When CG meets a direction of non-positive curvature the shift delta D is raised
   (delta = 1 first, then 10 delta) and CG restarts; the next Newton iteration starts from delta / 10
   (0 below 1e-3), so the final iterations are pure Newton. A shift above ``max_shift`` (1e3) ends the
@@ -218,6 +224,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._times: dict[str, float] = {}
         self._pre_x: np.ndarray | None = None  # free X where B was built, and for which tau
         self._pre_tau = float("nan")
+        self._pre_point: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros(0))  # B's (z, p): warm_state
         self._cg_since_build = 0  # CG iterations with the current B
         self._g0 = 1.0  # size of the first (reduced) gradient of a solve: CG forcing term
         self._gtol = 0.0  # the solve's stopping tolerance on |grad W^|_inf
@@ -295,6 +302,29 @@ class NewtonKrylovSolver(ReducedSolver):
         """Build B at ``pt`` and remember where (and for which tau)."""
         self._build_preconditioner(pt, p, D)
         self._pre_x, self._pre_tau, self._cg_since_build = pt.x.copy(), self.P.params.scalar(p, "tau"), 0
+        self._pre_point = (pt.z.copy(), p.copy())
+
+    def warm_state(self) -> dict[str, np.ndarray]:
+        """What the next solve takes over from the last one: the point and parameters at which the preconditioner
+        B was built and the CG iterations done with it; {} when no B is kept.
+
+        Returns
+        -------
+        dict with ``z`` (nx,), ``p`` (np,) and ``cg`` (1,) int, or {}
+        """
+        if self._pre_x is None:
+            return {}
+        z, p = self._pre_point
+        return {"z": z, "p": p, "cg": np.array([self._cg_since_build])}
+
+    def set_warm_state(self, state: dict[str, np.ndarray]) -> None:
+        """Rebuild the preconditioner that :meth:`warm_state` described (a resumed run's solver, so that its next
+        solve is the uninterrupted one's, bit for bit)."""
+        z, p = (np.asarray(state[k], dtype=float) for k in ("z", "p"))
+        if z.shape != (self.P.nx,) or p.shape != (self.P.params.size,):
+            raise ValueError(f"warm state of shapes {z.shape}, {p.shape} for a step problem of {self.P.nx} unknowns")
+        self._rebuild(self._full_point(z, p, np.zeros(self.P.ng)), p, self._distance_hessian(z, p))
+        self._cg_since_build = int(np.asarray(state["cg"]).ravel()[0])
 
     # -- Newton-CG --------------------------------------------------------------------
     def _pcg(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix, delta: float, eta: float,
