@@ -424,6 +424,37 @@ def test_input_repair_remeshes_a_poor_input_on_its_own_polyhedron() -> None:
     assert WillmoreFlow(ico, ico.h, ico.h**2 / 100).mesh is ico
 
 
+def test_a_remesh_target_sets_the_resolution_of_any_input(tmp_path) -> None:
+    """``remesh_target`` more than 10 % (``TARGET_CHANGE``) away from the input's equilateral edge remeshes even a
+    good input before the first step, as the end-of-run resolution warning advises (before, a good input kept its
+    resolution whatever the target: a 1,297-vertex genus-2 level set ran with its own 1,297 vertices): a 642-vertex
+    icosphere read by the ``file`` problem with half its edge as the target flows on about four times the vertices,
+    every new vertex on the input's triangles, with tau = h of the finer mesh; a target within 10 % of its edge and
+    ``input_repair = false`` leave it as given. A run directory whose repair did nothing resumes without it (its
+    record says so), one whose repair acted redoes it."""
+    from willmore_nlp.flow import TARGET_CHANGE
+    from willmore_nlp.mesh.io import save_mesh
+    from willmore_nlp.runner import stored_control
+
+    save_mesh(shapes.icosphere(3), tmp_path / "sphere.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "sphere.obj"))
+    edge = rm.equilateral_edge(pb.mesh.vertices, pb.mesh.simplices)
+    with pytest.warns(UserWarning, match=r"remeshed toward remesh_target = .* 642 -> \d+ vertices"):
+        flow = pb.make_flow(remesh_target=edge / 2)
+    m = flow.mesh
+    assert 3.2 * 642 < m.n_vertices < 4.8 * 642 and flow.state().remeshed == "remesh"
+    assert geometry.triangle_quality(m.vertices, m.simplices)["min_angle"] > 30
+    face, bary = rm.closest_on_mesh(m.vertices, pb.mesh.vertices, pb.mesh.simplices)
+    on = np.einsum("ij,ijk->ik", bary, pb.mesh.vertices[pb.mesh.simplices[face]])
+    assert np.abs(on - m.vertices).max() < 1e-12
+    assert flow.tau == pytest.approx(m.h, rel=1e-12) and m.h < 0.6 * pb.mesh.h
+    near, off = {"remesh_target": (1 + TARGET_CHANGE / 2) * edge}, {"remesh_target": edge / 2, "input_repair": False}
+    for options in (near, off):
+        assert pb.make_flow(**options).mesh.n_vertices == 642
+    assert stored_control({"input_repair": ""})["input_repair"] is False
+    assert "input_repair" not in stored_control({"input_repair": "remesh"})
+
+
 def test_the_step_limits_are_checked_after_the_input_repair() -> None:
     """An input beyond the limits every step must keep (``max_edge_ratio``, ``min_angle``) is flowed when the input
     repair brings it within them (a trimesh capsule of count 64 subdivided once has pole fans with edge ratio 1.97e3

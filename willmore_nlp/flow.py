@@ -87,6 +87,11 @@ BUDGET_WINDOW = 20
 RELAX_WINDOW = 3
 """The relax test looks at the Willmore energy over this many last steps (:meth:`WillmoreFlow.step`)."""
 
+TARGET_CHANGE = 0.1
+"""A ``remesh_target`` more than this fraction away from the input's equilateral edge remeshes the input before the
+first step (``input_repair``), whatever its quality: refining (or coarsening) a mesh is asked that way, as the
+end-of-run resolution warning advises (:func:`willmore_nlp.references.resolution_warning`)."""
+
 RESTORE_LIMIT = 0.25
 """A mesh repair is dropped when moving the repaired mesh back onto the volume/area targets would move a vertex
 by more than this many mean edge lengths (a least-norm correction of a coarse remeshed vesicle built a spike)."""
@@ -819,8 +824,10 @@ class WillmoreFlow:
 
     def _repair_input(self, mesh: Mesh, boundary: Any) -> tuple[Mesh, Any]:
         """``input_repair``: the initial mesh and boundary, repaired when the patch is below the repair thresholds
-        (Delaunay flips, then an isotropic remeshing with the new vertices on the input's triangles); a warning
-        names what was done. Unchanged when nothing improved the smallest angle or the edge ratio."""
+        (Delaunay flips, then an isotropic remeshing with the new vertices on the input's triangles), or remeshed
+        toward a ``remesh_target`` that differs from the input's equilateral edge by more than
+        :data:`TARGET_CHANGE` (:meth:`_remesh_input`); a warning names what was done. Unchanged when nothing
+        improved the smallest angle or the edge ratio."""
         from willmore_nlp import remesh as rm
 
         if _explicit(boundary):
@@ -828,6 +835,9 @@ class WillmoreFlow:
         free = None if boundary is None else boundary.free
         X, F = mesh.vertices, mesh.simplices
         q0 = self._patch_quality(X, F, free)
+        target = self.settings.remesh_target
+        if target is not None and abs(np.log(target / rm.equilateral_edge(X, F, free))) > np.log(1 + TARGET_CHANGE):
+            return self._remesh_input(mesh, boundary, target, q0)
         if not self._below_thresholds(q0):
             return mesh, boundary
         F1, n = rm.delaunay_flips(X, F, free)
@@ -849,6 +859,35 @@ class WillmoreFlow:
                       f"by {' and '.join(actions)}: {mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle "
                       f"{q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g} (input_repair=false flows it as "
                       f"given)", stacklevel=3)
+        return new, b1
+
+    def _remesh_input(self, mesh: Mesh, boundary: Any, target: float,
+                      q0: dict[str, float]) -> tuple[Mesh, Any]:
+        """``input_repair`` of an input whose resolution the user changes (``remesh_target``): an isotropic
+        remeshing toward ``target`` (new vertices on the input's triangles) and Delaunay flips, taken unless the
+        result is below the repair thresholds without improving on the input (patch quality ``q0``)."""
+        from willmore_nlp import remesh as rm
+
+        free = None if boundary is None else boundary.free
+        try:
+            r = rm.isotropic_remesh(mesh.vertices, mesh.simplices, target, free, smooth=False)
+        except rm.RemeshError as exc:
+            warnings.warn(f"{mesh.source}: remeshing the input toward remesh_target = {target:g} failed ({exc}); "
+                          "it is flowed as given", stacklevel=4)
+            return mesh, boundary
+        b1 = None if boundary is None else rm.carry_boundary(boundary, r)
+        F1, _ = rm.delaunay_flips(r.vertices, r.simplices, None if b1 is None else b1.free)
+        q1 = self._patch_quality(r.vertices, F1, None if b1 is None else b1.free)
+        if self._below_thresholds(q1) and not _improves(q0, q1):
+            warnings.warn(f"{mesh.source}: remeshing the input toward remesh_target = {target:g} gave a smallest angle "
+                          f"of {q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g}: it is flowed as given",
+                          stacklevel=4)
+            return mesh, boundary
+        new = Mesh(r.vertices, F1, mesh.source)
+        self.input_repair = "remesh"
+        warnings.warn(f"{mesh.source}: remeshed toward remesh_target = {target:g} before the first step: "
+                      f"{mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle {q1['min_angle']:.3g} deg, edge "
+                      f"ratio {q1['edge_ratio']:.3g} (input_repair=false flows it as given)", stacklevel=4)
         return new, b1
 
     def _step_scales(self, mesh: Mesh) -> None:

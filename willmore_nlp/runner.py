@@ -288,7 +288,9 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
     tau and tau_tilde were the input's); its ``solver``, ``first_step_solver`` and ``fallback_solver`` ("ipopt", ""
     and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28); and
     ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their
-    initial state is the input as given, and the repair would give the flow another connectivity)."""
+    initial state is the input as given, and the repair would give the flow another connectivity) and for runs whose
+    repair did nothing (an empty record: the input as given, also when a later rule would remesh it, as a
+    ``remesh_target`` does since 2026-11-28)."""
     given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
     stored = cfg.get("tangential_control")
     if stored is None:
@@ -298,7 +300,7 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
            "conformal_gauge": given.get("conformal_gauge", False), "steps_from_h": given.get("steps_from_h", "none"),
            "solver": given.get("solver", "ipopt"), "first_step_solver": given.get("first_step_solver", ""),
            "fallback_solver": given.get("fallback_solver", "")}
-    return out if "input_repair" in cfg else {**out, "input_repair": False}
+    return out if cfg.get("input_repair") else {**out, "input_repair": False}
 
 
 @contextlib.contextmanager

@@ -389,7 +389,9 @@ class FlowSettings(Settings):
         the input's triangles (not lifted onto quadric fits, which a crease would bend; the new triangles chord
         across creases and cone points: 0.38 h on a trimesh cone), taken when it improves the smallest angle (a
         warning says so; default true). That cone (770 v, 4.2 deg) failed its first step at every tau down to
-        h/256 as given and flows to a sphere after it (docs/guide/mesh_quality.md). Not with an explicit clamp
+        h/256 as given and flows to a sphere after it (docs/guide/mesh_quality.md). A ``remesh_target`` more than
+        10 % away from the input's equilateral edge (:data:`~willmore_nlp.flow.TARGET_CHANGE`) remeshes any input
+        toward it (finer or coarser), as the end-of-run resolution warning advises. Not with an explicit clamp
         (``conormal``/``ring`` data).
     steps_from_h : {"none", "tau", "tau_tilde", "both"}
         Which of ``tau`` and ``tau_tilde`` were chosen from the input mesh's mean edge h (tau proportional to h,
@@ -406,7 +408,9 @@ class FlowSettings(Settings):
     remesh_target : float, optional
         Target edge length of the isotropic remeshing (default: the edge of equilateral triangles with the
         patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
-        remeshing keeps the resolution, e.g. the vertex count of a closed surface).
+        remeshing keeps the resolution, e.g. the vertex count of a closed surface). Given, it also sets the
+        resolution of the input (``input_repair``: remeshed toward it before the first step when it differs from
+        the input's equilateral edge by more than 10 %).
     remesh_repair : int
         Light repair after every accepted step, while ``remesh`` is on (default 2; 0: only the
         threshold-triggered repair): Delaunay flips, ``remesh_repair`` passes of
