@@ -60,6 +60,21 @@ differs is the linear algebra and the globalisation:
   (tested densely): step 1 of the benchmark spheres took 7 / 6 / 7 Newton iterations at 642 / 2,562 /
   10,242 vertices instead of 8 / 11 / 13 (IPOPT 6 / 6 / 5). A first system without negative curvature
   (a flow's later steps) is the reduced iteration's, unchanged.
+* The guarded pass (``guarded``). On noisy inputs the step problem itself is far from convex at X^0 (its
+  reduced Hessian D + tau R is positive definite only below tau = h/1,291 on a noisy 640-vertex torus and
+  h/38,606 on a trimesh cone, with local negative modes), and descent on W^ with Y = Y[X] crushes a triangle
+  where IPOPT's infeasible iterates go round to a healthy solution 0.7-2.9 h away. A solve that met negative
+  curvature and ended "too indefinite" or with a failed line search is therefore solved once more from X^k,
+  staying in the full-space iteration (no hand-back, no restart; shifts up to ``GUARD_SHIFT``), with trial
+  points that flip a triangle or put an angle below ``GUARD_ANGLE`` times the smallest angle of X^k halved in
+  the merit search, full-space steps of at most ``GUARD_STEP`` h and shifted systems after the first cut at
+  ``GUARD_CG`` CG iterations (the truncated direction taken when it descends); its iterations are bounded by
+  ``max_iter`` alone, not by the flow's first-step budget. Measured (first steps, direct solves): it finds
+  IPOPT's solutions (the same smallest angle and largest move) on a noisy torus at h/32 (the first pass: h/64),
+  on a subdivided cylinder at h/8 (h/64) and on the cone at h/8 (the first pass fails at every tau), each solve
+  in 1-5 s; failing, it fails in 1-6 s at these sizes (600-800 vertices); a noisy 10,192-vertex torus's first
+  step at h/32 in 192 s where IPOPT took 939 s (docs/guide/performance.md). Smooth inputs never reach it (the
+  first pass converges): their steps are unchanged bit for bit.
 * Globalisation (reduced iteration). Backtracking (halving) line search with the Armijo condition on W^. A step whose
   predicted decrease is below the rounding level of W^ (100 eps |W^|) is accepted when it reduces
   |grad W^|_inf instead, whatever W^ does there (the last, quadratically convergent iterations:
@@ -89,10 +104,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from willmore_nlp import geometry
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh.topology import edge_lengths, unique_edges
 from willmore_nlp.model.evaluator import StepEvaluator
-from willmore_nlp.settings import integer, one_of, option, real
+from willmore_nlp.settings import BOOL, integer, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
 from willmore_nlp.solvers.cholesky import (
     BACKENDS,
@@ -108,6 +124,21 @@ from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, _Point
 HANDBACK_AFTER = 2
 """Full-space steps after which negative curvature hands the solve to the reduced iteration at the current iterate
 (fewer: it restarts from X^0; module docstring)."""
+
+GUARD_ANGLE = 0.25
+"""Guarded pass (module docstring): a full-space trial X with a flipped triangle or an angle below this fraction of the
+smallest angle of X^k is shortened (0.5 refused the solutions IPOPT finds on a noisy torus, 9.07 of 21.4 deg)."""
+
+GUARD_STEP = 0.3
+"""Guarded pass: largest full-space step in X, in mean edges h of X^k (1 h: the cone and the cylinder failed at large
+tau)."""
+
+GUARD_CG = 50
+"""Guarded pass: CG iterations of a shifted full-space system after the first; the truncated direction is taken when it
+is a descent direction."""
+
+GUARD_SHIFT = 1e7
+"""Guarded pass: the largest shift (in units of D) instead of ``max_shift``."""
 
 
 @dataclass(frozen=True)
@@ -161,6 +192,9 @@ class NewtonKrylovSettings(ReducedSettings):
     step_cap : float
         Largest step in X of the full-space iteration, in units of the mean edge length h of X^k (a longer
         Newton step is scaled down to it before the line search).
+    guarded : bool
+        A solve that met negative curvature and ended "too indefinite" or with a failed line search is solved
+        again from X^k by the guarded pass (module docstring); false: it fails at once (the flow retries).
     """
 
     solver = "newton-krylov"
@@ -177,6 +211,7 @@ class NewtonKrylovSettings(ReducedSettings):
     first_shift: float = option(300.0, real(0, lo_open=True))
     first_cg_tol: float = option(1e-3, real(0, 1, lo_open=True))
     step_cap: float = option(1.0, real(0, lo_open=True))
+    guarded: bool = option(True, BOOL)
 
 
 @register_solver("newton-krylov", NewtonKrylovSettings)
@@ -210,6 +245,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self.first_shift = settings.first_shift
         self.first_cg_tol = settings.first_cg_tol
         self.step_cap = settings.step_cap
+        self.guarded = settings.guarded
         self._jy = SymmetricFactor(settings.cholesky, simplicial=True)  # (N x N: simplicial solves faster)
         self._pre = SymmetricFactor(settings.cholesky)
         self.backend = self._jy.backend
@@ -232,6 +268,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self.should_stop = lambda: False
         self._edges: np.ndarray | None = None
         self._first_state: tuple[np.ndarray | None, int] = (None, 0)
+        self._guard: tuple[np.ndarray, float] | None = None  # guarded pass: X^k's triangle normals, the angle floor
 
     # -- bookkeeping ------------------------------------------------------------------
     @contextmanager
@@ -410,18 +447,24 @@ class NewtonKrylovSolver(ReducedSolver):
             # a shifted system is only a safeguard, except the first one (its multiplier matters)
             eta = self.first_cg_tol if first and delta else min(0.5 if delta else self.cg_forcing, rel)
             limit = self.cg_max_iter if fresh else self.cg_stale
+            capped = self._guard is not None and bool(delta) and not first
+            if capped:
+                limit = min(limit, GUARD_CG)
             with self._timed("cg"):
                 d, k, state = self._pcg(pt, p, D, delta, eta, limit)
             self._count("n_cg", k)
             self._cg_since_build += k
-            if limit < self.cg_max_iter and state == "limit":  # B built elsewhere no longer preconditions
+            if capped and state == "limit" and float(pt.pgrad @ d) < 0:  # the truncated direction descends
+                break
+            if limit < self.cg_max_iter and state == "limit" and not capped:  # B built elsewhere: no preconditioner
                 self._rebuild(pt, p, D)
                 continue
             if state != "negative":
                 break
+            top = self.max_shift if self._guard is None else GUARD_SHIFT
             raised = self.first_shift if first and not delta else max(1.0, 10 * delta)
-            delta = self.max_shift if 0 < delta < self.max_shift < raised else raised  # the cap itself is tried
-            if delta > self.max_shift:
+            delta = top if 0 < delta < top < raised else raised  # the cap itself is tried
+            if delta > top:
                 self._delta_max = delta
                 return None, True
         self._delta = 0.0 if first else delta
@@ -453,6 +496,18 @@ class NewtonKrylovSolver(ReducedSolver):
         self._delta = self._delta_max = 0.0
         stats: dict[str, Any] = {}
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
+        if self.guarded and self._delta_max > 0 and status.startswith(("reduced Hessian too indefinite",
+                                                                         "line search failed")):
+            # indefinite and not solved: the guarded pass from the same start (module docstring)
+            self._guard = self._mesh_guard(Xk)
+            self._count("n_guarded")
+            self._delta = self._delta_max = 0.0
+            pt = self._feasible(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
+            try:  # (its own iterations bounded by max_iter alone: 34-44 on the cone, beyond a first-step budget)
+                z, f, lam, it2, status, res = self._iterate(pt, p, D, h, gtol, SolveMonitor(None))
+            finally:
+                self._guard = None
+            it += it2
         stats["n_symbolic"] = self._jy.n_symbolic + self._pre.n_symbolic - symbolic
         stats["iteration"] = "full-space" if self._counts.get("n_full_space") else "reduced"
         stats.update(self._counts)
@@ -536,6 +591,27 @@ class NewtonKrylovSolver(ReducedSolver):
         return None
 
 
+    # -- the guarded pass ---------------------------------------------------------------
+    def _mesh_guard(self, Xk: np.ndarray) -> tuple[np.ndarray, float]:
+        """(triangle normals of X^k, angle floor GUARD_ANGLE x its smallest angle) of a surface in R^3; a curve or a
+        surface in another dimension gets no floor (its simplices have no angle here: (empty, -inf))."""
+        P = self.P
+        if not (P.d == 2 and P.m == 3):
+            return np.zeros((0, 3)), -np.inf
+        S = P.simplices
+        normals = np.cross(Xk[S[:, 1]] - Xk[S[:, 0]], Xk[S[:, 2]] - Xk[S[:, 0]])
+        return normals, GUARD_ANGLE * float(geometry.min_angles(Xk, S).min())
+
+    def _guard_refuses(self, x: np.ndarray, Xk: np.ndarray) -> bool:
+        """Whether the free positions ``x`` flip a triangle of X^k or put an angle below the guarded pass's floor."""
+        if self._guard is None or not len(self._guard[0]):
+            return False
+        normals, floor = self._guard
+        X = self.P.unpack_x(x, Xk)
+        S = self.P.simplices
+        flipped = np.einsum("ij,ij->i", np.cross(X[S[:, 1]] - X[S[:, 0]], X[S[:, 2]] - X[S[:, 0]]), normals) <= 0
+        return bool(flipped.any()) or float(geometry.min_angles(X, S).min()) < floor
+
     # -- full-space (SQP) iteration ---------------------------------------------------
     def _full_point(self, z: np.ndarray, p: np.ndarray, lam: np.ndarray) -> _Point:
         """Everything the full-space iteration needs at a (possibly infeasible) z: W, its gradient, g, J,
@@ -609,14 +685,16 @@ class NewtonKrylovSolver(ReducedSolver):
                     v = pt.gf + pt.H @ np.concatenate([np.zeros(n), dyp])
                     pt.pgrad = v[:n] + pt.Jx.T @ pt.lu.solve(-v[n:], trans="T")  # Z^T (grad W + H dz_p)
                 d, shifted = self._direction(pt, p, D, h)
-                if shifted and it >= HANDBACK_AFTER:  # negative curvature again after full-space progress:
+                if shifted and self._guard is not None:  # the guarded pass stays in the full space
+                    pass
+                elif shifted and it >= HANDBACK_AFTER:  # negative curvature again after full-space progress:
                     # the reduced iteration goes on from here, Y = Y[X] (40,962-v sphere: 13 Newton iterations
                     # where the restart from X^0 below took 22)
                     q = restored(pt)
                     self._count("n_restoration")
                     self._count("n_handback")
                     return self._iterate(leave(q), p, D, h, gtol, monitor, it)
-                if shifted:  # negative curvature again at once: the first multiplier did not help. The reduced
+                elif shifted:  # negative curvature again at once: the first multiplier did not help. The reduced
                     # iteration from X^0 with the preconditioner's state of the start: its path as without
                     # the full-space attempt, two iterations later
                     pre_x, cg = self._first_state
@@ -631,7 +709,8 @@ class NewtonKrylovSolver(ReducedSolver):
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
             dz, Hdz, lam_new = self._kkt_step(pt, d, dyp)
-            new = self._merit_search(pt, p, dz, Hdz, lam_new, rho, min(1.0, self.step_cap * h / np.abs(d).max()))
+            cap = self.step_cap if self._guard is None else GUARD_STEP
+            new = self._merit_search(pt, p, dz, Hdz, lam_new, rho, min(1.0, cap * h / np.abs(d).max()))
             if new is None:
                 status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
                 break
@@ -677,6 +756,10 @@ class NewtonKrylovSolver(ReducedSolver):
         for _ in range(40):
             zt = pt.z + alpha * dz
             lt = lam + alpha * (lam_new - lam)
+            if self._guard_refuses(zt[:n], Xk):  # the guarded pass: a flipped or crushed triangle, a shorter step
+                self._count("n_guard")
+                alpha *= 0.5
+                continue
             with self._timed("eval"):
                 ft, gt = self.ev.f(zt, p), self.ev.g(zt, p)
             phi = ft + float(lt @ gt) + 0.5 * rho * float(gt @ gt)
