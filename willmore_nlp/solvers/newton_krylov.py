@@ -64,7 +64,8 @@ differs is the linear algebra and the globalisation:
   reduced Hessian D + tau R is positive definite only below tau = h/1,291 on a noisy 640-vertex torus and
   h/38,606 on a trimesh cone, with local negative modes), and descent on W^ with Y = Y[X] crushes a triangle
   where IPOPT's infeasible iterates go round to a healthy solution 0.7-2.9 h away. A solve that met negative
-  curvature and ended "too indefinite" or with a failed line search is therefore solved once more from X^k,
+  curvature and ended "too indefinite" or with a failed line search (without outer constraints and with a
+  linear inner equation: the full-space iteration's domain) is therefore solved once more from X^k,
   staying in the full-space iteration (no hand-back, no restart; shifts up to ``GUARD_SHIFT``), with trial
   points that flip a triangle or put an angle below ``GUARD_ANGLE`` times the smallest angle of X^k halved in
   the merit search, full-space steps of at most ``GUARD_STEP`` h and shifted systems after the first cut at
@@ -496,8 +497,8 @@ class NewtonKrylovSolver(ReducedSolver):
         self._delta = self._delta_max = 0.0
         stats: dict[str, Any] = {}
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
-        if self.guarded and self._delta_max > 0 and status.startswith(("reduced Hessian too indefinite",
-                                                                         "line search failed")):
+        if (self.guarded and self._delta_max > 0 and not (P.nh or P.nonlinear_inner)  # (no full space there)
+                and status.startswith(("reduced Hessian too indefinite", "line search failed"))):
             # indefinite and not solved: the guarded pass from the same start (module docstring)
             self._guard = self._mesh_guard(Xk)
             self._count("n_guarded")
