@@ -686,18 +686,17 @@ class NewtonKrylovSolver(ReducedSolver):
                     v = pt.gf + pt.H @ np.concatenate([np.zeros(n), dyp])
                     pt.pgrad = v[:n] + pt.Jx.T @ pt.lu.solve(-v[n:], trans="T")  # Z^T (grad W + H dz_p)
                 d, shifted = self._direction(pt, p, D, h)
-                if shifted and self._guard is not None:  # the guarded pass stays in the full space
-                    pass
-                elif shifted and it >= HANDBACK_AFTER:  # negative curvature again after full-space progress:
-                    # the reduced iteration goes on from here, Y = Y[X] (40,962-v sphere: 13 Newton iterations
-                    # where the restart from X^0 below took 22)
+                # (the guarded pass stays in the full space: neither exit below)
+                if shifted and self._guard is None and it >= HANDBACK_AFTER:  # negative curvature again after
+                    # full-space progress: the reduced iteration goes on from here, Y = Y[X] (40,962-v sphere: 13
+                    # Newton iterations where the restart from X^0 below took 22)
                     q = restored(pt)
                     self._count("n_restoration")
                     self._count("n_handback")
                     return self._iterate(leave(q), p, D, h, gtol, monitor, it)
-                elif shifted:  # negative curvature again at once: the first multiplier did not help. The reduced
-                    # iteration from X^0 with the preconditioner's state of the start: its path as without
-                    # the full-space attempt, two iterations later
+                if shifted and self._guard is None:  # negative curvature again at once: the first multiplier did
+                    # not help. The reduced iteration from X^0 with the preconditioner's state of the start: its path
+                    # as without the full-space attempt, two iterations later
                     pre_x, cg = self._first_state
                     if self._pre_x is pre_x:
                         self._cg_since_build = cg
