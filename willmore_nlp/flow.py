@@ -799,11 +799,13 @@ class WillmoreFlow:
                                    "min_angle_before_remesh": angle_before, "willmore_before_remesh": w_before}
 
     def _isotropic_remesh(self, X: np.ndarray, F: np.ndarray, boundary: Any, smooth: bool = True,
-                          quality: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray, Any] | None:
+                          quality: dict[str, float] | None = None,
+                          retarget: bool = False) -> tuple[np.ndarray, np.ndarray, Any] | None:
         """(X', F', boundary') of an isotropic remeshing of (X, F) toward ``remesh_target`` (default: the equilateral
         edge) followed by flips, or None when it failed (a warning) or did not keep the smallest patch angle and
-        improve it or the edge ratio. ``smooth``: :func:`willmore_nlp.remesh.isotropic_remesh`; ``quality``: the
-        patch quality of (X, F) when the caller has it."""
+        improve it or the edge ratio (``retarget``, a resolution the user asks for: when it is below the repair
+        thresholds without improving on (X, F)). ``smooth``: :func:`willmore_nlp.remesh.isotropic_remesh`;
+        ``quality``: the patch quality of (X, F) when the caller has it."""
         from willmore_nlp import remesh as rm
 
         free = None if boundary is None else boundary.free
@@ -818,7 +820,9 @@ class WillmoreFlow:
         qb = self._patch_quality(r.vertices, F2, r.free if boundary is not None else None)
         # only a remeshing that keeps the smallest angle and improves it or the edge ratio (with the
         # light repair on, any result was taken: 0.6 deg on a coarse genus-2 flow, mesh_quality.md)
-        if not (qb["min_angle"] >= qa["min_angle"] and _improves(qa, qb)):
+        kept = (not self._below_thresholds(qb) or _improves(qa, qb)) if retarget else (
+            qb["min_angle"] >= qa["min_angle"] and _improves(qa, qb))
+        if not kept:
             return None
         return r.vertices, F2, None if boundary is None else rm.carry_boundary(boundary, r)
 
@@ -866,24 +870,15 @@ class WillmoreFlow:
         """``input_repair`` of an input whose resolution the user changes (``remesh_target``): an isotropic
         remeshing toward ``target`` (new vertices on the input's triangles) and Delaunay flips, taken unless the
         result is below the repair thresholds without improving on the input (patch quality ``q0``)."""
-        from willmore_nlp import remesh as rm
-
-        free = None if boundary is None else boundary.free
-        try:
-            r = rm.isotropic_remesh(mesh.vertices, mesh.simplices, target, free, smooth=False)
-        except rm.RemeshError as exc:
-            warnings.warn(f"{mesh.source}: remeshing the input toward remesh_target = {target:g} failed ({exc}); "
-                          "it is flowed as given", stacklevel=4)
+        remeshed = self._isotropic_remesh(mesh.vertices, mesh.simplices, boundary, smooth=False, quality=q0,
+                                          retarget=True)
+        if remeshed is None:
+            warnings.warn(f"{mesh.source}: remeshing the input toward remesh_target = {target:g} gave no mesh within "
+                          "the repair thresholds: it is flowed as given", stacklevel=4)
             return mesh, boundary
-        b1 = None if boundary is None else rm.carry_boundary(boundary, r)
-        F1, _ = rm.delaunay_flips(r.vertices, r.simplices, None if b1 is None else b1.free)
-        q1 = self._patch_quality(r.vertices, F1, None if b1 is None else b1.free)
-        if self._below_thresholds(q1) and not _improves(q0, q1):
-            warnings.warn(f"{mesh.source}: remeshing the input toward remesh_target = {target:g} gave a smallest angle "
-                          f"of {q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g}: it is flowed as given",
-                          stacklevel=4)
-            return mesh, boundary
-        new = Mesh(r.vertices, F1, mesh.source)
+        X1, F1, b1 = remeshed
+        q1 = self._patch_quality(X1, F1, None if b1 is None else b1.free)
+        new = Mesh(X1, F1, mesh.source)
         self.input_repair = "remesh"
         warnings.warn(f"{mesh.source}: remeshed toward remesh_target = {target:g} before the first step: "
                       f"{mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle {q1['min_angle']:.3g} deg, edge "

@@ -108,6 +108,7 @@ import scipy.sparse as sp
 from willmore_nlp import geometry
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh.topology import edge_lengths, unique_edges
+from willmore_nlp.mesh.validate import face_normals
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.settings import BOOL, integer, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
@@ -491,7 +492,8 @@ class NewtonKrylovSolver(ReducedSolver):
         self._count("n_eval_grad_f")
         gtol = self._gtol = self.tol * scale
         symbolic = self._jy.n_symbolic + self._pre.n_symbolic  # (CHOLMOD: once per pattern, kept across solves)
-        pt = self._feasible(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
+        x0, Y0 = np.asarray(z0[: self.nxm], float), P.unpack_z(z0, Xk)[1]  # (the guarded pass starts there too)
+        pt = self._feasible(x0, p, Y0)
         D = self._distance_hessian(pt.z, p)
         self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
         self._delta = self._delta_max = 0.0
@@ -503,7 +505,7 @@ class NewtonKrylovSolver(ReducedSolver):
             self._guard = self._mesh_guard(Xk)
             self._count("n_guarded")
             self._delta = self._delta_max = 0.0
-            pt = self._feasible(np.asarray(z0[: self.nxm], float), p, P.unpack_z(z0, Xk)[1])
+            pt = self._feasible(x0, p, Y0)
             try:  # (its own iterations bounded by max_iter alone: 34-44 on the cone, beyond a first-step budget)
                 z, f, lam, it2, status, res = self._iterate(pt, p, D, h, gtol, SolveMonitor(None))
             finally:
@@ -599,9 +601,7 @@ class NewtonKrylovSolver(ReducedSolver):
         P = self.P
         if not (P.d == 2 and P.m == 3):
             return np.zeros((0, 3)), -np.inf
-        S = P.simplices
-        normals = np.cross(Xk[S[:, 1]] - Xk[S[:, 0]], Xk[S[:, 2]] - Xk[S[:, 0]])
-        return normals, GUARD_ANGLE * float(geometry.min_angles(Xk, S).min())
+        return face_normals(Xk, P.simplices), GUARD_ANGLE * float(geometry.min_angles(Xk, P.simplices).min())
 
     def _guard_refuses(self, x: np.ndarray, Xk: np.ndarray) -> bool:
         """Whether the free positions ``x`` flip a triangle of X^k or put an angle below the guarded pass's floor."""
@@ -610,7 +610,7 @@ class NewtonKrylovSolver(ReducedSolver):
         normals, floor = self._guard
         X = self.P.unpack_x(x, Xk)
         S = self.P.simplices
-        flipped = np.einsum("ij,ij->i", np.cross(X[S[:, 1]] - X[S[:, 0]], X[S[:, 2]] - X[S[:, 0]]), normals) <= 0
+        flipped = np.einsum("ij,ij->i", face_normals(X, S), normals) <= 0
         return bool(flipped.any()) or float(geometry.min_angles(X, S).min()) < floor
 
     # -- full-space (SQP) iteration ---------------------------------------------------
