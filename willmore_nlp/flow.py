@@ -596,72 +596,10 @@ class WillmoreFlow:
                 if rejected:
                     self.on_retry(f"step {self.k + 1}: {rejected[-1].replace(': ', ' rejected (', 1)[:100]}); "
                                   f"attempt {tries + 1}: {name} at tau={tau:.3g}")
-                p = self.params(self.X, tau)
-                z0 = self.problem.pack_z(self.X, self.Y)
-                f0 = self.evaluator.f(z0, p)
-                if hasattr(self.solver, "iteration_limit"):
-                    last = attempt >= self.settings.max_retries
-                    self.solver.iteration_limit = None if last else self._iteration_limit() or self._first_step_limit()
-                try:
-                    res = self.solver.solve(z0, p, self.lam_g)
-                except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
-                    reason: str | None = f"solver error: {str(exc).strip().splitlines()[-1]}"
-                else:
-                    spent += res.iterations
-                    X, Y = self.problem.unpack_z(res.z, self.X)
-                    reason = self._reject_reason(res, f0, X)
-                moved: dict[str, float] = {}
-                if reason is None and self.settings.redistribute:
-                    e_step = self.discrete_energy(X, Y)
-                    Xr = geometry.redistribute_curve(self.mesh.with_vertices(X))
-                    moved = {"redistribution_shift": float(np.abs(Xr - X).max()),
-                             "energy_before_redistribution": e_step}
-                    X = Xr
-                if reason is None and self.problem.nh:
-                    moved["constraint_violation_solver"] = self.constraint_violation(X)
-                    try:
-                        X = self._restore(X)
-                    except (RuntimeError, np.linalg.LinAlgError) as exc:
-                        reason = str(exc)
-                if reason is None and self.settings.conformal_gauge:
-                    b, centre, scale = geometry.conformal_motion(self.mesh.with_vertices(self.X), X)
-                    Xg = geometry.special_conformal_map(X, -b, centre, scale)
-                    moved["conformal_gauge_shift"] = float(np.abs(Xg - X).max())
-                    X = Xg
+                X, Y, res, reason, moved = self._attempt(tau, attempt >= self.settings.max_retries)
+                spent += res.iterations if res is not None else 0
                 if reason is None:
-                    try:
-                        Y = self._solve_y(X, tau, Y)
-                    except (RuntimeError, ValueError, ArithmeticError) as exc:
-                        reason = f"inner equation Y[X] failed: {exc}"
-                    else:
-                        if not np.all(np.isfinite(Y)):
-                            reason = "inner equation Y[X] gave non-finite values"
-                if reason is None:
-                    self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
-                    self.lam_g = res.lam_g
-                    self._grow_tau(tau, tries)
-                    if self.solver.name == self.settings.solver:  # another solver's count is no measure of solver's
-                        self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
-                    solver_name = self.solver.name
-                    t_control = time.perf_counter()
-                    action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
-                    mstats["t_wall_control"] = time.perf_counter() - t_control
-                    result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
-                    if self._rest and self._rest_tau_tilde(tries, tau, result.willmore, result.measure):
-                        # Y, the discrete energy and tau_tilde of the state are those of the halved tau_tilde
-                        result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries,
-                                              rejected)
-                    result.rest_steps = self._rest_steps
-                    result.stats.update(moved)
-                    result.stats.update(mstats)
-                    result.stats["rejected_iterations"] = spent - res.iterations
-                    result.stats["solver"] = solver_name
-                    result.remeshed = action
-                    if self.settings.relax:
-                        # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
-                        # energy changed by less than relax_tol relative per nominal step, or rose without a flip
-                        result.relaxed = self.relaxed = self._relax_test(result.willmore, tau, action)
-                    return result
+                    return self._accept(X, Y, tau, res, moved, t0, tries, rejected, spent)
                 if self.stop_requested():  # the solve was cut short (or failed): do not retry
                     raise StepInterrupted(self.k + 1)
                 rejected.append(f"tau={tau:.6g}: {name + ': ' if len(solvers) > 1 else ''}{reason}")
@@ -675,6 +613,85 @@ class WillmoreFlow:
             + (f" with each of {' and '.join(solvers)}" if len(solvers) > 1 else "") + ": " + "; ".join(rejected),
             step=self.k + 1, t=self.t, rejected=rejected,
         )
+
+    def _attempt(self, tau: float, last: bool) -> tuple[np.ndarray, np.ndarray, Any, str | None, dict[str, float]]:
+        """One attempt of the step at ``tau`` with the current solver (``last``: the solver's last attempt, which
+        runs without the iteration budget) and the post-processing of its solution: redistribution (curves), the
+        outer constraints' restoration, the conformal gauge and Y[X].
+
+        Returns
+        -------
+        (X, Y, res, reason, moved): X (N, m) and Y (N, m) the new state, ``res`` the solver's result (None when
+        the solver raised), ``reason`` why the attempt is rejected (None: accepted), ``moved`` the statistics of
+        the post-processing (history columns).
+        """
+        p = self.params(self.X, tau)
+        z0 = self.problem.pack_z(self.X, self.Y)
+        f0 = self.evaluator.f(z0, p)
+        if hasattr(self.solver, "iteration_limit"):
+            self.solver.iteration_limit = None if last else self._iteration_limit() or self._first_step_limit()
+        X, Y, moved = self.X, self.Y, {}
+        try:
+            res = self.solver.solve(z0, p, self.lam_g)
+        except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
+            return X, Y, None, f"solver error: {str(exc).strip().splitlines()[-1]}", moved
+        X, Y = self.problem.unpack_z(res.z, self.X)
+        reason = self._reject_reason(res, f0, X)
+        if reason is None and self.settings.redistribute:
+            e_step = self.discrete_energy(X, Y)
+            Xr = geometry.redistribute_curve(self.mesh.with_vertices(X))
+            moved = {"redistribution_shift": float(np.abs(Xr - X).max()), "energy_before_redistribution": e_step}
+            X = Xr
+        if reason is None and self.problem.nh:
+            moved["constraint_violation_solver"] = self.constraint_violation(X)
+            try:
+                X = self._restore(X)
+            except (RuntimeError, np.linalg.LinAlgError) as exc:
+                reason = str(exc)
+        if reason is None and self.settings.conformal_gauge:
+            b, centre, scale = geometry.conformal_motion(self.mesh.with_vertices(self.X), X)
+            Xg = geometry.special_conformal_map(X, -b, centre, scale)
+            moved["conformal_gauge_shift"] = float(np.abs(Xg - X).max())
+            X = Xg
+        if reason is None:
+            try:
+                Y = self._solve_y(X, tau, Y)
+            except (RuntimeError, ValueError, ArithmeticError) as exc:
+                reason = f"inner equation Y[X] failed: {exc}"
+            else:
+                if not np.all(np.isfinite(Y)):
+                    reason = "inner equation Y[X] gave non-finite values"
+        return X, Y, res, reason, moved
+
+    def _accept(self, X: np.ndarray, Y: np.ndarray, tau: float, res: Any, moved: dict[str, float], t0: float,
+                tries: int, rejected: list[str], spent: int) -> StepResult:
+        """Make the attempt's state (X, Y) at ``tau`` the flow's, control its mesh and return the step's result
+        (``t0``: the step's start on the perf counter; ``tries``: its retries; ``rejected``: the rejected attempts'
+        reasons; ``spent``: the solver iterations of all its attempts)."""
+        self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
+        self.lam_g = res.lam_g
+        self._grow_tau(tau, tries)
+        if self.solver.name == self.settings.solver:  # another solver's count is no measure of solver's
+            self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
+        solver_name = self.solver.name
+        t_control = time.perf_counter()
+        action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
+        mstats["t_wall_control"] = time.perf_counter() - t_control
+        result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
+        if self._rest and self._rest_tau_tilde(tries, tau, result.willmore, result.measure):
+            # Y, the discrete energy and tau_tilde of the state are those of the halved tau_tilde
+            result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
+        result.rest_steps = self._rest_steps
+        result.stats.update(moved)
+        result.stats.update(mstats)
+        result.stats["rejected_iterations"] = spent - res.iterations
+        result.stats["solver"] = solver_name
+        result.remeshed = action
+        if self.settings.relax:
+            # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
+            # energy changed by less than relax_tol relative per nominal step, or rose without a flip
+            result.relaxed = self.relaxed = self._relax_test(result.willmore, tau, action)
+        return result
 
     def _iteration_limit(self) -> int | None:
         """Iteration budget of the next attempt: ``max(iteration_budget_min, iteration_budget x median)``.
