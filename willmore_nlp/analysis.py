@@ -202,20 +202,12 @@ def normal_jumps(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> dict[str, fl
     F : (K, 3) triangles, consistently oriented (edges with one or more than two triangles are ignored)
     free : (N,) bool, the patch's free vertices
     """
-    from willmore_nlp.mesh.topology import simplex_facets, unique_rows
-    from willmore_nlp.mesh.validate import face_normals
+    from willmore_nlp.geometry import dihedral_angles
+    from willmore_nlp.mesh.topology import edge_triangles
 
-    E, owner = simplex_facets(F)
-    key = np.sort(E, axis=1)
-    _, inv, counts = unique_rows(key, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    order = np.argsort(inv, kind="stable")
-    pairs = order[counts[inv[order]] == 2].reshape(-1, 2)  # the two triangles of every interior edge
-    n = face_normals(V, F)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    t1, t2 = owner[pairs[:, 0]], owner[pairs[:, 1]]
-    ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", n[t1], n[t2]), -1.0, 1.0)))
-    ends = key[pairs[:, 0]]
+    pairs, ends = edge_triangles(F)
+    ang = dihedral_angles(V, F, pairs)
+    t1, t2 = pairs[:, 0], pairs[:, 1]
     patch_tri = free[F].any(axis=1)
     gamma_node = np.zeros(len(V), bool)
     gamma_node[F[patch_tri].ravel()] = True

@@ -16,6 +16,7 @@ from willmore_nlp.anisotropy import anisotropic_willmore_energy
 from willmore_nlp.codegen import compile_kernels, find_compiler
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.mesh.topology import edge_triangles
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
@@ -550,7 +551,23 @@ class WillmoreFlow:
             return f"mesh quality: edge ratio {q['edge_ratio']:.3g} > {self.settings.max_edge_ratio:g}"
         if "min_angle" in q and q["min_angle"] < self.settings.min_angle:
             return f"mesh quality: min angle {q['min_angle']:.3g} deg < {self.settings.min_angle:g}"
-        return None
+        return self._fold(X, q)
+
+    def _fold(self, X: np.ndarray, q: dict[str, float]) -> str | None:
+        """Why the step to X (quality ``q``) folds the mesh (an edge whose triangles' normals turn by more than
+        ``max_dihedral`` and more than in X^k), or None."""
+        limit = self.settings.max_dihedral
+        if q.get("max_dihedral", 0.0) <= limit:
+            return None
+        F = self.mesh.simplices
+        pairs, ends = edge_triangles(F)
+        turn = geometry.dihedral_angles(X, F, pairs)
+        over = (turn > limit) & (turn > geometry.dihedral_angles(self.X, F, pairs))
+        if not over.any():
+            return None
+        i = int(np.argmax(np.where(over, turn, -1.0)))
+        return (f"mesh folds: the normals of the triangles at edge ({ends[i, 0]}, {ends[i, 1]}) turn by {turn[i]:.3g} "
+                f"deg > max_dihedral = {limit:g}")
 
     # -- stepping ----------------------------------------------------------------------
     def step(self) -> StepResult:
@@ -789,6 +806,8 @@ class WillmoreFlow:
         q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
         if not light and not _improves(q0, q1):
             return "", {}  # no improvement: keep the flow's own mesh rather than churn
+        if self._folds_more(X, F, X1, F1):
+            return "", {}  # the stepped state passed the fold check; a repair across a crease must not fold it
         e_before = self.discrete_energy(X, self.Y)
         w_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
         angle_before = geometry.triangle_quality(X, F)["min_angle"]
@@ -814,6 +833,13 @@ class WillmoreFlow:
         return "+".join(actions), {"energy_before_remesh": e_before,
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before, "willmore_before_remesh": w_before}
+
+    def _folds_more(self, X: np.ndarray, F: np.ndarray, X1: np.ndarray, F1: np.ndarray) -> bool:
+        """Whether the repaired mesh (X1, F1) of the surface (X, F) in R^3 has an edge whose triangles' normals turn by
+        more than ``max_dihedral`` and more than any edge of (X, F) (the connectivities may differ)."""
+        turn = geometry.dihedral_angles(X1, F1)
+        top = float(turn.max()) if turn.size else 0.0
+        return top > self.settings.max_dihedral and top > float(geometry.dihedral_angles(X, F).max())
 
     def _isotropic_remesh(self, X: np.ndarray, F: np.ndarray, boundary: Any, smooth: bool = True,
                           quality: dict[str, float] | None = None,

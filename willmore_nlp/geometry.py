@@ -6,8 +6,8 @@ import numpy as np
 
 from willmore_nlp.fem.assembly import element_geometry, lumped_mass, mass_stiffness
 from willmore_nlp.mesh.core import Mesh
-from willmore_nlp.mesh.topology import scatter_sum
-from willmore_nlp.mesh.validate import simplex_volumes, vertex_normals_of
+from willmore_nlp.mesh.topology import edge_triangles, scatter_sum
+from willmore_nlp.mesh.validate import face_normals, simplex_volumes, vertex_normals_of
 
 
 def mean_curvature_vector(mesh: Mesh) -> np.ndarray:
@@ -243,6 +243,25 @@ def triangle_quality(V: np.ndarray, S: np.ndarray) -> dict[str, float]:
             "edge_ratio": float(sides.max() / sides.min())}
 
 
+def dihedral_angles(V: np.ndarray, F: np.ndarray, pairs: np.ndarray | None = None) -> np.ndarray:
+    """(E,) angles in degrees between the unit normals of the two triangles of every interior edge: 0 where they
+    lie flat, 180 where the surface folds back onto itself.
+
+    Parameters
+    ----------
+    V : (N, 3) positions
+    F : (K, 3) consistently oriented triangles
+    pairs : (E, 2) the triangles of each edge (:func:`willmore_nlp.mesh.topology.edge_triangles`, computed when
+        None)
+    """
+    if pairs is None:
+        pairs = edge_triangles(F)[0]
+    n = face_normals(np.asarray(V, float), np.asarray(F))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    cos = np.einsum("ij,ij->i", n[pairs[:, 0]], n[pairs[:, 1]])
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
 def quality(mesh: Mesh) -> dict[str, float]:
     """Mesh quality figures.
 
@@ -251,7 +270,8 @@ def quality(mesh: Mesh) -> dict[str, float]:
     dict
         ``edge_ratio``: longest / shortest edge; ``min_edge``: shortest edge;
         for surfaces also ``min_angle`` (degrees) and ``max_aspect`` (longest edge over
-        2 sqrt(3) times the inradius, so that an equilateral triangle has 1).
+        2 sqrt(3) times the inradius, so that an equilateral triangle has 1), and in R^3 ``max_dihedral``, the largest
+        angle (degrees) between the normals of two adjacent triangles (:func:`dihedral_angles`: 180 for a fold).
     """
     ell = mesh.edge_lengths()
     q = {"edge_ratio": float(ell.max() / ell.min()), "min_edge": float(ell.min())}
@@ -265,4 +285,7 @@ def quality(mesh: Mesh) -> dict[str, float]:
         longest = np.maximum(np.maximum(a, b), c)
         q["min_angle"] = float(min_angles(V, S).min())
         q["max_aspect"] = float((longest / (2 * np.sqrt(3) * inr)).max())
+        if mesh.m == 3:
+            dihedral = dihedral_angles(V, S)
+            q["max_dihedral"] = float(dihedral.max()) if dihedral.size else 0.0
     return q

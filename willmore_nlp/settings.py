@@ -252,6 +252,11 @@ class FlowSettings(Settings):
         Reject surface steps whose smallest triangle angle (degrees) drops below this.
     max_edge_ratio : float
         Reject steps whose longest/shortest edge ratio exceeds this.
+    max_dihedral : float
+        Reject surface steps (in R^3) that fold the mesh: a step after which the normals of the two triangles at an
+        edge turn by more than this angle (degrees) and by more than at the step's start (an edge already that sharp
+        in X^k, a box's, may stay so). 180 switches the check off. Triangles of good shape can fold flat onto each
+        other, which the angle and edge-ratio checks do not see (docs/guide/mesh_quality.md, "Folds").
     energy_rtol : float
         Relative slack of the energy check: a step passes when W <= W(X^k) (1 + energy_rtol) + 1e-14.
     allow_components : bool
@@ -454,6 +459,7 @@ class FlowSettings(Settings):
     check_energy: bool = option(True, BOOL)
     min_angle: float = option(0.5, real(0, 60))
     max_edge_ratio: float = option(1e3, real(1, finite=False))
+    max_dihedral: float = option(120.0, real(0, 180, lo_open=True, hi_open=False))
     energy_rtol: float = option(1e-8, real(0))
     allow_components: bool = option(False, BOOL)
     anisotropy: object = option(None, ANY)

@@ -105,6 +105,23 @@ def simplex_facets(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return F, owner
 
 
+def edge_triangles(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two triangles of every interior edge of the triangles ``F`` ((K, 3)).
+
+    Returns
+    -------
+    pairs : (E, 2) int array, the indices into F of the two triangles of each edge with exactly two
+    ends : (E, 2) int array, the edge's vertices (sorted)
+    """
+    E, owner = simplex_facets(np.asarray(F))
+    key = np.sort(E, axis=1)
+    _, inv, counts = unique_rows(key, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    order = np.argsort(inv, kind="stable")
+    half = order[counts[inv[order]] == 2].reshape(-1, 2)
+    return owner[half], key[half[:, 0]]
+
+
 def boundary_facets(S: np.ndarray) -> np.ndarray:
     """(B, d) facets that belong to exactly one simplex (boundary of the mesh)."""
     F, _ = simplex_facets(S)

@@ -1,0 +1,93 @@
+"""Folds: the angle between adjacent triangles' normals, and the step check ``max_dihedral`` that refuses a step
+which folds the mesh (triangles of good shape folded onto each other, which the angle and edge-ratio checks do not
+see)."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from willmore_nlp import WillmoreFlow, geometry
+from willmore_nlp.errors import UserInputError
+from willmore_nlp.flow import FlowError
+from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.topology import edge_triangles
+
+
+@pytest.mark.parametrize("theta", [0.0, 30.0, 90.0, 150.0, 179.0])
+def test_the_dihedral_angle_of_a_hinge_is_its_opening(theta: float) -> None:
+    """Two unit triangles on the edge (0, 1) along x1, the second rotated about it by theta: their normals turn by
+    theta (0 when flat, 180 when folded back)."""
+    t = np.radians(theta)
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -np.cos(t), -np.sin(t)]], float)
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    pairs, ends = edge_triangles(F)
+    assert ends.tolist() == [[0, 1]] and sorted(pairs[0].tolist()) == [0, 1]
+    np.testing.assert_allclose(geometry.dihedral_angles(V, F), [theta], atol=1e-9)
+
+
+def test_dihedral_angles_agree_with_trimesh() -> None:
+    """Every interior edge of a noisy icosphere(2): the same angles as trimesh's face_adjacency_angles (an
+    independent implementation), and the largest is the one geometry.quality reports."""
+    m = trimesh.creation.icosphere(2)
+    V = m.vertices + 0.05 * np.random.default_rng(1).standard_normal(m.vertices.shape)
+    ours = geometry.dihedral_angles(V, m.faces)
+    theirs = np.degrees(trimesh.Trimesh(V, m.faces, process=False).face_adjacency_angles)
+    np.testing.assert_allclose(np.sort(ours), np.sort(theirs), rtol=0, atol=1e-9)
+    assert geometry.quality(Mesh(V, m.faces))["max_dihedral"] == pytest.approx(ours.max(), abs=1e-12)
+
+
+def _folded(mesh: Mesh) -> tuple[np.ndarray, tuple[int, int]]:
+    """The vertices of ``mesh`` (a unit sphere) with vertex 0 moved on the sphere across the edge (a, b) of one of
+    its triangles, past the edge's middle: the triangle folds back over its neighbour at that edge; and (a, b)."""
+    X = mesh.vertices.copy()
+    S = mesh.simplices
+    a, b = sorted(int(v) for v in S[(S == 0).any(axis=1)][0] if v != 0)
+    X[0] += 1.5 * (0.5 * (X[a] + X[b]) - X[0])
+    X[0] /= np.linalg.norm(X[0])
+    return X, (a, b)
+
+
+def test_a_fold_is_named_and_an_edge_as_sharp_before_is_allowed() -> None:
+    """Vertex 0 of an icosphere(2) moved across the edge of one of its triangles (a fold of 173 deg, every angle
+    above 14 deg): the check names the fold at that edge, with the angle; with max_dihedral = 180
+    nothing; a step from a state that has the fold already, keeping it or unfolding it, is not refused."""
+    mesh = shapes.icosphere(2)
+    flow = WillmoreFlow(mesh, 0.01, 1e-4)
+    X, (a, b) = _folded(mesh)
+    q = geometry.quality(mesh.with_vertices(X))
+    assert q["max_dihedral"] > 170 and q["min_angle"] > 14
+    reason = flow._fold(X, q)
+    assert reason is not None and reason.startswith(f"mesh folds: the normals of the triangles at edge ({a}, {b}) ")
+    assert f"turn by {q['max_dihedral']:.3g} deg > max_dihedral = 120" in reason
+    assert WillmoreFlow(mesh, 0.01, 1e-4, max_dihedral=180)._fold(X, q) is None
+    flow.X = X
+    assert flow._fold(X, q) is None
+    assert flow._fold(mesh.vertices, geometry.quality(mesh)) is None
+
+
+def test_a_flow_that_must_sharpen_edges_beyond_max_dihedral_fails_with_the_fold_named() -> None:
+    """An ellipsoid 1:1:2 (icosphere(2), 162 v; its sharpest edges, 21.8 deg, at the tips) flows toward a sphere:
+    the edges of its flat middle, below 12 deg, sharpen beyond 12 deg in a step (checked here with the check off).
+    With max_dihedral = 12 every attempt (tau = h, h/2, h/4) is refused as a fold and the step fails naming it:
+    the check runs inside the step, with its retries, and only against edges the step sharpened (the tips, above
+    12 deg from the start, do not count)."""
+    base = shapes.icosphere(2)
+    mesh = base.with_vertices(base.vertices * [1.0, 1.0, 2.0])
+    F = mesh.simplices
+    before = geometry.dihedral_angles(mesh.vertices, F)
+    free = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, mesh_control="off")
+    assert free.step().retries == 0
+    after = geometry.dihedral_angles(free.X, F)
+    assert before.max() > 20 and np.any((before < 12) & (after > 12))
+    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, max_dihedral=12, max_retries=2, mesh_control="off")
+    with pytest.raises(FlowError) as err:
+        flow.step()
+    assert len(err.value.rejected) == 3 and all("mesh folds" in r for r in err.value.rejected)
+    np.testing.assert_array_equal(flow.X, mesh.vertices)
+
+
+@pytest.mark.parametrize("bad", [0, -5, 181, "x"])
+def test_max_dihedral_must_be_an_angle(bad: object) -> None:
+    with pytest.raises(UserInputError, match="max_dihedral"):
+        WillmoreFlow(shapes.icosphere(1), 0.1, 1e-3, max_dihedral=bad)
