@@ -2,6 +2,10 @@
 which folds the mesh (triangles of good shape folded onto each other, which the angle and edge-ratio checks do not
 see)."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -11,7 +15,9 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.flow import FlowError
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.io import save_mesh
 from willmore_nlp.mesh.topology import edge_triangles
+from willmore_nlp.runner import last_reason
 
 
 @pytest.mark.parametrize("theta", [0.0, 30.0, 90.0, 150.0, 179.0])
@@ -59,7 +65,7 @@ def test_a_fold_is_named_and_an_edge_as_sharp_before_is_allowed() -> None:
     assert q["max_dihedral"] > 170 and q["min_angle"] > 14
     reason = flow._fold(X, q)
     assert reason is not None and reason.startswith(f"mesh folds: the normals of the triangles at edge ({a}, {b}) ")
-    assert f"turn by {q['max_dihedral']:.3g} deg > max_dihedral = 120" in reason
+    assert f"turn by {q['max_dihedral']:.4g} deg > max_dihedral = 120" in reason
     assert WillmoreFlow(mesh, 0.01, 1e-4, max_dihedral=180)._fold(X, q) is None
     flow.X = X
     assert flow._fold(X, q) is None
@@ -91,3 +97,25 @@ def test_a_flow_that_must_sharpen_edges_beyond_max_dihedral_fails_with_the_fold_
 def test_max_dihedral_must_be_an_angle(bad: object) -> None:
     with pytest.raises(UserInputError, match="max_dihedral"):
         WillmoreFlow(shapes.icosphere(1), 0.1, 1e-3, max_dihedral=bad)
+
+
+def test_the_error_line_names_the_cause_when_the_step_size_floor_ends_a_step(tmp_path: Path) -> None:
+    """The ellipsoid of the test above as a user's file with max_dihedral = 12 and min_tau = 0.3 h: the attempts at
+    h and h/2 are refused as folds and the next would be below min_tau; the one-line error shows the floor and,
+    after it, the fold that caused it (before, only "step size below min_tau")."""
+    base = shapes.icosphere(2)
+    mesh = base.with_vertices(base.vertices * [1.0, 1.0, 2.0])
+    save_mesh(mesh, tmp_path / "ell.obj")
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "ell.obj"), "--out",
+                        str(tmp_path / "out"), "--steps", "1", "--quiet", "--set", "max_dihedral=12", "--set",
+                        f"min_tau={0.3 * mesh.h}"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    assert "failed after 3 attempts (last: tau=" in line and ": step size below min_tau = " in line
+    assert "; before it: tau=" in line and "mesh folds: the normals of the triangles at edge (" in line
+
+
+def test_last_reason_keeps_a_cause_that_is_the_last_entry() -> None:
+    assert last_reason([], "boom") == "boom"
+    assert last_reason(["tau=1: solver failed"], "x") == "tau=1: solver failed"
+    assert last_reason(["tau=0.5: step size below min_tau = 0.6"], "x") == "tau=0.5: step size below min_tau = 0.6"

@@ -60,6 +60,10 @@ class StepInterrupted(Exception):  # noqa: N818 (an outcome, not an error)
         self.step = step
 
 
+FLOOR_REASON = "step size below min_tau"
+"""The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
+
+
 def _never() -> bool:
     return False
 
@@ -566,7 +570,7 @@ class WillmoreFlow:
         if not over.any():
             return None
         i = int(np.argmax(np.where(over, turn, -1.0)))
-        return (f"mesh folds: the normals of the triangles at edge ({ends[i, 0]}, {ends[i, 1]}) turn by {turn[i]:.3g} "
+        return (f"mesh folds: the normals of the triangles at edge ({ends[i, 0]}, {ends[i, 1]}) turn by {turn[i]:.4g} "
                 f"deg > max_dihedral = {limit:g}")
 
     # -- stepping ----------------------------------------------------------------------
@@ -607,7 +611,7 @@ class WillmoreFlow:
                 if self.stop_requested():
                     raise StepInterrupted(self.k + 1)
                 if tau < floor:
-                    rejected.append(f"tau={tau:.6g}: step size below min_tau = {floor:.3g}")
+                    rejected.append(f"tau={tau:.6g}: {FLOOR_REASON} = {floor:.3g}")
                     below = tau
                     break
                 if rejected:

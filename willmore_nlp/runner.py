@@ -37,7 +37,7 @@ import numpy as np
 
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
 from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS
-from willmore_nlp.flow import RELAX_WINDOW, FlowError, StepInterrupted, StepResult, WillmoreFlow
+from willmore_nlp.flow import FLOOR_REASON, RELAX_WINDOW, FlowError, StepInterrupted, StepResult, WillmoreFlow
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.references import resolution_warning
 from willmore_nlp.rundir import (
@@ -54,6 +54,16 @@ from willmore_nlp.rundir import (
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 """Environment variables that set BLAS/OpenMP thread counts (recorded in config.json)."""
 
+
+
+
+def last_reason(rejected: list[str], message: str) -> str:
+    """The last rejected attempt's reason for the one-line error of a failed step (``message`` when there is none);
+    when that is only the step-size floor, with the last attempt that the solver or a check refused (the cause)."""
+    if not rejected:
+        return message
+    cause = next((r for r in reversed(rejected) if FLOOR_REASON not in r), None)
+    return rejected[-1] if cause is None or cause == rejected[-1] else f"{rejected[-1]}; before it: {cause}"
 
 
 def thread_environment() -> dict[str, Any]:
@@ -211,10 +221,9 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
     except FlowError as exc:
         writer.set_status("failed", message=str(exc), failed_step=exc.step, rejected=exc.rejected)
         bar.close()
-        last = exc.rejected[-1] if exc.rejected else str(exc)
         print(f"willmore-nlp: error: step {exc.step} at t = {exc.t:.6g} failed after {len(exc.rejected)} "
-              f"attempts (last: {last}); all attempts are in {out / 'status.json'}; steps 0..{flow.k} are kept",
-              file=sys.stderr)
+              f"attempts (last: {last_reason(exc.rejected, str(exc))}); all attempts are in {out / 'status.json'}; "
+              f"steps 0..{flow.k} are kept", file=sys.stderr)
         return EXIT_FAILED
     except Exception as exc:
         if isinstance(exc, OSError) and exc.errno in IO_ERRNOS:  # disk full, read-only: one line, exit 74
