@@ -544,6 +544,15 @@ def test_both_exits_of_the_full_space_iteration_match_ipopt(name: str, monkeypat
         assert np.abs(r.vertices - ref.vertices).max() <= 1e-8 * step
 
 
+def _noisy_torus_problem(tmp_path):
+    """The ``file`` problem of a noisy stretched trimesh torus (40 x 16 sections, z x 1.2, noise 0.01; 640 v)."""
+    t = trimesh.creation.torus(major_radius=1.0, minor_radius=0.35, major_sections=40, minor_sections=16)
+    V = t.vertices * [1.0, 1.0, 1.2]
+    trimesh.Trimesh(V + 0.01 * np.random.default_rng(1).standard_normal(V.shape), t.faces,
+                    process=False).export(tmp_path / "torus.obj")
+    return registry.build("file", path=str(tmp_path / "torus.obj"))[0]
+
+
 def test_a_noisy_first_step_that_both_passes_fail_is_taken_by_the_guarded_pass(tmp_path) -> None:
     """A noisy stretched trimesh torus (40 x 16 sections, z x 1.2, noise 0.01; 640 v, the ``file`` problem's options)
     at tau = h/32: the reduced/full-space passes fail (the reduced Hessian is far from convex at X^0: shifts above
@@ -553,11 +562,7 @@ def test_a_noisy_first_step_that_both_passes_fail_is_taken_by_the_guarded_pass(t
     At h/64 the first pass converges and the guarded one never runs."""
     from willmore_nlp import geometry
 
-    t = trimesh.creation.torus(major_radius=1.0, minor_radius=0.35, major_sections=40, minor_sections=16)
-    V = t.vertices * [1.0, 1.0, 1.2]
-    trimesh.Trimesh(V + 0.01 * np.random.default_rng(1).standard_normal(V.shape), t.faces,
-                    process=False).export(tmp_path / "torus.obj")
-    pb, _ = registry.build("file", path=str(tmp_path / "torus.obj"))
+    pb = _noisy_torus_problem(tmp_path)
     steps = {}
     for solver in ("newton-krylov", "ipopt"):
         flow = pb.make_flow(solver=solver)
@@ -572,3 +577,21 @@ def test_a_noisy_first_step_that_both_passes_fail_is_taken_by_the_guarded_pass(t
     assert geometry.min_angles(X, S).min() >= newton_krylov.GUARD_ANGLE * geometry.min_angles(X0, S).min()
     for k in (32, 64):
         assert np.abs(steps["newton-krylov", k][0] - steps["ipopt", k][0]).max() <= 1e-6 * h
+
+
+def test_a_guarded_pass_that_the_guard_keeps_refusing_ends_early(tmp_path, monkeypatch) -> None:
+    """The noisy torus of the test above at tau = h, where the guarded pass fails: it ends once the mesh guard has
+    refused GUARD_REFUSALS trial points, with that status, in fewer Newton iterations than the same pass without the
+    limit, which fails as well (measured: converged passes need 0-4 refusals, failed ones ran to 366-477)."""
+    pb = _noisy_torus_problem(tmp_path)
+    default = newton_krylov.GUARD_REFUSALS
+    runs = {}
+    for limit in (default, 10**9):
+        monkeypatch.setattr(newton_krylov, "GUARD_REFUSALS", limit)
+        flow = pb.make_flow(solver="newton-krylov")
+        runs[limit] = flow.solver.solve(flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, flow.tau), None)
+    cut, full = runs[default], runs[10**9]
+    assert not cut.converged and not full.converged
+    assert cut.status.startswith(f"guarded pass: the mesh guard refused {default} trial points")
+    assert cut.stats["n_guarded"] == 1 and cut.stats["n_guard"] == default < full.stats["n_guard"]
+    assert cut.iterations < full.iterations

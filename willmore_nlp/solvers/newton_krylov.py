@@ -60,22 +60,23 @@ differs is the linear algebra and the globalisation:
   (tested densely): step 1 of the benchmark spheres took 7 / 6 / 7 Newton iterations at 642 / 2,562 /
   10,242 vertices instead of 8 / 11 / 13 (IPOPT 6 / 6 / 5). A first system without negative curvature
   (a flow's later steps) is the reduced iteration's, unchanged.
-* The guarded pass (``guarded``). On noisy inputs the step problem itself is far from convex at X^0 (its
-  reduced Hessian D + tau R is positive definite only below tau = h/1,291 on a noisy 640-vertex torus and
-  h/38,606 on a trimesh cone, with local negative modes), and descent on W^ with Y = Y[X] crushes a triangle
-  where IPOPT's infeasible iterates go round to a healthy solution 0.7-2.9 h away. A solve that met negative
-  curvature and ended "too indefinite" or with a failed line search (without outer constraints and with a
-  linear inner equation: the full-space iteration's domain) is therefore solved once more from X^k,
-  staying in the full-space iteration (no hand-back, no restart; shifts up to ``GUARD_SHIFT``), with trial
-  points that flip a triangle or put an angle below ``GUARD_ANGLE`` times the smallest angle of X^k halved in
-  the merit search, full-space steps of at most ``GUARD_STEP`` h and shifted systems after the first cut at
-  ``GUARD_CG`` CG iterations (the truncated direction taken when it descends); its iterations are bounded by
-  ``max_iter`` alone, not by the flow's first-step budget. Measured (first steps, direct solves): it finds
-  IPOPT's solutions (the same smallest angle and largest move) on a noisy torus at h/32 (the first pass: h/64),
-  on a subdivided cylinder at h/8 (h/64) and on the cone at h/8 (the first pass fails at every tau), each solve
-  in 1-5 s; failing, it fails in 1-6 s at these sizes (600-800 vertices); a noisy 10,192-vertex torus's first
-  step at h/32 in 192 s where IPOPT took 939 s (docs/guide/performance.md). Smooth inputs never reach it (the
-  first pass converges): their steps are unchanged bit for bit.
+* The guarded pass (``guarded``). On noisy inputs the step problem itself is far from convex at X^0 (its reduced
+  Hessian D + tau R is positive definite only below tau = h/1,291 on a noisy 640-vertex torus and h/38,606 on a
+  trimesh cone, with local negative modes), and descent on W^ with Y = Y[X] crushes a triangle where IPOPT's
+  infeasible iterates go round to a healthy solution 0.7-2.9 h away. A solve that met negative curvature and ended
+  "too indefinite" or with a failed line search (without outer constraints and with a linear inner equation: the
+  full-space iteration's domain) is therefore solved once more from X^k, staying in the full-space iteration (no
+  hand-back, no restart; shifts up to ``GUARD_SHIFT``), with trial points that flip a triangle or put an angle below
+  ``GUARD_ANGLE`` times the smallest angle of X^k halved in the merit search, full-space steps of at most
+  ``GUARD_STEP`` h and shifted systems after the first cut at ``GUARD_CG`` CG iterations (the truncated direction
+  taken when it descends); its iterations are bounded by ``max_iter`` alone, not by the flow's first-step budget, and
+  it ends as failed once the guard has refused ``GUARD_REFUSALS`` trial points (converged passes needed 0-4, failed
+  ones ran to 366-477). Measured (first steps, direct solves): it finds IPOPT's solutions (the same smallest angle and
+  largest move) on a noisy torus at h/32 (the first pass: h/64), on a subdivided cylinder at h/8 (h/64) and on the
+  cone at h/8 (the first pass fails at every tau), each solve in 1-5 s; failing, it fails in 1-6 s at these sizes
+  (600-800 vertices); a noisy 10,192-vertex torus's first step at h/32 in 192 s where IPOPT took 939 s
+  (docs/guide/performance.md). Smooth inputs never reach it (the first pass converges): their steps are unchanged bit
+  for bit.
 * Globalisation (reduced iteration). Backtracking (halving) line search with the Armijo condition on W^. A step whose
   predicted decrease is below the rounding level of W^ (100 eps |W^|) is accepted when it reduces
   |grad W^|_inf instead, whatever W^ does there (the last, quadratically convergent iterations:
@@ -141,6 +142,12 @@ is a descent direction."""
 
 GUARD_SHIFT = 1e7
 """Guarded pass: the largest shift (in units of D) instead of ``max_shift``."""
+
+GUARD_REFUSALS = 40
+"""Guarded pass: trial points the mesh guard may refuse in all before the pass ends as failed. Measured (first steps
+of the cone, the cylinder, the noisy torus and capsule of docs/guide/performance.md, tau = h ... h/32): every
+converged pass had 0-4 refusals, every failed one 366-477 (15,190-vertex capsule: 377 in 83 s), spent over 20-40
+iterations of steps the guard kept shortening."""
 
 
 @dataclass(frozen=True)
@@ -712,7 +719,9 @@ class NewtonKrylovSolver(ReducedSolver):
             cap = self.step_cap if self._guard is None else GUARD_STEP
             new = self._merit_search(pt, p, dz, Hdz, lam_new, rho, min(1.0, cap * h / np.abs(d).max()))
             if new is None:
-                status = f"line search failed (|grad W^| = {gmax:.2e} > {gtol:.2e})"
+                why = ("line search failed" if self._counts.get("n_guard", 0) < GUARD_REFUSALS else
+                       f"guarded pass: the mesh guard refused {GUARD_REFUSALS} trial points")
+                status = f"{why} (|grad W^| = {gmax:.2e} > {gtol:.2e})"
                 break
             pt, rho = new
             self._count("n_full_space")  # Newton iterations of the full-space iteration
@@ -758,6 +767,8 @@ class NewtonKrylovSolver(ReducedSolver):
             lt = lam + alpha * (lam_new - lam)
             if self._guard_refuses(zt[:n], Xk):  # the guarded pass: a flipped or crushed triangle, a shorter step
                 self._count("n_guard")
+                if self._counts["n_guard"] >= GUARD_REFUSALS:
+                    return None
                 alpha *= 0.5
                 continue
             with self._timed("eval"):
