@@ -146,7 +146,7 @@ GUARD_SHIFT = 1e7
 GUARD_REFUSALS = 40
 """Guarded pass: trial points the mesh guard may refuse in all before the pass ends as failed. Measured (first steps
 of the cone, the cylinder, the noisy torus and capsule of docs/guide/performance.md, tau = h ... h/32): every
-converged pass had 0-4 refusals, every failed one 366-477 (15,190-vertex capsule: 377 in 83 s), spent over 20-40
+converged pass had 0-4 refusals, every failed one 366-477 (15,190-vertex capsule: 377 in 83 s), spent over 20-42
 iterations of steps the guard kept shortening."""
 
 
