@@ -4,6 +4,7 @@ see)."""
 
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +73,22 @@ def test_a_fold_is_named_and_an_edge_as_sharp_before_is_allowed() -> None:
     assert flow._fold(mesh.vertices, geometry.quality(mesh)) is None
 
 
+def test_an_input_with_a_fold_is_warned_about() -> None:
+    """The folded icosphere of the test above as an input: one warning counts the edges beyond the limit and names
+    the sharpest with its angle (the flow keeps them: the check refuses only sharper ones); the icosphere itself
+    gives none."""
+    mesh = shapes.icosphere(2)
+    X, (a, b) = _folded(mesh)
+    top = geometry.quality(mesh.with_vertices(X))["max_dihedral"]
+    over = int(np.count_nonzero(geometry.dihedral_angles(X, mesh.simplices) > 120))
+    with pytest.warns(UserWarning, match=rf"{over} edge\(s\) whose triangles' normals turn by more than max_dihedral "
+                      rf"= 120 deg \(most at edge \({a}, {b}\): {top:.4g} deg\)"):
+        WillmoreFlow(mesh.with_vertices(X), 0.01, 1e-4, mesh_control="off")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        WillmoreFlow(mesh, 0.01, 1e-4, mesh_control="off")
+
+
 def test_a_flow_that_must_sharpen_edges_beyond_max_dihedral_fails_with_the_fold_named() -> None:
     """An ellipsoid 1:1:2 (icosphere(2), 162 v; its sharpest edges, 21.8 deg, at the tips) flows toward a sphere:
     the edges of its flat middle, below 12 deg, sharpen beyond 12 deg in a step (checked here with the check off).
@@ -86,7 +103,8 @@ def test_a_flow_that_must_sharpen_edges_beyond_max_dihedral_fails_with_the_fold_
     assert free.step().retries == 0
     after = geometry.dihedral_angles(free.X, F)
     assert before.max() > 20 and np.any((before < 12) & (after > 12))
-    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, max_dihedral=12, max_retries=2, mesh_control="off")
+    with pytest.warns(UserWarning, match="turn by more than max_dihedral = 12 deg"):  # the tips: kept, not refused
+        flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, max_dihedral=12, max_retries=2, mesh_control="off")
     with pytest.raises(FlowError) as err:
         flow.step()
     assert len(err.value.rejected) == 3 and all("mesh folds" in r for r in err.value.rejected)

@@ -256,6 +256,21 @@ def _check_quality(mesh: Mesh, min_angle: float, max_edge_ratio: float, repaired
                             f"{hint}lower min_angle")
 
 
+def _warn_folds(mesh: Mesh, limit: float) -> None:
+    """Warn when the initial surface ``mesh`` (in R^3) has edges whose triangles' normals turn by more than ``limit``
+    degrees (``max_dihedral``): folds or creases that steps may keep or soften but not sharpen."""
+    if mesh.d != 2 or mesh.m != 3:
+        return
+    pairs, ends = edge_triangles(mesh.simplices)
+    turn = geometry.dihedral_angles(mesh.vertices, mesh.simplices, pairs)
+    over = int(np.count_nonzero(turn > limit))
+    if over:
+        i = int(np.argmax(turn))
+        warnings.warn(f"{mesh.source}: {over} edge(s) whose triangles' normals turn by more than max_dihedral = "
+                      f"{limit:g} deg (most at edge ({ends[i, 0]}, {ends[i, 1]}): {turn[i]:.4g} deg), folds or sharp "
+                      f"creases of the input: steps may keep or soften them but not sharpen them", stacklevel=3)
+
+
 def _improves(before: dict[str, float], after: dict[str, float]) -> bool:
     """Patch quality ``after`` has a larger smallest angle or a smaller edge ratio than ``before``."""
     return after["min_angle"] > before["min_angle"] or after["edge_ratio"] < before["edge_ratio"]
@@ -346,6 +361,7 @@ class WillmoreFlow:
         if self.remesh and s.input_repair:
             mesh, boundary = self._repair_input(mesh, boundary)
         _check_quality(mesh, s.min_angle, s.max_edge_ratio, self.input_repair)  # the limits every step must keep
+        _warn_folds(mesh, s.max_dihedral)
         self._step_scales(mesh)
         self._variational = all("variational" in solver_capabilities(n)  # the semi-implicit baseline is not
                                 for n in self._solver_names())
