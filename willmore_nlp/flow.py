@@ -256,19 +256,31 @@ def _check_quality(mesh: Mesh, min_angle: float, max_edge_ratio: float, repaired
                             f"{hint}lower min_angle")
 
 
+def _sharp_edges(V: np.ndarray, F: np.ndarray, limit: float,
+                 Vk: np.ndarray | None = None) -> tuple[int, tuple[int, int], float] | None:
+    """The edges of the surface (V, F) in R^3 whose triangles' normals turn by more than ``limit`` degrees (and by more
+    than with the positions ``Vk`` of the same triangles, when given): (how many, the sharpest's vertices, its angle),
+    or None."""
+    pairs, ends = edge_triangles(F)
+    turn = geometry.dihedral_angles(V, F, pairs)
+    over = turn > limit
+    if Vk is not None:
+        over &= turn > geometry.dihedral_angles(Vk, F, pairs)
+    if not over.any():
+        return None
+    i = int(np.argmax(np.where(over, turn, -1.0)))
+    return int(np.count_nonzero(over)), (int(ends[i, 0]), int(ends[i, 1])), float(turn[i])
+
+
 def _warn_folds(mesh: Mesh, limit: float) -> None:
     """Warn when the initial surface ``mesh`` (in R^3) has edges whose triangles' normals turn by more than ``limit``
     degrees (``max_dihedral``): folds or creases that steps may keep or soften but not sharpen."""
-    if mesh.d != 2 or mesh.m != 3:
-        return
-    pairs, ends = edge_triangles(mesh.simplices)
-    turn = geometry.dihedral_angles(mesh.vertices, mesh.simplices, pairs)
-    over = int(np.count_nonzero(turn > limit))
-    if over:
-        i = int(np.argmax(turn))
+    sharp = _sharp_edges(mesh.vertices, mesh.simplices, limit) if mesh.d == 2 and mesh.m == 3 else None
+    if sharp is not None:
+        over, (a, b), turn = sharp
         warnings.warn(f"{mesh.source}: {over} edge(s) whose triangles' normals turn by more than max_dihedral = "
-                      f"{limit:g} deg (most at edge ({ends[i, 0]}, {ends[i, 1]}): {turn[i]:.4g} deg), folds or sharp "
-                      f"creases of the input: steps may keep or soften them but not sharpen them", stacklevel=3)
+                      f"{limit:g} deg (most at edge ({a}, {b}): {turn:.4g} deg), folds or sharp creases of the input: "
+                      f"steps may keep or soften them but not sharpen them", stacklevel=3)
 
 
 def _improves(before: dict[str, float], after: dict[str, float]) -> bool:
@@ -577,17 +589,12 @@ class WillmoreFlow:
         """Why the step to X (quality ``q``) folds the mesh (an edge whose triangles' normals turn by more than
         ``max_dihedral`` and more than in X^k), or None."""
         limit = self.settings.max_dihedral
-        if q.get("max_dihedral", 0.0) <= limit:
+        sharp = _sharp_edges(X, self.mesh.simplices, limit, self.X) if q.get("max_dihedral", 0.0) > limit else None
+        if sharp is None:
             return None
-        F = self.mesh.simplices
-        pairs, ends = edge_triangles(F)
-        turn = geometry.dihedral_angles(X, F, pairs)
-        over = (turn > limit) & (turn > geometry.dihedral_angles(self.X, F, pairs))
-        if not over.any():
-            return None
-        i = int(np.argmax(np.where(over, turn, -1.0)))
-        return (f"mesh folds: the normals of the triangles at edge ({ends[i, 0]}, {ends[i, 1]}) turn by {turn[i]:.4g} "
-                f"deg > max_dihedral = {limit:g}")
+        _, (a, b), turn = sharp
+        return (f"mesh folds: the normals of the triangles at edge ({a}, {b}) turn by {turn:.4g} deg > max_dihedral = "
+                f"{limit:g}")
 
     # -- stepping ----------------------------------------------------------------------
     def step(self) -> StepResult:
