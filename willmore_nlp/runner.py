@@ -55,8 +55,6 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 """Environment variables that set BLAS/OpenMP thread counts (recorded in config.json)."""
 
 
-
-
 def last_reason(rejected: list[str], message: str) -> str:
     """The last rejected attempt's reason for the one-line error of a failed step (``message`` when there is none);
     when that is only the step-size floor, with the last attempt that the solver or a check refused (the cause)."""

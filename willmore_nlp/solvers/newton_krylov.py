@@ -600,7 +600,6 @@ class NewtonKrylovSolver(ReducedSolver):
             alpha *= 0.5
         return None
 
-
     # -- the guarded pass ---------------------------------------------------------------
     def _mesh_guard(self, Xk: np.ndarray) -> tuple[np.ndarray, float]:
         """(triangle normals of X^k, angle floor GUARD_ANGLE x its smallest angle) of a surface in R^3; a curve or a
