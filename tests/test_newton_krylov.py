@@ -595,3 +595,25 @@ def test_a_guarded_pass_that_the_guard_keeps_refusing_ends_early(tmp_path, monke
     assert cut.status.startswith(f"guarded pass: the mesh guard refused {default} trial points")
     assert cut.stats["n_guarded"] == 1 and cut.stats["n_guard"] == default < full.stats["n_guard"]
     assert cut.iterations < full.iterations
+
+
+def test_a_factor_that_is_not_positive_definite_ends_the_solve_and_the_flow_retries(monkeypatch) -> None:
+    """CHOLMOD's "not positive definite" (a preconditioner at an iterate whose triangles degenerate; the h = 0.07
+    double torus of reports/genus2_handles_study.py crashed the run with a traceback) ends the solve unconverged with
+    the reason; the flow retries at tau/2, where the factor works again, and takes the step."""
+    mesh = _ellipsoid()
+    flow = WillmoreFlow(mesh, 0.2 * mesh.h, mesh.h**2 / 100, solver="newton-krylov", mesh_control="off")
+    pre = flow.solver._pre
+    factor, calls = pre.factor, []
+
+    def fails_once(A):
+        calls.append(1)
+        if len(calls) == 1:
+            raise np.linalg.LinAlgError("matrix not positive definite (CHOLMOD: leading minor 7 of 486)")
+        return factor(A)
+
+    monkeypatch.setattr(pre, "factor", fails_once)
+    r = flow.step()
+    assert r.converged and r.retries == 1 and r.tau == pytest.approx(0.1 * mesh.h)
+    assert r.rejected == [f"tau={0.2 * mesh.h:.6g}: solver did not converge (factorisation failed (matrix not "
+                          "positive definite (CHOLMOD: leading minor 7 of 486)), 0 iterations)"]

@@ -482,9 +482,16 @@ class NewtonKrylovSolver(ReducedSolver):
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """Minimise W^ from the X part of ``z0`` (its Y part warm-starts Y[X]; ``lam_g0`` is not used); numpy's and
-        scipy's BLAS on one thread meanwhile (:func:`~willmore_nlp.solvers.cholesky.other_blas_one_thread`)."""
+        scipy's BLAS on one thread meanwhile (:func:`~willmore_nlp.solvers.cholesky.other_blas_one_thread`). A
+        Cholesky factor found not positive definite (the preconditioner or J_Y at an iterate whose triangles
+        degenerate: the h = 0.07 double torus of reports/genus2_handles_study.py crashed on one) ends the solve
+        unconverged, with the reason, so that the flow retries it like any failed solve."""
         with other_blas_one_thread():
-            return self._solve(z0, p)
+            try:
+                return self._solve(z0, p)
+            except np.linalg.LinAlgError as exc:  # CHOLMOD: a factor not positive definite at a degenerate iterate
+                return SolveResult(z=np.asarray(z0, float), f=float("nan"), lam_g=np.zeros(self.P.nc), converged=False,
+                                   status=f"factorisation failed ({exc})", iterations=0, stats=dict(self._counts))
 
     def _solve(self, z0: np.ndarray, p: np.ndarray) -> SolveResult:
         t0 = time.perf_counter()
