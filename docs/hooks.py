@@ -150,7 +150,7 @@ GENERATED = {
 
 
 EVIDENCE = ("anisotropic_study.md", "boundary_study.md", "benchmark_scale.md", "benchmark_control.md",
-            "vesicle_evolver.md")
+            "vesicle_evolver.md", "genus2_handles_study.md")
 """Measured studies of ``reports/`` shown under ``evidence/`` as they are committed."""
 
 

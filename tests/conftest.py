@@ -1,6 +1,9 @@
 """Shared test helpers (fixtures)."""
 
+import subprocess
+import sys
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -69,3 +72,27 @@ def _curves_agree_before_nodes(a: dict, b: dict) -> None:
 def curves_agree_before_nodes() -> Callable[[dict, dict], None]:
     """:func:`_curves_agree_before_nodes` (two tangential treatments give the same curve, not the same nodes)."""
     return _curves_agree_before_nodes
+
+
+def _straight_and_resumed(args: list[str], total: int, first: int, tmp_path: Path) -> tuple:
+    """``willmore-nlp run ARGS`` for ``total`` steps into tmp_path/full, and for ``first`` steps into tmp_path/part
+    then ``--resume`` to ``total``; returns the two runs (:func:`willmore_nlp.load_run`), whose states a resume test
+    compares bit for bit."""
+    from willmore_nlp import load_run
+
+    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", *args, "--quiet"]
+    full, part = tmp_path / "full", tmp_path / "part"
+    for out, steps in ((full, total), (part, first)):
+        r = subprocess.run([*cli, "--steps", str(steps), "--out", str(out)], capture_output=True, text=True,
+                           timeout=600)
+        assert r.returncode == 0, r.stderr
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "--resume", str(part), "--steps", str(total),
+                        "--quiet"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return load_run(full), load_run(part)
+
+
+@pytest.fixture
+def straight_and_resumed() -> Callable[..., tuple]:
+    """:func:`_straight_and_resumed` (a run straight and the same run interrupted and resumed)."""
+    return _straight_and_resumed

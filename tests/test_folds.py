@@ -57,7 +57,7 @@ def _folded(mesh: Mesh) -> tuple[np.ndarray, tuple[int, int]]:
 
 def test_a_fold_is_named_and_an_edge_as_sharp_before_is_allowed() -> None:
     """Vertex 0 of an icosphere(2) moved across the edge of one of its triangles (a fold of 173 deg, every angle
-    above 14 deg): the check names the fold at that edge, with the angle; with max_dihedral = 180
+    above 14 deg): the check names the fold at that edge, where it is and the angle; with max_dihedral = 180
     nothing; a step from a state that has the fold already, keeping it or unfolding it, is not refused."""
     mesh = shapes.icosphere(2)
     flow = WillmoreFlow(mesh, 0.01, 1e-4)
@@ -65,7 +65,9 @@ def test_a_fold_is_named_and_an_edge_as_sharp_before_is_allowed() -> None:
     q = geometry.quality(mesh.with_vertices(X))
     assert q["max_dihedral"] > 170 and q["min_angle"] > 14
     reason = flow._fold(X, q)
-    assert reason is not None and reason.startswith(f"mesh folds: the normals of the triangles at edge ({a}, {b}) ")
+    near = ", ".join(f"{c:.3g}" for c in (X[a] + X[b]) / 2)
+    assert reason is not None and reason.startswith(f"mesh folds: the normals of the triangles at edge ({a}, {b}) "
+                                                    f"near ({near}) ")
     assert f"turn by {q['max_dihedral']:.4g} deg > max_dihedral = 120" in reason
     assert WillmoreFlow(mesh, 0.01, 1e-4, max_dihedral=180)._fold(X, q) is None
     flow.X = X
@@ -120,7 +122,8 @@ def test_max_dihedral_must_be_an_angle(bad: object) -> None:
 def test_the_error_line_names_the_cause_when_the_step_size_floor_ends_a_step(tmp_path: Path) -> None:
     """The ellipsoid of the test above as a user's file with max_dihedral = 12 and min_tau = 0.3 h: the attempts at
     h and h/2 are refused as folds and the next would be below min_tau; the one-line error shows the floor and,
-    after it, the fold that caused it (before, only "step size below min_tau")."""
+    after it, the fold that caused it (before, only "step size below min_tau"), and what follows such a fold further
+    (a remesh_target of half the mean edge)."""
     base = shapes.icosphere(2)
     mesh = base.with_vertices(base.vertices * [1.0, 1.0, 2.0])
     save_mesh(mesh, tmp_path / "ell.obj")
@@ -131,6 +134,8 @@ def test_the_error_line_names_the_cause_when_the_step_size_floor_ends_a_step(tmp
     line = r.stderr.strip().splitlines()[-1]
     assert "failed after 3 attempts (last: tau=" in line and ": step size below min_tau = " in line
     assert "; before it: tau=" in line and "mesh folds: the normals of the triangles at edge (" in line
+    assert line.endswith(f"a finer mesh from the start follows it further, e.g. --set remesh_target={mesh.h / 2:.3g} "
+                         f"(half the mean edge {mesh.h:.3g})")
 
 
 def test_last_reason_keeps_a_cause_that_is_the_last_entry() -> None:

@@ -75,24 +75,10 @@ def test_rest_tau_tilde_must_be_a_fraction(bad) -> None:
         WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, rest_tau_tilde=bad)
 
 
-def test_resume_continues_the_lowered_tau_tilde(tmp_path) -> None:
+def test_resume_continues_the_lowered_tau_tilde(tmp_path, straight_and_resumed) -> None:
     """willmore-nlp run --resume from a state two steps into a rest window (history columns tau_tilde and
     rest_steps) halves tau_tilde at the same step and gives the states of an uninterrupted run bit for bit."""
-    import subprocess
-    import sys
-
-    from willmore_nlp import load_run
-
-    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", "sphere", "--set", "subdivisions=2", "--set",
-           "tau_tilde=0.006", "--quiet"]
-    full, part = tmp_path / "full", tmp_path / "part"
-    for out, steps in ((full, "6"), (part, "4")):
-        r = subprocess.run([*cli, "--steps", steps, "--out", str(out)], capture_output=True, text=True, timeout=600)
-        assert r.returncode == 0, r.stderr
-    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "--resume", str(part), "--steps", "6",
-                        "--quiet"], capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr
-    a, b = load_run(full), load_run(part)
+    a, b = straight_and_resumed(["sphere", "--set", "subdivisions=2", "--set", "tau_tilde=0.006"], 6, 4, tmp_path)
     tts = [float(h["tau_tilde"]) for h in a.history]
     assert int(b.history[4]["rest_steps"]) == 2 and tts[5] == tts[4] / 2  # halved by the resumed run's first step
     assert [float(h["tau_tilde"]) for h in b.history] == tts

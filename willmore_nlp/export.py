@@ -25,6 +25,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 
+from willmore_nlp.flow import NEW_VERTICES
 from willmore_nlp.geometry import mean_curvature_vector, vertex_normals
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import atomic_write
@@ -65,7 +66,7 @@ def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> 
     prev, t_prev = None, 0.0
     for row, mesh, Y, t in zip(run.history, run.states, run.Y, run.times, strict=True):
         action = str(row.get("remesh_action") or "")
-        if int(row.get("remeshed") or 0) and (not action or "remesh" in action.split("+")):
+        if int(row.get("remeshed") or 0) and (not action or NEW_VERTICES & set(action.split("+"))):
             prev = None  # remeshed: the vertices are not those of the previous state (flips and repair keep them)
         name = f"state_{int(row['step']):06d}.vtu"
         m = state_mesh(mesh, Y, prev, float(t) - t_prev)

@@ -63,6 +63,9 @@ class StepInterrupted(Exception):  # noqa: N818 (an outcome, not an error)
 FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
 
+FOLD_REASON = "mesh folds"
+"""How the reason of an attempt refused by the fold check (``max_dihedral``) begins."""
+
 
 def _never() -> bool:
     return False
@@ -112,6 +115,12 @@ REPAIR_ROUNDS = 5
 """The light repair (``remesh_repair``) repeats its passes up to this many times while the mesh is below the
 repair thresholds, before the stronger repairs (projected smoothing, isotropic remeshing) are tried."""
 
+NEW_VERTICES = frozenset({"remesh", "refine"})
+"""Mesh-control actions (history ``remesh_action``, joined by "+") after which the vertices are new ones."""
+
+REFINE_FACTOR = float(np.sqrt(2.0))
+"""A refinement (``refine_dihedral``) remeshes toward the current edge divided by this (about twice the vertices)."""
+
 CONTROL_OFF = TangentialControlTerm.scalars
 """``off`` of :meth:`WillmoreFlow.params` for the evaluations the tangential control does not enter (an outer term):
 the inner solve, the outer constraints, the energy e(X); its per-node data are then not computed."""
@@ -151,8 +160,8 @@ class StepResult:
     rejected : reasons of rejected attempts
     simplices : (K, d + 1) connectivity of the state (changes when the mesh control remeshes)
     free : (N,) bool free-vertex mask of a clamped problem on that connectivity (None without boundary)
-    remeshed : the mesh-control action taken after this step ("" none; "flips", "smooth", "remesh"
-        joined by "+"); ``stats`` then holds ``energy_before_remesh`` and ``energy_after_remesh`` (the
+    remeshed : the mesh-control action taken after this step ("" none; "flips", "repair", "smooth", "remesh",
+        "refine" joined by "+"); ``stats`` then holds ``energy_before_remesh`` and ``energy_after_remesh`` (the
         discrete energy) and ``willmore_before_remesh`` (the Willmore energy of the state the step reached)
     relaxed : True on the step that ended a relaxation (``relax=True``: the step lowered the
         Willmore energy by less than ``relax_tol`` relative)
@@ -367,6 +376,7 @@ class WillmoreFlow:
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
         self.k = 0  # (the input repair's warnings name the step)
+        self._refinements = 0  # refinements so far (refine_dihedral): a given remesh_target is divided by REFINE_FACTOR
         # "initial" volume and area are the input's (a vesicle's reduced volume), also when input_repair remeshes it
         self._targets = {"volume": _target(s.volume, "volume", mesh), "area": _target(s.area, "area", mesh)}
         self.input_repair = ""  # what input_repair did to the initial mesh ("": nothing)
@@ -587,14 +597,15 @@ class WillmoreFlow:
 
     def _fold(self, X: np.ndarray, q: dict[str, float]) -> str | None:
         """Why the step to X (quality ``q``) folds the mesh (an edge whose triangles' normals turn by more than
-        ``max_dihedral`` and more than in X^k), or None."""
+        ``max_dihedral`` and more than in X^k: its vertices, its midpoint in X, the angle), or None."""
         limit = self.settings.max_dihedral
         sharp = _sharp_edges(X, self.mesh.simplices, limit, self.X) if q.get("max_dihedral", 0.0) > limit else None
         if sharp is None:
             return None
         _, (a, b), turn = sharp
-        return (f"mesh folds: the normals of the triangles at edge ({a}, {b}) turn by {turn:.4g} deg > max_dihedral = "
-                f"{limit:g}")
+        near = ", ".join(f"{c:.3g}" for c in X[[a, b]].mean(axis=0))
+        return (f"{FOLD_REASON}: the normals of the triangles at edge ({a}, {b}) near ({near}) turn by {turn:.4g} "
+                f"deg > max_dihedral = {limit:g}")
 
     # -- stepping ----------------------------------------------------------------------
     def step(self) -> StepResult:
@@ -794,6 +805,7 @@ class WillmoreFlow:
         q0 = self._patch_quality(X, F, self.free)
         drop = 0.0 if moved is None else max(0.0, self._patch_quality(self._X_prev, F, self.free)["min_angle"]
                                              - q0["min_angle"])
+        refine = self._refine_target(X, F, None if moved is None else self._X_prev)
         self._X_prev = X
         repair = self.settings.remesh_repair > 0
         needs = self._below_thresholds(q0)
@@ -801,7 +813,7 @@ class WillmoreFlow:
         # follows the surface at its own speed, and a state that the flow does not move (an equilibrium)
         # is left alone, so the fixed points are those of the paper's scheme
         light = repair and moved is not None and bool(moved.max() > 0)
-        if not light and not needs:
+        if not light and not needs and refine is None:
             return "", {}
         free = self.free
         actions: list[str] = []
@@ -828,19 +840,28 @@ class WillmoreFlow:
             if remeshed is not None:
                 X1, F1, boundary = remeshed
                 actions.append("remesh")
+        if refine is not None:  # kept when it resolves the sharpest edge better than the stepped state
+            refined = self._isotropic_remesh(X1, F1, boundary, retarget=True, target=refine)
+            if refined is not None and (geometry.dihedral_angles(*refined[:2]).max()
+                                        < geometry.dihedral_angles(X, F).max()):
+                X1, F1, boundary = refined
+                actions.append("refine")
         if not actions:
             return "", {}
         q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
-        if not light and not _improves(q0, q1):
+        if not light and "refine" not in actions and not _improves(q0, q1):
             return "", {}  # no improvement: keep the flow's own mesh rather than churn
         if self._folds_more(X, F, X1, F1):
             return "", {}  # the stepped state passed the fold check; a repair across a crease must not fold it
         e_before = self.discrete_energy(X, self.Y)
         w_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
         angle_before = geometry.triangle_quality(X, F)["min_angle"]
-        old = (self.mesh, self.boundary)
+        old = (self.mesh, self.boundary, self.tau_tilde)
+        h_old = self.mesh.with_vertices(X).h
         if F1.shape != F.shape or not np.array_equal(F1, F):
             self._build(Mesh(X1, F1, self.mesh.source), boundary)
+        if "refine" in actions and self.settings.steps_from_h in ("tau_tilde", "both"):
+            self.tau_tilde *= (self.mesh.h / h_old) ** 2  # tau_tilde ~ h^2 of the mesh the flow runs on
         try:
             Xr = self._restore(X1)
             shift = float(np.abs(Xr - X1).max())
@@ -853,13 +874,43 @@ class WillmoreFlow:
         except (RuntimeError, ValueError, ArithmeticError) as exc:
             warnings.warn(f"step {self.k}: mesh repair dropped on the new mesh ({exc})", stacklevel=3)
             if self.mesh is not old[0]:
-                self._build(*old)
+                self._build(*old[:2])
+            self.tau_tilde = old[2]
             return "", {}
+        if "refine" in actions:
+            self._refinements += 1
+            warnings.warn(f"step {self.k}: the mesh was refined ({old[0].n_vertices} -> {self.mesh.n_vertices} "
+                          f"vertices, mean edge {h_old:.3g} -> {self.mesh.h:.3g}): the normals of adjacent "
+                          f"triangles turned by more than refine_dihedral = {self.settings.refine_dihedral:g} deg",
+                          stacklevel=3)
         self.X, self.Y, self.lam_g = X1, Y1, None
         self._X_prev = X1
         return "+".join(actions), {"energy_before_remesh": e_before,
                                    "energy_after_remesh": self.discrete_energy(X1, Y1),
                                    "min_angle_before_remesh": angle_before, "willmore_before_remesh": w_before}
+
+    def _refine_target(self, X: np.ndarray, F: np.ndarray, Xk: np.ndarray | None) -> float | None:
+        """The edge to refine the surface (X, F) in R^3 toward when the step from the positions Xk of the same
+        vertices (None: no step) left an edge whose triangles' normals turn by more than ``refine_dihedral`` and by
+        more than at Xk (a feature sharpening past what the mesh resolves: a bar or tube a few edges round; a crease
+        of the input that the flow softens is left alone) and the refined mesh stays within
+        ``refine_max_vertices``: the current target edge (:meth:`_remesh_target`) divided by :data:`REFINE_FACTOR`;
+        None otherwise."""
+        s = self.settings
+        if (Xk is None or self.mesh.d != 2 or self.mesh.m != 3 or s.refine_dihedral >= 180 or _explicit(self.boundary)
+                or REFINE_FACTOR**2 * len(X) > s.refine_max_vertices
+                or _sharp_edges(X, F, s.refine_dihedral, Xk) is None):
+            return None
+        return self._remesh_target(X, F, self.free) / REFINE_FACTOR
+
+    def _remesh_target(self, X: np.ndarray, F: np.ndarray, free: np.ndarray | None) -> float:
+        """Target edge of an isotropic remeshing of (X, F): ``remesh_target`` divided by :data:`REFINE_FACTOR` once per
+        refinement so far, or (unset) the equilateral edge of the patch, which keeps the current resolution."""
+        from willmore_nlp import remesh as rm
+
+        if self.settings.remesh_target:
+            return self.settings.remesh_target / REFINE_FACTOR**self._refinements
+        return rm.equilateral_edge(X, F, free)
 
     def _folds_more(self, X: np.ndarray, F: np.ndarray, X1: np.ndarray, F1: np.ndarray) -> bool:
         """Whether the repaired mesh (X1, F1) of the surface (X, F) in R^3 has an edge whose triangles' normals turn by
@@ -869,8 +920,8 @@ class WillmoreFlow:
         return top > self.settings.max_dihedral and top > float(geometry.dihedral_angles(X, F).max())
 
     def _isotropic_remesh(self, X: np.ndarray, F: np.ndarray, boundary: Any, smooth: bool = True,
-                          quality: dict[str, float] | None = None,
-                          retarget: bool = False) -> tuple[np.ndarray, np.ndarray, Any] | None:
+                          quality: dict[str, float] | None = None, retarget: bool = False,
+                          target: float | None = None) -> tuple[np.ndarray, np.ndarray, Any] | None:
         """(X', F', boundary') of an isotropic remeshing of (X, F) toward ``remesh_target`` (default: the equilateral
         edge) followed by flips, or None when it failed (a warning) or did not keep the smallest patch angle and
         improve it or the edge ratio (``retarget``, a resolution the user asks for: when it is below the repair
@@ -880,8 +931,7 @@ class WillmoreFlow:
 
         free = None if boundary is None else boundary.free
         try:
-            target = self.settings.remesh_target or rm.equilateral_edge(X, F, free)
-            r = rm.isotropic_remesh(X, F, target, free, smooth=smooth)
+            r = rm.isotropic_remesh(X, F, target or self._remesh_target(X, F, free), free, smooth=smooth)
         except rm.RemeshError as exc:
             warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=4)
             return None
@@ -1045,7 +1095,7 @@ class WillmoreFlow:
         """
         parts = set(action.split("+"))
         entry = (willmore, "flips" in parts, min(1.0, tau / self.tau))
-        ok = not {"smooth", "remesh"} & parts
+        ok = not ({"smooth"} | NEW_VERTICES) & parts
         w = self._relax_window = [*self._relax_window, entry][-RELAX_WINDOW - 1:] if ok else [entry]
         if len(w) <= RELAX_WINDOW:
             return False
@@ -1110,6 +1160,8 @@ class WillmoreFlow:
         w0 = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
         self._relax_start(w0)
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
+        self._refinements = sum("refine" in str(r.get("remesh_action") or "").split("+") for r in history or []
+                                if int(float(r["step"])) <= self.k)
         for r in history or []:
             replayed = "willmore_energy" in r and int(float(r["step"])) == self.k
             if "willmore_energy" not in r:  # a checkpoint without its history row: the window starts after it

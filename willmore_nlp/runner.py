@@ -37,7 +37,15 @@ import numpy as np
 
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
 from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS
-from willmore_nlp.flow import FLOOR_REASON, RELAX_WINDOW, FlowError, StepInterrupted, StepResult, WillmoreFlow
+from willmore_nlp.flow import (
+    FLOOR_REASON,
+    FOLD_REASON,
+    RELAX_WINDOW,
+    FlowError,
+    StepInterrupted,
+    StepResult,
+    WillmoreFlow,
+)
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.references import resolution_warning
 from willmore_nlp.rundir import (
@@ -62,6 +70,13 @@ def last_reason(rejected: list[str], message: str) -> str:
         return message
     cause = next((r for r in reversed(rejected) if FLOOR_REASON not in r), None)
     return rejected[-1] if cause is None or cause == rejected[-1] else f"{rejected[-1]}; before it: {cause}"
+
+
+def fold_hint(h: float) -> str:
+    """What the one-line error of a run stopped by the fold check adds: why a mesh folds and what follows it further
+    (docs/guide/mesh_quality.md, "Folds"), with ``h`` the mean edge of the mesh it folded on."""
+    return (f"; a mesh folds where it no longer resolves the surface (a bar or tube about an edge wide): a finer mesh "
+            f"from the start follows it further, e.g. --set remesh_target={h / 2:.3g} (half the mean edge {h:.3g})")
 
 
 def thread_environment() -> dict[str, Any]:
@@ -115,6 +130,8 @@ class SignalGuard:
         self.signum: int | None = None
         self.count = 0
         self._old: dict[int, Any] = {}
+        self._deferring = False
+        self._pending = False
 
     def stop_requested(self) -> bool:
         """True once a signal has arrived."""
@@ -134,6 +151,23 @@ class SignalGuard:
         with contextlib.suppress(OSError):
             os.write(2, msg.encode())  # not print(): a handler may interrupt a write to sys.stderr
         if self.count == 2:
+            if self._deferring:
+                self._pending = True
+            else:
+                raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def deferred(self) -> Iterator[None]:
+        """A block that the second signal's KeyboardInterrupt does not cut: it is raised when the block ends. Around
+        the writing of an accepted state and its history row, so that status.json names the last state on disk (a
+        second SIGINT between the two had left a state one step past the status, under load)."""
+        self._deferring = True
+        try:
+            yield
+        finally:
+            self._deferring = False
+        if self._pending:
+            self._pending = False
             raise KeyboardInterrupt
 
     def __enter__(self) -> SignalGuard:
@@ -185,7 +219,8 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
                initial=flow.t if t_end is not None else flow.k)
 
     def on_step(r: StepResult) -> None:
-        writer.add(r, flow.lam_g, flow.warm_state())
+        with guard.deferred():
+            writer.add(r, flow.lam_g, flow.warm_state())
         bar.update(r)
         if guard.signum is not None:
             raise _StopRequestedError
@@ -219,9 +254,10 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
     except FlowError as exc:
         writer.set_status("failed", message=str(exc), failed_step=exc.step, rejected=exc.rejected)
         bar.close()
+        why = last_reason(exc.rejected, str(exc))
         print(f"willmore-nlp: error: step {exc.step} at t = {exc.t:.6g} failed after {len(exc.rejected)} "
-              f"attempts (last: {last_reason(exc.rejected, str(exc))}); all attempts are in {out / 'status.json'}; "
-              f"steps 0..{flow.k} are kept", file=sys.stderr)
+              f"attempts (last: {why}); all attempts are in {out / 'status.json'}; steps 0..{flow.k} are kept"
+              + (fold_hint(flow.mesh.h) if FOLD_REASON in why else ""), file=sys.stderr)
         return EXIT_FAILED
     except Exception as exc:
         if isinstance(exc, OSError) and exc.errno in IO_ERRNOS:  # disk full, read-only: one line, exit 74
@@ -278,7 +314,8 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
         try:
             writer.set_status("running")
-            writer.add(flow.state(), flow.lam_g, flow.warm_state())
+            with guard.deferred():
+                writer.add(flow.state(), flow.lam_g, flow.warm_state())
             return _advance(flow, writer, spec.steps, spec.t_end, guard, quiet)
         except KeyboardInterrupt:
             return _abandoned(writer, guard)
@@ -391,7 +428,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                 write_text_atomic(d / "config.json", json.dumps(cfg, indent=2, sort_keys=True, default=str))
             if ck is None:
                 writer.set_status("running")
-                writer.add(flow.state(), flow.lam_g, flow.warm_state())
+                with guard.deferred():
+                    writer.add(flow.state(), flow.lam_g, flow.warm_state())
             else:
                 last = ck.row if ck.step > 0 else {}
                 flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)),
