@@ -134,8 +134,8 @@ def test_the_error_line_names_the_cause_when_the_step_size_floor_ends_a_step(tmp
     line = r.stderr.strip().splitlines()[-1]
     assert "failed after 3 attempts (last: tau=" in line and ": step size below min_tau = " in line
     assert "; before it: tau=" in line and "mesh folds: the normals of the triangles at edge (" in line
-    assert line.endswith(f"a finer mesh from the start follows it further, e.g. --set remesh_target={mesh.h / 2:.3g} "
-                         f"(half the mean edge {mesh.h:.3g})")
+    assert line.endswith(f"a finer mesh from the start resolves a narrower one, e.g. --set remesh_target="
+                         f"{mesh.h / 2:.3g} (half the mean edge {mesh.h:.3g})")
 
 
 def test_last_reason_keeps_a_cause_that_is_the_last_entry() -> None:

@@ -73,10 +73,11 @@ def last_reason(rejected: list[str], message: str) -> str:
 
 
 def fold_hint(h: float) -> str:
-    """What the one-line error of a run stopped by the fold check adds: why a mesh folds and what follows it further
+    """What the one-line error of a run stopped by the fold check adds: why a mesh folds and what resolves it
     (docs/guide/mesh_quality.md, "Folds"), with ``h`` the mean edge of the mesh it folded on."""
     return (f"; a mesh folds where it no longer resolves the surface (a bar or tube about an edge wide): a finer mesh "
-            f"from the start follows it further, e.g. --set remesh_target={h / 2:.3g} (half the mean edge {h:.3g})")
+            f"from the start resolves a narrower one, e.g. --set remesh_target={h / 2:.3g} (half the mean edge "
+            f"{h:.3g})")
 
 
 def thread_environment() -> dict[str, Any]:
