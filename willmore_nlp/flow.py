@@ -273,7 +273,7 @@ def _sharp_edges(V: np.ndarray, F: np.ndarray, limit: float,
     pairs, ends = edge_triangles(F)
     turn = geometry.dihedral_angles(V, F, pairs)
     over = turn > limit
-    if Vk is not None:
+    if Vk is not None and over.any():  # (Vk's angles only when some edge is past the limit: once per accepted step)
         over &= turn > geometry.dihedral_angles(Vk, F, pairs)
     if not over.any():
         return None
@@ -857,7 +857,7 @@ class WillmoreFlow:
         w_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
         angle_before = geometry.triangle_quality(X, F)["min_angle"]
         old = (self.mesh, self.boundary, self.tau_tilde)
-        h_old = self.mesh.with_vertices(X).h
+        h_old = self.mesh.with_vertices(X).h if "refine" in actions else float("nan")  # (for the refinement only)
         if F1.shape != F.shape or not np.array_equal(F1, F):
             self._build(Mesh(X1, F1, self.mesh.source), boundary)
         if "refine" in actions and self.settings.steps_from_h in ("tau_tilde", "both"):
