@@ -37,14 +37,16 @@ def test_adaptive_steps_run_the_papers_bunny_scale() -> None:
 
 
 def test_adaptive_resume_is_bit_identical(tmp_path) -> None:
-    """Restarting from a state with its step size and retries continues the step-size sequence: 8 + 6
-    steps equal 14 steps bit for bit, in Python and through the CLI's --resume."""
+    """Restarting from a state with the history of its steps continues the step-size sequence (the back-off's holds
+    included: the first step, below its convexity limit after one retry, holds its tau for two steps): 8 + 6 steps
+    equal 14 steps bit for bit, in Python and through the CLI's --resume."""
     a = _flow(adaptive=True, max_retries=16)
-    r8 = a.run(steps=8)[-1]
+    first8 = a.run(steps=8)
+    r8 = first8[-1]
     lam8 = a.lam_g.copy()
     r14 = a.run(steps=6)
     c = _flow(adaptive=True, max_retries=16)
-    c.restart(r8.vertices, r8.Y, r8.t, r8.step, lam8, r8.tau, r8.retries)
+    c.restart(r8.vertices, r8.Y, r8.t, r8.step, lam8, r8.tau, r8.retries, history=[r.row() for r in first8])
     rc = c.run(steps=6)
     assert [r.tau for r in rc] == [r.tau for r in r14]
     assert any(r.retries for r in r14) or r14[0].tau > r8.tau  # the sequence is adaptive here

@@ -60,6 +60,12 @@ class StepInterrupted(Exception):  # noqa: N818 (an outcome, not an error)
         self.step = step
 
 
+CONVEX_JUMP = 16
+"""``convex_start``: the first step jumps below its convexity limit tau_c only when tau_c < tau / CONVEX_JUMP, i.e.
+beyond the flow's default four halvings (the smooth 162-vertex ellipsoid 1:1:2 and 16x8 grid torus of the tests have
+tau_c = tau / 4.7 and tau / 6.8 and are taken by the halvings at tau / 2 - tau / 16; the noisy inputs of
+docs/guide/mesh_quality.md have tau / 10^3 - tau / 10^6, where the Lanczos iteration converges at once)."""
+
 FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
 
@@ -152,8 +158,8 @@ class StepResult:
     status : solver status
     wall_time : seconds for the step, retries included
     quality : mesh-quality figures (:func:`willmore_nlp.geometry.quality`)
-    retries : rejected attempts before the accepted one (tau is halved after each; with a ``fallback_solver``
-        its attempts start again from the step's first tau)
+    retries : rejected attempts before the accepted one (tau is halved after each, except a first step's second
+        failure under ``convex_start``; with a ``fallback_solver`` its attempts start again from the step's first tau)
     stats : solver statistics (evaluations, timings, KKT residual; ``rejected_iterations``: solver
         iterations spent on the step's rejected attempts; ``t_wall_control``: seconds of the mesh control
         after the accepted attempt, part of ``wall_time``; ``solver``: the solver that took the step)
@@ -370,6 +376,7 @@ class WillmoreFlow:
             raise UserInputError(f"{mesh.source}: conformal_gauge=True is for closed surfaces in R^3 without boundary "
                                  "conditions or volume/area constraints")
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
+        self._convex_tau: float | None = None  # convex_start: the first step's step size below its convexity limit
         self.initial_mesh = mesh
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
         self.relaxed = False
@@ -658,7 +665,8 @@ class WillmoreFlow:
                 if self.stop_requested():  # the solve was cut short (or failed): do not retry
                     raise StepInterrupted(self.k + 1)
                 rejected.append(f"tau={tau:.6g}: {name + ': ' if len(solvers) > 1 else ''}{reason}")
-                tau /= 2
+                jump = self._convex_start(tau0) if attempt == 1 and self.k == 0 else None
+                tau = tau / 2 if jump is None else jump
         if below is not None:
             raise FlowError(f"step {self.k + 1} at t={self.t:.6g} failed: the step size fell to {below:.3g}, below "
                             f"min_tau = {floor:.3g} (the clock would freeze); rejected: " + "; ".join(rejected),
@@ -1033,6 +1041,31 @@ class WillmoreFlow:
         self.relax_max_tau = 100 * self.tau if s.relax_max_tau is None else s.relax_max_tau
         if self.relax_max_tau < self.tau:
             raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {s.relax_max_tau!r}")
+
+    def _convex_start(self, tau: float) -> float | None:
+        """``convex_start``: where the first two attempts of the first step (at ``tau`` and tau / 2) failed, with
+        adaptive or relax steps, the next attempt's step size: below the step problem's convexity limit tau_c at X^0
+        (:func:`~willmore_nlp.solvers.reduced.convexity_limit`), the largest tau / 2^j not above tau_c / 2, or not
+        above tau_c when that one is below the floor ``min_tau``; None (halve tau as usual) when tau_c is not below
+        tau / :data:`CONVEX_JUMP` (the halvings reach it) or that step size is below the floor."""
+        from willmore_nlp.solvers.reduced import convexity_limit
+
+        s = self.settings
+        if not (s.convex_start and (s.adaptive or s.relax)):
+            return None
+        if self._convex_tau is None:  # (once: a fallback solver's first failure jumps to the same step size)
+            tau_c = convexity_limit(self.evaluator, self.problem.pack_z(self.X, self.Y), self.params(self.X, tau))
+            floor = min(self.min_tau, self.tau)
+            self._convex_tau = float("nan")
+            for limit in (tau_c / 2, tau_c) if tau_c < tau / CONVEX_JUMP else ():
+                j = int(np.ceil(np.log2(tau / limit)))
+                if tau / 2**j >= floor:
+                    self._convex_tau = tau / 2**j
+                    warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = "
+                                  f"{tau_c:.3g} = tau / {tau / tau_c:.3g}; the next attempt is at tau / 2^{j} = "
+                                  f"{self._convex_tau:.3g} (convex_start=false halves instead)", stacklevel=4)
+                    break
+        return None if np.isnan(self._convex_tau) else self._convex_tau
 
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""

@@ -331,6 +331,18 @@ class FlowSettings(Settings):
         8, ... steps (the wait doubles with each such step and ends when a doubled step succeeds), so
         a flow whose steps cannot grow does not spend every other attempt trying. Off, every step
         first tries ``tau``. Default for surfaces read by the ``file`` problem.
+    convex_start : bool
+        With ``adaptive`` or ``relax`` steps: when the first two attempts of a run's first step (at tau and tau / 2)
+        fail, the next one is taken below the step size tau_c at which the step problem stops being convex at the
+        initial state (:func:`willmore_nlp.solvers.reduced.convexity_limit`): at the largest tau / 2^j not above
+        tau_c / 2 (tau_c when that is below ``min_tau``) instead of at tau / 4, when tau_c < tau / 16
+        (``flow.CONVEX_JUMP``: beyond the default four halvings); the adaptive steps then grow from there as after any
+        retried step (a warning names it). A noisy input's step problem is convex only below tau / 10^3 - tau / 10^7
+        (its noise is smoothed on that time scale, about 0.01-0.04 h^4): its first step at tau / 2^j is a non-convex
+        problem that the solvers took after several failed attempts or not at all, where from tau_c the steps
+        converge at their first attempt in 4-9 Newton iterations while tau doubles (docs/guide/mesh_quality.md, "Below
+        the convexity limit"). A first step taken at tau or tau / 2, and every smooth input, are unchanged. Default
+        true.
     min_tau : float, optional
         Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
         fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
@@ -485,6 +497,7 @@ class FlowSettings(Settings):
     tangential_control_time: float = option(0.0, real(0))
     redistribute: bool = option(False, BOOL)
     adaptive: bool = option(False, BOOL)
+    convex_start: bool = option(True, BOOL)
     min_tau: float | None = option(None, real(0, unset="0.01 h^4"))
     iteration_budget: float = option(2.0, real(0, note="0: no budget"))
     iteration_budget_min: int = option(30, integer(1))

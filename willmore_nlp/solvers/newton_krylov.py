@@ -324,12 +324,8 @@ class NewtonKrylovSolver(ReducedSolver):
 
     # -- preconditioner ---------------------------------------------------------------
     def _distance_hessian(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
-        """D: the Hessian in X of the distance (and control) part of W, i.e. of W with tau = 0 (constant in X)."""
-        p0 = self.P.params.replace(p, tau=0.0)
         with self._timed("eval"):
-            U = sp.csc_matrix(self.ev.hess_lag_upper(z, p0, 1.0, np.zeros(self.P.nc))[: self.nxm, : self.nxm])
-        self._count("n_eval_hess")
-        return (U + sp.triu(U, 1).T).tocsc()
+            return super()._distance_hessian(z, p)
 
     def _build_preconditioner(self, pt: _Point, p: np.ndarray, D: sp.csc_matrix) -> None:
         """Factorise B = D + 2 tau K^T Ml^-1 K at ``pt`` (module docstring)."""

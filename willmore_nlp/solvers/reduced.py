@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import scipy.optimize as so
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from willmore_nlp.model.evaluator import StepEvaluator
@@ -156,6 +157,13 @@ class ReducedSolver:
             self._count("n_restoration")
         raise RuntimeError(f"outer constraints not restored (|h| = {np.abs(pt.h).max():.3e})")
 
+    def _distance_hessian(self, z: np.ndarray, p: np.ndarray) -> sp.csc_matrix:
+        """D: the Hessian in X of the distance (and control) part of W, i.e. of W with tau = 0 (constant in X)."""
+        U = sp.csc_matrix(self.ev.hess_lag_upper(z, self.P.params.replace(p, tau=0.0), 1.0,
+                                                 np.zeros(self.P.nc))[: self.nxm, : self.nxm])
+        self._count("n_eval_hess")
+        return (U + sp.triu(U, 1).T).tocsc()
+
     def _hessp(self, pt: _Point, p: np.ndarray, v: np.ndarray) -> np.ndarray:
         vy = -pt.lu.solve(pt.Jx @ v)
         if pt.H is None:
@@ -240,3 +248,61 @@ for _name in ("gd", "lbfgs", "newton"):
     register_solver(_name, type(f"{_name.title()}Settings", (ReducedSettings,), {"solver": _name}),
                     CAPABILITIES if _name == "gd" else CAPABILITIES - {"constraints"})(
         partial(ReducedSolver, method=_name))
+
+
+CONVEXITY_RESTARTS = 20
+"""Restarts of the Lanczos iteration of :func:`convexity_limit` (20 Lanczos vectors each). Measured on the first
+steps of docs/guide/mesh_quality.md's inputs: where the most negative mode is strong (noisy inputs: the cylinder,
+cone, noisy sphere and torus, noisy capsules of 4-15k vertices) it converges within 0.1-4 s; on the smooth inputs
+(ellipsoid, tori, Lawson's and the double torus) the spectrum's low end is clustered and it does not converge in
+these restarts (0.7-2.1 s), which is read as: no strongly negative mode."""
+
+
+def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray) -> float:
+    """The step size below which the step problem is convex at its start: tau_c with the reduced Hessian
+    D + tau R of W^ at X^k positive definite for every tau < tau_c.
+
+    W^(X) = (distance) + tau W(X, Y[X]) with Y[X] independent of tau, so the reduced Hessian at X^k is D + tau R
+    with D (the distance part's Hessian, SPD) and R independent of tau. With lambda the smallest eigenvalue of
+    (D + tau R) v = lambda D v at the tau of ``p`` (Lanczos, :data:`CONVEXITY_RESTARTS`), tau_c = tau / (1 -
+    lambda) when lambda < 1. A strongly negative mode is what it is for: inf when R has no negative mode, when the
+    Lanczos iteration does not converge in its restarts (the clustered low end of a smooth surface's spectrum; on
+    small smooth meshes it converges to a weak mode instead: tau / 4.7 and tau / 6.8 on the tests' 162-vertex
+    ellipsoid and 16x8 torus) and with outer constraints (not computed: the reduced Hessian would have to be
+    projected on their tangent space).
+
+    Parameters
+    ----------
+    evaluator : StepEvaluator
+    z0 : (nx,) the start (X^k, Y[X^k]) of the step
+    p : (np,) its parameters (X^k and tau among them)
+
+    Returns
+    -------
+    float
+        tau_c > 0, or inf.
+    """
+    P = evaluator.problem
+    if P.nh:
+        return float("inf")
+    red = ReducedSolver(evaluator, ReducedSettings(), "newton")
+    x0 = np.asarray(z0[: red.nxm], float)
+    pt = red._at(x0, p, P.unpack_z(z0, P.params.xk(p))[1])
+    D = red._distance_hessian(pt.z, p)
+    pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
+    n = x0.size
+    hess = spla.LinearOperator((n, n), matvec=lambda v: red._hessp(pt, p, np.ravel(v)), dtype=float)
+    lu = spla.splu(D)
+    dinv = spla.LinearOperator((n, n), matvec=lambda v: lu.solve(np.ravel(v)), dtype=float)
+    # a deterministic start (ARPACK's own random one depends on the calls before): the gradient, which is largest
+    # where the energy concentrates
+    v0 = pt.grad + 1e-3 * max(float(np.abs(pt.grad).max()), 1e-300)
+    try:
+        lam = spla.eigsh(hess, k=1, M=D, Minv=dinv, which="SA", tol=1e-2, ncv=min(20, n - 1),
+                         maxiter=CONVEXITY_RESTARTS, v0=v0, return_eigenvectors=False)
+    except spla.ArpackNoConvergence:
+        return float("inf")
+    smallest = float(lam[0])
+    tau = P.params.scalar(p, "tau")
+    return tau / (1.0 - smallest) if smallest < 1.0 else float("inf")
+

@@ -1,0 +1,130 @@
+"""``convex_start``: the first step of a noisy input below the step problem's convexity limit tau_c."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+import trimesh
+
+from willmore_nlp import registry
+from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, convexity_limit
+
+
+def _noisy_sphere(tmp_path: Path) -> str:
+    """OBJ of a trimesh icosphere(2) (162 v) with normal noise 0.03 (about 0.16 h; seed 1)."""
+    s = trimesh.creation.icosphere(2)
+    s.vertices += 0.03 * np.random.default_rng(1).standard_normal(s.vertices.shape)
+    s.export(tmp_path / "sphere.obj")
+    return str(tmp_path / "sphere.obj")
+
+
+def _cylinder(tmp_path: Path) -> str:
+    """OBJ of a trimesh cylinder (24 sections) subdivided twice: 741 v after the input repair, its rims sharp."""
+    c = trimesh.creation.cylinder(radius=0.5, height=1.5, sections=24).subdivide().subdivide()
+    c.export(tmp_path / "cylinder.obj")
+    return str(tmp_path / "cylinder.obj")
+
+
+def _fd_reduced_hessian(red: ReducedSolver, x0: np.ndarray, p: np.ndarray, Y0: np.ndarray,
+                        eps: float = 1e-6) -> np.ndarray:
+    """The reduced Hessian of W^ at x0 by central differences of its adjoint gradient (not the second-order adjoint
+    that :func:`convexity_limit` uses), symmetrised."""
+    n = x0.size
+    H = np.empty((n, n))
+    for i in range(n):
+        e = np.zeros(n)
+        e[i] = eps
+        H[:, i] = (red._at(x0 + e, p, Y0).grad - red._at(x0 - e, p, Y0).grad) / (2 * eps)
+    return (H + H.T) / 2
+
+
+def test_convexity_limit_is_where_a_finite_difference_reduced_hessian_stops_being_positive_definite(tmp_path) -> None:
+    """On a noisy icosphere (162 v) the reduced Hessian of the first step's W^, by finite differences of the adjoint
+    gradient at two step sizes, is D + tau R with R independent of tau (to 1e-6 relative), and the generalised
+    eigenvalues of (FD Hessian, D) give tau_c: positive definite at 0.95 tau_c, not at 1.05 tau_c. The Lanczos
+    estimate agrees to 1 % (measured: tau_c = tau / 282, 0.1 s)."""
+    pb, _ = registry.build("file", path=_noisy_sphere(tmp_path))
+    flow = pb.make_flow()
+    z0, P = flow.problem.pack_z(flow.X, flow.Y), flow.problem
+    red = ReducedSolver(flow.evaluator, ReducedSettings(), "newton")
+    x0, Y0 = z0[: red.nxm], P.unpack_z(z0, flow.X)[1]
+    tau = flow.tau
+    p1, p2 = flow.params(flow.X, tau), flow.params(flow.X, tau / 8)
+    H1, H2 = _fd_reduced_hessian(red, x0, p1, Y0), _fd_reduced_hessian(red, x0, p2, Y0)
+    D = red._distance_hessian(red._at(x0, p1, Y0).z, p1).toarray()
+    R = (H1 - D) / tau
+    assert np.abs(H2 - (D + tau / 8 * R)).max() <= 1e-6 * np.abs(H2).max()  # linear in tau
+    smallest = sl.eigh(H1, D, eigvals_only=True, subset_by_index=[0, 0])[0]
+    assert smallest < 1 - 16  # strongly indefinite at tau = h
+    tau_fd = tau / (1 - smallest)
+    for factor, definite in ((0.95, True), (1.05, False)):
+        assert bool(sl.eigh(D + factor * tau_fd * R, D, eigvals_only=True, subset_by_index=[0, 0])[0] > 0) is definite
+    tau_c = convexity_limit(flow.evaluator, z0, p1)
+    assert tau_c == pytest.approx(tau_fd, rel=1e-2)
+
+
+def test_a_smooth_surface_has_no_strongly_negative_mode_and_is_flowed_as_before(tmp_path) -> None:
+    """A smooth ellipsoid (trimesh icosphere(3) stretched 1.5, 642 v): no tau_c below tau / 16 (none found); and a
+    flow whose first attempt succeeds never looks (the noisy sphere above is taken at tau although its tau_c is
+    tau / 282): the states with and without ``convex_start`` are equal bit for bit."""
+    from willmore_nlp.flow import CONVEX_JUMP
+
+    s = trimesh.creation.icosphere(3)
+    s.vertices[:, 2] *= 1.5
+    s.export(tmp_path / "ellipsoid.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "ellipsoid.obj"))
+    flow = pb.make_flow()
+    tau_c = convexity_limit(flow.evaluator, flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, flow.tau))
+    assert tau_c >= flow.tau / CONVEX_JUMP
+    pb, _ = registry.build("file", path=_noisy_sphere(tmp_path))
+    runs = [pb.make_flow(convex_start=flag) for flag in (True, False)]
+    for flow in runs:
+        for _ in range(2):
+            assert flow.step().retries == 0
+    assert runs[0]._convex_tau is None  # never computed
+    assert np.array_equal(runs[0].X, runs[1].X)
+
+
+def test_a_first_step_that_fails_at_tau_is_retried_below_tau_c(tmp_path) -> None:
+    """The subdivided trimesh cylinder (741 v, newton-krylov): its step problem is convex at X^0 only below
+    tau / 5e4; the attempts at tau and tau / 2 fail and the next is at the largest tau / 2^j not above tau_c / 2
+    (here below the floor min_tau = 0.01 h^4: not above tau_c), where it converges (2 retries; measured:
+    tau / 65,536); the adaptive steps then hold it for two steps and double, each taken at its first attempt, W
+    falling at every step. With
+    ``convex_start = false`` the halvings take it at tau / 8 after 3 retries (measured), as before."""
+    pb, _ = registry.build("file", path=_cylinder(tmp_path))
+    flow = pb.make_flow()
+    tau = flow.tau
+    tau_c = convexity_limit(flow.evaluator, flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, tau))
+    assert tau_c < tau / 1e4
+    w = flow.discrete_energy(flow.X)
+    with pytest.warns(UserWarning, match=r"convex at the initial state only below tau = .*the next attempt is at tau"):
+        first = flow.step()
+    j = round(np.log2(tau / first.tau))
+    floor = min(flow.min_tau, tau)
+    # the largest tau / 2^j not above tau_c / 2, or (that one below the floor min_tau) not above tau_c
+    expected = tau / 2 ** np.ceil(np.log2(2 * tau / tau_c))
+    expected = expected if expected >= floor else tau / 2 ** np.ceil(np.log2(tau / tau_c))
+    assert first.retries == 2 and first.tau == tau / 2**j == expected and first.tau <= tau_c
+    assert [r.split(":")[0] for r in first.rejected] == [f"tau={tau:.6g}", f"tau={tau / 2:.6g}"]
+    taus = [first.tau]
+    assert first.energy < w
+    for _ in range(5):
+        r = flow.step()
+        assert r.retries == 0 and r.energy < w
+        w = r.energy
+        taus.append(r.tau)
+    assert taus == [first.tau] * 3 + [2 * first.tau, 4 * first.tau, 8 * first.tau]
+    old = pb.make_flow(convex_start=False).step()
+    assert old.retries > 1 and old.tau == tau / 2**old.retries > first.tau
+
+
+def test_a_run_that_started_below_tau_c_resumes_bit_for_bit(tmp_path, straight_and_resumed) -> None:
+    """The cylinder's run of 5 steps straight and cut after 2 then resumed: the same states (the step-size control
+    replays the first step's retry from history.csv)."""
+    full, part = straight_and_resumed([_cylinder(tmp_path)], 5, 2, tmp_path)
+    assert int(full.history[1]["retries"]) == 2 and float(full.history[1]["tau"]) < float(full.history[0]["tau"]) / 1e4
+    assert [h["tau"] for h in full.history] == [h["tau"] for h in part.history]
+    for ya, yb, sa, sb in zip(full.Y, part.Y, full.states, part.states, strict=True):
+        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(ya, yb)
