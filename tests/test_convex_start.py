@@ -65,7 +65,7 @@ def test_convexity_limit_is_where_a_finite_difference_reduced_hessian_stops_bein
 
 
 def test_a_smooth_surface_has_no_strongly_negative_mode_and_is_flowed_as_before(tmp_path) -> None:
-    """A smooth ellipsoid (trimesh icosphere(3) stretched 1.5, 642 v): no tau_c below tau / 16 (none found); and a
+    """A smooth ellipsoid (trimesh icosphere(3) stretched 1.5, 642 v): no tau_c below tau / 16 (none or a weak mode); a
     flow whose first attempt succeeds never looks (the noisy sphere above is taken at tau although its tau_c is
     tau / 282): the states with and without ``convex_start`` are equal bit for bit."""
     from willmore_nlp.flow import CONVEX_JUMP
