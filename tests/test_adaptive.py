@@ -19,9 +19,11 @@ def _flow(**options: object) -> WillmoreFlow:
 
 def test_adaptive_steps_run_the_papers_bunny_scale() -> None:
     """With tau = h from the start every attempt fails (the ears' time scale is ~1e-6): the energy
-    drops from 93 to 62 within t = 8e-6. Adaptive control takes a first step of h/2^12, doubles after
-    steps without retries (waiting 2 steps after a failed doubling) and reaches the paper's tau = h at
-    step 24 (measured), three iterations per step from then on; the discrete energy decreases at every step."""
+    drops from 93 to 62 within t = 9e-6. Adaptive control takes a first step of h/2^15 after 2 retries (below the
+    step problem's convexity limit h/1.38e4, ``convex_start``; the halvings alone: h/2^12 after 12), doubles after
+    steps without retries (waiting 2 steps after a retried step) and reaches the paper's tau = h at step 29 (24
+    without the convex start; measured), three to four iterations per step from then on; the discrete energy
+    decreases at every step."""
     with pytest.raises(FlowError, match="failed after 4 retries"):
         _flow().step()
     flow = _flow(adaptive=True, max_retries=16)
@@ -38,7 +40,7 @@ def test_adaptive_steps_run_the_papers_bunny_scale() -> None:
 
 def test_adaptive_resume_is_bit_identical(tmp_path) -> None:
     """Restarting from a state with the history of its steps continues the step-size sequence (the back-off's holds
-    included: the first step, below its convexity limit after one retry, holds its tau for two steps): 8 + 6 steps
+    included: the first step, below its convexity limit after two retries, holds its tau for two steps): 8 + 6 steps
     equal 14 steps bit for bit, in Python and through the CLI's --resume."""
     a = _flow(adaptive=True, max_retries=16)
     first8 = a.run(steps=8)

@@ -62,9 +62,10 @@ class StepInterrupted(Exception):  # noqa: N818 (an outcome, not an error)
 
 CONVEX_JUMP = 16
 """``convex_start``: the first step jumps below its convexity limit tau_c only when tau_c < tau / CONVEX_JUMP, i.e.
-beyond the flow's default four halvings (the smooth 162-vertex ellipsoid 1:1:2 and 16x8 grid torus of the tests have
-tau_c = tau / 4.7 and tau / 6.8 and are taken by the halvings at tau / 2 - tau / 16; the noisy inputs of
-docs/guide/mesh_quality.md have tau / 10^3 - tau / 10^6, where the Lanczos iteration converges at once)."""
+beyond the flow's default four halvings (the smooth 162-vertex ellipsoid 1:1:2 and 16x8 grid torus with tangential
+weight 1 of the tests have tau_c = tau / 4.7 and tau / 6.8 and are taken by the halvings at tau / 2 - tau / 16, the
+smooth files of docs/guide/mesh_quality.md tau / 2.9 - tau / 11.9 or none; its noisy inputs have tau / 750 -
+tau / 6.3e6)."""
 
 FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""

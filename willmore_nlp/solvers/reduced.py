@@ -254,12 +254,13 @@ CONVEXITY_RESTARTS = 20
 """Restarts of the Lanczos iteration of :func:`convexity_limit` (40 Lanczos vectors each, relative residual 0.1: a
 Ritz value is a Rayleigh quotient, so an inaccurate one overestimates tau_c, never underestimates it; the jump needs
 tau_c to a factor 2). Measured on the first steps of docs/guide/mesh_quality.md's inputs: where the most negative
-mode is strong (noisy inputs: the cylinder, cone, noisy sphere and torus, noisy capsules of 4-15k vertices) it
-converges within 0.1-4 s; on the smooth inputs (ellipsoid, tori, Lawson's and the double torus) the spectrum's low
-end is clustered and it does not converge (0.7-2.1 s), which is read as: no strongly negative mode. With the
-residual 1e-2 and 20 vectors a noisy double torus (4,205 v, noise 0.1 h) did not converge in 221 products (8.7 s)
-and its first step then took 17 attempts; with these settings it converges in 61 (1.2 s) to lambda = -8,531, 1.8 %
-above the value the residual 1e-2 reaches with 100 restarts (-8,684)."""
+mode is strong (noisy inputs: the cylinder, cone, smoothed box, noisy spheres, tori, capsules and double torus) it
+converges in 0.1 s (700 vertices) to 8 s (15,170) and 34 s (39,891); on smooth inputs it either does not converge
+(ellipsoid 1:1:2 of 2,562 v, 48x24 grid torus, Lawson's genus 2: 1.9-8.4 s), which is read as no strongly negative
+mode, or finds a weak one (trimesh tori, the double torus: tau / 2.9 - tau / 11.9). With the residual 1e-2 and 20
+vectors a noisy double torus (4,205 v, noise 0.1 h) did not converge in 221 products (8.7 s) and its first step
+then took 17 attempts; with these settings it converges in 61 (1.2 s) to lambda = -8,531, 1.8 % above the value the
+residual 1e-2 reaches with 100 restarts (-8,684)."""
 
 
 def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray) -> float:
@@ -271,9 +272,9 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray) -> 
     (D + tau R) v = lambda D v at the tau of ``p`` (Lanczos, :data:`CONVEXITY_RESTARTS`), tau_c = tau / (1 -
     lambda) when lambda < 1. A strongly negative mode is what it is for: inf when R has no negative mode, when the
     Lanczos iteration does not converge in its restarts (the clustered low end of a smooth surface's spectrum; on
-    small smooth meshes it converges to a weak mode instead: tau / 4.7 and tau / 6.8 on the tests' 162-vertex
-    ellipsoid and 16x8 torus) and with outer constraints (not computed: the reduced Hessian would have to be
-    projected on their tangent space).
+    smooth meshes it may converge to a weak mode instead: tau / 4.7 and tau / 6.8 on the tests' 162-vertex
+    ellipsoid and 16x8 torus with tangential weight 1) and with outer constraints (not computed: the reduced
+    Hessian would have to be projected on their tangent space).
 
     Parameters
     ----------
