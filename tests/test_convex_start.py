@@ -65,24 +65,27 @@ def test_convexity_limit_is_where_a_finite_difference_reduced_hessian_stops_bein
 
 
 def test_a_smooth_surface_has_no_strongly_negative_mode_and_is_flowed_as_before(tmp_path) -> None:
-    """A smooth ellipsoid (trimesh icosphere(3) stretched 1.5, 642 v): no tau_c below tau / 16 (none or a weak mode); a
-    flow whose first attempt succeeds never looks (the noisy sphere above is taken at tau although its tau_c is
-    tau / 282): the states with and without ``convex_start`` are equal bit for bit."""
+    """A smooth ellipsoid (trimesh icosphere(3) stretched 1.5, 642 v): no tau_c below tau / 16 (none or a weak mode;
+    the first look's two Lanczos cycles find none); a flow whose first attempt succeeds never looks (the noisy
+    sphere above is taken at tau although its tau_c is tau / 282): the states with and without ``convex_start`` are
+    equal bit for bit."""
     from willmore_nlp.flow import CONVEX_JUMP
+    from willmore_nlp.solvers.reduced import CONVEXITY_FIRST_RESTARTS
 
     s = trimesh.creation.icosphere(3)
     s.vertices[:, 2] *= 1.5
     s.export(tmp_path / "ellipsoid.obj")
     pb, _ = registry.build("file", path=str(tmp_path / "ellipsoid.obj"))
     flow = pb.make_flow()
-    tau_c = convexity_limit(flow.evaluator, flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, flow.tau))
-    assert tau_c >= flow.tau / CONVEX_JUMP
+    z0, p = flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, flow.tau)
+    assert not convexity_limit(flow.evaluator, z0, p) < flow.tau / CONVEX_JUMP  # (nan: not converged)
+    assert np.isnan(convexity_limit(flow.evaluator, z0, p, CONVEXITY_FIRST_RESTARTS))
     pb, _ = registry.build("file", path=_noisy_sphere(tmp_path))
     runs = [pb.make_flow(convex_start=flag) for flag in (True, False)]
     for flow in runs:
         for _ in range(2):
             assert flow.step().retries == 0
-    assert runs[0]._convex_tau is None  # never computed
+    assert runs[0]._tau_c is None  # never computed
     assert np.array_equal(runs[0].X, runs[1].X)
 
 
@@ -118,6 +121,53 @@ def test_a_first_step_that_fails_at_tau_is_retried_below_tau_c(tmp_path) -> None
     assert taus == [first.tau] * 3 + [2 * first.tau, 4 * first.tau, 8 * first.tau]
     old = pb.make_flow(convex_start=False).step()
     assert old.retries > 1 and old.tau == tau / 2**old.retries > first.tau
+
+
+def test_the_first_look_after_one_failure_jumps_only_far_below(tmp_path, monkeypatch) -> None:
+    """The first look (two Lanczos cycles after the first failed attempt) gives the cylinder's tau_c exactly (the
+    same deterministic iteration; with newton-krylov's factorisations to rounding); tau / 5e4 is not below tau /
+    ``CONVEX_FAR`` (1e5), so the cylinder keeps its second attempt (the test above). With ``CONVEX_FAR`` lowered to
+    1e4 its first step jumps after the first failure to the step size that two failures give: one retry, the same
+    accepted state."""
+    import willmore_nlp.flow as flow_module
+    from willmore_nlp.solvers.reduced import CONVEXITY_FIRST_RESTARTS
+
+    pb, _ = registry.build("file", path=_cylinder(tmp_path))
+    flow = pb.make_flow()
+    z0, p = flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, flow.tau)
+    tau_c = convexity_limit(flow.evaluator, z0, p, CONVEXITY_FIRST_RESTARTS)
+    assert tau_c == convexity_limit(flow.evaluator, z0, p)
+    assert flow.solver.name == "newton-krylov"  # its Cholesky factors of J_Y's block: the same value
+    assert convexity_limit(flow.evaluator, z0, p, solver=flow.solver) == pytest.approx(tau_c, rel=1e-6)
+    assert flow.tau / flow_module.CONVEX_FAR < tau_c < flow.tau / 1e4
+    with pytest.warns(UserWarning, match="convex at the initial state only below"):
+        two = flow.step()
+    monkeypatch.setattr(flow_module, "CONVEX_FAR", 1e4)
+    flow = pb.make_flow()
+    with pytest.warns(UserWarning, match="convex at the initial state only below"):
+        one = flow.step()
+    assert (two.retries, one.retries) == (2, 1) and one.tau == two.tau
+    assert [r.split(":")[0] for r in one.rejected] == [f"tau={flow.tau:.6g}"]
+    assert np.array_equal(one.vertices, two.vertices)
+
+
+def test_a_first_step_taken_at_tau_over_2_is_unchanged(tmp_path) -> None:
+    """The smoothed box of docs/guide/mesh_quality.md's tables (trimesh box subdivided 3 times and Laplacian-smoothed
+    5 times, 386 v; IPOPT): its first attempt fails, the one at tau / 2 converges although tau_c = tau / 10,860 (the
+    largest ratio measured where that happens, which ``CONVEX_FAR`` stays above): the first look finds tau_c, no jump
+    follows, and the states with and without ``convex_start`` are equal bit for bit."""
+    from willmore_nlp.flow import CONVEX_FAR, CONVEX_JUMP
+
+    b = trimesh.creation.box().subdivide().subdivide().subdivide()
+    trimesh.smoothing.filter_laplacian(b, iterations=5)
+    b.export(tmp_path / "box.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "box.obj"))
+    runs = [pb.make_flow(convex_start=flag) for flag in (True, False)]
+    steps = [flow.step() for flow in runs]
+    assert [r.retries for r in steps] == [1, 1] and steps[0].tau == runs[0].tau / 2
+    tau_c = runs[0]._tau_c[0]
+    assert runs[0].tau / CONVEX_FAR < tau_c < runs[0].tau / CONVEX_JUMP
+    assert np.array_equal(runs[0].X, runs[1].X)
 
 
 def test_a_run_that_started_below_tau_c_resumes_bit_for_bit(tmp_path, straight_and_resumed) -> None:

@@ -67,6 +67,14 @@ weight 1 of the tests have tau_c = tau / 4.7 and tau / 6.8 and are taken by the 
 smooth files of docs/guide/mesh_quality.md tau / 2.9 - tau / 11.9 or none; its noisy inputs have tau / 750 -
 tau / 6.3e6)."""
 
+CONVEX_FAR = 1e5
+"""``convex_start``: the first step jumps below tau_c after its first failed attempt already when a first look of two
+Lanczos cycles (:data:`~willmore_nlp.solvers.reduced.CONVEXITY_FIRST_RESTARTS`) finds tau_c < tau / CONVEX_FAR (the
+second attempt, at tau / 2, is the same hopeless non-convex problem and was half of a large noisy input's first
+step: 200 of 441 s at 39,891 vertices). Measured: the largest tau / tau_c whose attempt at tau / 2 converged is the
+smoothed box's 10,860 (a ninth of this), the smallest of the inputs that it catches 2.8e5 (a noisy 3,796-vertex
+capsule); the cone, cylinder and noisy torus pair (tau / 3.9e4 - tau / 5e4) keep their second attempt."""
+
 FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
 
@@ -377,7 +385,8 @@ class WillmoreFlow:
             raise UserInputError(f"{mesh.source}: conformal_gauge=True is for closed surfaces in R^3 without boundary "
                                  "conditions or volume/area constraints")
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
-        self._convex_tau: float | None = None  # convex_start: the first step's step size below its convexity limit
+        # convex_start: the convexity limit tau_c of the first step and the restarts its Lanczos iteration had
+        self._tau_c: tuple[float, int] | None = None
         self.initial_mesh = mesh
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
         self.relaxed = False
@@ -666,7 +675,8 @@ class WillmoreFlow:
                 if self.stop_requested():  # the solve was cut short (or failed): do not retry
                     raise StepInterrupted(self.k + 1)
                 rejected.append(f"tau={tau:.6g}: {name + ': ' if len(solvers) > 1 else ''}{reason}")
-                jump = self._convex_start(tau0) if attempt == 1 and self.k == 0 else None
+                last = attempt == self.settings.max_retries
+                jump = self._convex_start(tau0, attempt) if attempt <= 1 and self.k == 0 and not last else None
                 tau = tau / 2 if jump is None else jump
         if below is not None:
             raise FlowError(f"step {self.k + 1} at t={self.t:.6g} failed: the step size fell to {below:.3g}, below "
@@ -1043,30 +1053,42 @@ class WillmoreFlow:
         if self.relax_max_tau < self.tau:
             raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {s.relax_max_tau!r}")
 
-    def _convex_start(self, tau: float) -> float | None:
-        """``convex_start``: where the first two attempts of the first step (at ``tau`` and tau / 2) failed, with
-        adaptive or relax steps, the next attempt's step size: below the step problem's convexity limit tau_c at X^0
-        (:func:`~willmore_nlp.solvers.reduced.convexity_limit`), the largest tau / 2^j not above tau_c / 2, or not
-        above tau_c when that one is below the floor ``min_tau``; None (halve tau as usual) when tau_c is not below
-        tau / :data:`CONVEX_JUMP` (the halvings reach it) or that step size is below the floor."""
-        from willmore_nlp.solvers.reduced import convexity_limit
+    def _convex_start(self, tau: float, attempt: int) -> float | None:
+        """``convex_start``: where the first attempt (``attempt`` 0, at ``tau``) or the first two attempts (1: at tau
+        and tau / 2) of the first step failed, with adaptive or relax steps, the next attempt's step size: below the
+        step problem's convexity limit tau_c at X^0 (:func:`~willmore_nlp.solvers.reduced.convexity_limit`), the
+        largest tau / 2^j not above tau_c / 2, or not above tau_c when that one is below the floor ``min_tau``. After
+        the first failure only when the first look finds tau_c < tau / :data:`CONVEX_FAR`; after the second when
+        tau_c < tau / :data:`CONVEX_JUMP` (its restarts then :data:`~willmore_nlp.solvers.reduced.CONVEXITY_RESTARTS`
+        unless the first look converged). None: halve tau as usual."""
+        from willmore_nlp.solvers.reduced import (
+            CONVEXITY_FIRST_RESTARTS,
+            CONVEXITY_RESTARTS,
+            ReducedSolver,
+            convexity_limit,
+        )
 
         s = self.settings
         if not (s.convex_start and (s.adaptive or s.relax)):
             return None
-        if self._convex_tau is None:  # (once: a fallback solver's first failure jumps to the same step size)
-            tau_c = convexity_limit(self.evaluator, self.problem.pack_z(self.X, self.Y), self.params(self.X, tau))
-            floor = min(self.min_tau, self.tau)
-            self._convex_tau = float("nan")
-            for limit in (tau_c / 2, tau_c) if tau_c < tau / CONVEX_JUMP else ():
-                j = int(np.ceil(np.log2(tau / limit)))
-                if tau / 2**j >= floor:
-                    self._convex_tau = tau / 2**j
-                    warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = "
-                                  f"{tau_c:.3g} = tau / {tau / tau_c:.3g}; the next attempt is at tau / 2^{j} = "
-                                  f"{self._convex_tau:.3g} (convex_start=false halves instead)", stacklevel=4)
-                    break
-        return None if np.isnan(self._convex_tau) else self._convex_tau
+        restarts = CONVEXITY_FIRST_RESTARTS if attempt == 0 else CONVEXITY_RESTARTS
+        # (once per number of restarts: a fallback solver's failures jump to the same step sizes)
+        if self._tau_c is None or (np.isnan(self._tau_c[0]) and self._tau_c[1] < restarts):
+            z0 = self.problem.pack_z(self.X, self.Y)
+            solver = self.solver if isinstance(self.solver, ReducedSolver) else None  # (newton-krylov: its factors)
+            self._tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver), restarts
+        tau_c = self._tau_c[0]
+        if not tau_c < tau / (CONVEX_FAR if attempt == 0 else CONVEX_JUMP):  # (nan: not found)
+            return None
+        floor = min(self.min_tau, self.tau)
+        for limit in (tau_c / 2, tau_c):
+            j = int(np.ceil(np.log2(tau / limit)))
+            if tau / 2**j >= floor:
+                warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = {tau_c:.3g} "
+                              f"= tau / {tau / tau_c:.3g}; the next attempt is at tau / 2^{j} = {tau / 2**j:.3g} "
+                              "(convex_start=false halves instead)", stacklevel=4)
+                return tau / 2**j
+        return None
 
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""

@@ -42,6 +42,7 @@ from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms import CAPABILITIES
 from willmore_nlp.settings import SolverSettings, integer, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
+from willmore_nlp.solvers.cholesky import SymmetricFactor
 
 
 @dataclass(frozen=True)
@@ -255,58 +256,76 @@ CONVEXITY_RESTARTS = 20
 Ritz value is a Rayleigh quotient, so an inaccurate one overestimates tau_c, never underestimates it; the jump needs
 tau_c to a factor 2). Measured on the first steps of docs/guide/mesh_quality.md's inputs: where the most negative
 mode is strong (noisy inputs: the cylinder, cone, smoothed box, noisy spheres, tori, capsules and double torus) it
-converges in 0.1 s (700 vertices) to 8 s (15,170) and 34 s (39,891); on smooth inputs it either does not converge
+converges in 0.1 s (700 vertices) to 8 s (15,170) and 34 s (39,891) with sparse LU factors of J_Y and D (1.2 s
+and 9.5 s with newton-krylov's Cholesky factors); on smooth inputs it either does not converge
 (ellipsoid 1:1:2 of 2,562 v, 48x24 grid torus, Lawson's genus 2: 1.9-8.4 s), which is read as no strongly negative
 mode, or finds a weak one (trimesh tori, the double torus: tau / 2.9 - tau / 11.9). With the residual 1e-2 and 20
 vectors a noisy double torus (4,205 v, noise 0.1 h) did not converge in 221 products (8.7 s) and its first step
 then took 17 attempts; with these settings it converges in 61 (1.2 s) to lambda = -8,531, 1.8 % above the value the
 residual 1e-2 reaches with 100 restarts (-8,684)."""
 
+CONVEXITY_FIRST_RESTARTS = 2
+"""Restarts of the first, cheap look of ``convex_start`` (the flow, after a first step's first failed attempt): 61-81
+Hessian-vector products. It converges where the most negative mode is strong (the noisy inputs of
+docs/guide/mesh_quality.md but the noisy capsule of the study, h / 753, a genus-2 level set, h / 577, and the torus
+pair of 10,192 v, h / 30,270; the 39,891-vertex noisy sphere needs the second cycle) and then gives the value of
+:data:`CONVEXITY_RESTARTS` exactly (the same deterministic iteration, stopped at the same cycle); on smooth inputs it
+costs 0.3-0.8 s (800-2,600 vertices) instead of 1.1-4.4 s."""
 
-def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray) -> float:
+
+def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, restarts: int = CONVEXITY_RESTARTS,
+                    solver: ReducedSolver | None = None) -> float:
     """The step size below which the step problem is convex at its start: tau_c with the reduced Hessian
     D + tau R of W^ at X^k positive definite for every tau < tau_c.
 
     W^(X) = (distance) + tau W(X, Y[X]) with Y[X] independent of tau, so the reduced Hessian at X^k is D + tau R
     with D (the distance part's Hessian, SPD) and R independent of tau. With lambda the smallest eigenvalue of
-    (D + tau R) v = lambda D v at the tau of ``p`` (Lanczos, :data:`CONVEXITY_RESTARTS`), tau_c = tau / (1 -
-    lambda) when lambda < 1. A strongly negative mode is what it is for: inf when R has no negative mode, when the
-    Lanczos iteration does not converge in its restarts (the clustered low end of a smooth surface's spectrum; on
-    smooth meshes it may converge to a weak mode instead: tau / 4.7 and tau / 6.8 on the tests' 162-vertex
-    ellipsoid and 16x8 torus with tangential weight 1) and with outer constraints (not computed: the reduced
-    Hessian would have to be projected on their tangent space).
+    (D + tau R) v = lambda D v at the tau of ``p`` (Lanczos, at most ``restarts`` restarts), tau_c = tau / (1 -
+    lambda) when lambda < 1. A strongly negative mode is what it is for: inf when lambda >= 1 (R has no negative
+    mode) and with outer constraints (not computed: the reduced Hessian would have to be projected on their tangent
+    space); nan when the Lanczos iteration does not converge in its restarts (the clustered low end of a smooth
+    surface's spectrum, read as no strongly negative mode; on smooth meshes it may converge to a weak mode instead:
+    tau / 4.7 and tau / 6.8 on the tests' 162-vertex ellipsoid and 16x8 torus with tangential weight 1). The
+    iteration is deterministic: where it converges within fewer restarts, more give the same value.
 
     Parameters
     ----------
     evaluator : StepEvaluator
     z0 : (nx,) the start (X^k, Y[X^k]) of the step
     p : (np,) its parameters (X^k and tau among them)
+    restarts : int
+        Lanczos restarts (ARPACK's ``maxiter``), :data:`CONVEXITY_RESTARTS` or :data:`CONVEXITY_FIRST_RESTARTS`
+    solver : ReducedSolver, optional
+        A reduced solver of ``evaluator`` whose factorisations of J_Y serve Y[X], the adjoint and the products (the
+        flow's newton-krylov: a Cholesky factor of J_Y's N x N block; default: a ``newton`` solver, a sparse LU of
+        the 3N x 3N J_Y). Measured at 39,891 vertices (two cycles, 81 products): 9.5 s with newton-krylov's factors,
+        16.3 s with the default (34-36 s when D was factorised by a sparse LU as well).
 
     Returns
     -------
     float
-        tau_c > 0, or inf.
+        tau_c > 0, inf or nan.
     """
     P = evaluator.problem
     if P.nh:
         return float("inf")
-    red = ReducedSolver(evaluator, ReducedSettings(), "newton")
+    red = ReducedSolver(evaluator, ReducedSettings(), "newton") if solver is None else solver
     x0 = np.asarray(z0[: red.nxm], float)
     pt = red._at(x0, p, P.unpack_z(z0, P.params.xk(p))[1])
     D = red._distance_hessian(pt.z, p)
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
     n = x0.size
     hess = spla.LinearOperator((n, n), matvec=lambda v: red._hessp(pt, p, np.ravel(v)), dtype=float)
-    lu = spla.splu(D)
-    dinv = spla.LinearOperator((n, n), matvec=lambda v: lu.solve(np.ravel(v)), dtype=float)
+    chol = SymmetricFactor().factor(D)
+    dinv = spla.LinearOperator((n, n), matvec=lambda v: chol.solve(np.ravel(v)), dtype=float)
     # a deterministic start (ARPACK's own random one depends on the calls before): the gradient, which is largest
     # where the energy concentrates
     v0 = pt.grad + 1e-3 * max(float(np.abs(pt.grad).max()), 1e-300)
     try:
         lam = spla.eigsh(hess, k=1, M=D, Minv=dinv, which="SA", tol=0.1, ncv=min(40, n - 1),
-                         maxiter=CONVEXITY_RESTARTS, v0=v0, return_eigenvectors=False)
+                         maxiter=restarts, v0=v0, return_eigenvectors=False)
     except spla.ArpackNoConvergence:
-        return float("inf")
+        return float("nan")
     smallest = float(lam[0])
     tau = P.params.scalar(p, "tau")
     return tau / (1.0 - smallest) if smallest < 1.0 else float("inf")
