@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import math
+import warnings
+
 from willmore_nlp.boundary import VARIANTS, Boundary
 from willmore_nlp.mesh.io import load_mesh
-from willmore_nlp.mesh.topology import euler_characteristic
+from willmore_nlp.mesh.topology import components, euler_characteristic
+from willmore_nlp.mesh.validate import simplex_volumes
 from willmore_nlp.registry import Problem, ProblemError, register
+from willmore_nlp.remesh import equilateral_edge
 from willmore_nlp.settings import FlowSettings
 
 FIRST_STEP_BUDGET = FlowSettings().iteration_budget_min
@@ -20,6 +25,24 @@ performance.md, "The default for large files"): 12 users' surfaces of 550-2,562 
 1.5-11.7x less time than IPOPT (7.3x on a 2,562-vertex ellipsoid), no step left to the fallback; newton-krylov's
 first steps are sometimes taken at a smaller tau than IPOPT's. At 10,000-17,000 vertices: a smooth ellipsoid's 10 steps
 in 166 s instead of 1,288 s; a noisy torus whose first step newton-krylov fails at every tau is taken by IPOPT."""
+
+
+COARSE_SIZE = 3.0
+"""A closed surface whose size R = sqrt(area / 4 pi) is below this many edges h (of equilateral triangles with its area
+and triangle count, :func:`~willmore_nlp.remesh.equilateral_edge`; R / h = sqrt(sqrt 3 n / 16 pi) for n triangles, so
+fewer than 262 triangles) is refined before the first step (``remesh_target = R /`` :data:`COARSE_TARGET`, about 200
+vertices on a sphere). The scheme shrinks a sphere at rate
+dR/dt = -16 tau_tilde / R^5 (docs/theory/pitfalls.md), with tau_tilde = h^2 / 100 in a time t ~ R^6 / h^2, and the
+coarse mesh's own discretisation adds to it. Measured, `willmore-nlp run X.obj --steps 30-40` on trimesh's raw
+primitives (R / h): the icosahedron (12 v, 0.83) shrank to a point (mean edge 4e-6 at t = 20) and ended "completed";
+the box (8 v, 0.64), icosphere(1) and the subdivided icosahedron (42 v, 1.7), the cylinder (66 v, 2.1) and the box
+subdivided twice (98 v, 2.6) shrank until a step failed at t = 0.04-2.3; refined toward R / 4 (195-218 v) each ran
+40 steps at tau = h without a retry to W = 24.73-24.77 (the round sphere at that resolution). The 162-vertex
+icosphere(2) (R / h = 3.3), the cylinder subdivided once (258 v, 4.2) and every input of the docs' tables are above
+the threshold."""
+
+COARSE_TARGET = 4.0
+"""A coarse closed surface (:data:`COARSE_SIZE`) is remeshed toward the mean edge R / COARSE_TARGET."""
 
 
 @register("file")
@@ -64,6 +87,12 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     constraint turns the problem's gauge off (:meth:`~willmore_nlp.registry.Problem.effective_options`).
     ``--set tangential_weight=1 --set conformal_gauge=false`` is the paper's scheme.
 
+    A closed surface smaller than :data:`COARSE_SIZE` (3) edges (its size sqrt(area / 4 pi); fewer than 262
+    triangles) gets ``remesh_target`` a quarter of that size, with a warning: the scheme's shrinkage of order
+    tau_tilde collapses or stops surfaces that coarse (trimesh's raw box, icosahedron, icosphere(1) and cylinder),
+    and ``input_repair`` refines them to about 200 vertices before the first step (``--set remesh_target=H`` asks
+    for another resolution, ``--set input_repair=false`` flows the input as given).
+
     The surface step sizes this problem chooses (tau = h, tau_tilde = h^2 / 100; not those given) are those of
     the mesh the flow runs on: when ``input_repair`` remeshes the input they follow its mean edge
     (``steps_from_h``; a 128-vertex washer repaired to 1,401 vertices with ``remesh_target = 0.08`` had run with
@@ -85,6 +114,16 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     elif mesh.d == 2 and euler_characteristic(mesh.simplices) <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True)
+    if mesh.d == 2 and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several: the flow's error)
+        area = float(simplex_volumes(mesh.vertices, mesh.simplices).sum())  # (no metric: a sliver is an error later)
+        size, h = math.sqrt(area / (4 * math.pi)), equilateral_edge(mesh.vertices, mesh.simplices)
+        if size < COARSE_SIZE * h:
+            options["remesh_target"] = size / COARSE_TARGET
+            warnings.warn(f"{path}: a closed surface of {mesh.n_vertices} vertices only {size / h:.2g} edges "
+                          f"in size (sqrt(area / 4 pi) = {size:.3g}): the scheme's shrinkage of order tau_tilde "
+                          f"collapses surfaces that coarse, so remesh_target = {size / COARSE_TARGET:.3g} refines it "
+                          "(--set remesh_target=H for another, --set input_repair=false flows it as given)",
+                          stacklevel=2)
     if mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
         options.update(solver="newton-krylov", fallback_solver="ipopt")
     if mesh.d == 2:  # tau = h and tau_tilde = h^2/100 of the mesh flowed, also when input_repair remeshes it

@@ -178,3 +178,28 @@ def test_a_run_that_started_below_tau_c_resumes_bit_for_bit(tmp_path, straight_a
     assert [h["tau"] for h in full.history] == [h["tau"] for h in part.history]
     for ya, yb, sa, sb in zip(full.Y, part.Y, full.states, part.states, strict=True):
         assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(ya, yb)
+
+
+def test_a_convexity_limit_under_the_floor_is_named_with_the_min_tau_that_reaches_it(tmp_path) -> None:
+    """trimesh's raw cone (34 v, refined by the file problem to 192 v; its apex stays): tau_c = tau / 5.1e4 (measured),
+    and the step sizes tau / 2^j below it are under the floor min_tau = 0.01 h^4, so the attempts go on halving and
+    step 1 fails; a warning names tau_c and a min_tau below it, with which the next attempt starts below tau_c / 2 and
+    converges."""
+    import re
+
+    from willmore_nlp import FlowError
+
+    trimesh.creation.cone(radius=0.5, height=1.0).export(tmp_path / "cone.obj")
+    with pytest.warns(UserWarning, match="edges in size"):
+        pb, _ = registry.build("file", path=str(tmp_path / "cone.obj"))
+    flow = pb.make_flow()
+    with pytest.warns(UserWarning, match="under the step-size floor") as record, pytest.raises(FlowError):
+        flow.step()
+    message = next(str(w.message) for w in record if "under the step-size floor" in str(w.message))
+    tau_c = float(re.search(r"only below tau = ([0-9.e+-]+)", message).group(1))
+    min_tau = float(re.search(r"--set min_tau=([0-9.e+-]+)", message).group(1))
+    assert flow.tau / 2 ** np.ceil(np.log2(flow.tau / tau_c)) < flow.min_tau and min_tau < tau_c / 2
+    flow = pb.make_flow(min_tau=min_tau)
+    with pytest.warns(UserWarning, match="the next attempt is at tau"):
+        first = flow.step()
+    assert first.retries == 2 and first.tau <= tau_c / 2 * 1.01  # (tau_c as printed: 3 digits)

@@ -1088,6 +1088,11 @@ class WillmoreFlow:
                               f"= tau / {tau / tau_c:.3g}; the next attempt is at tau / 2^{j} = {tau / 2**j:.3g} "
                               "(convex_start=false halves instead)", stacklevel=4)
                 return tau / 2**j
+        if attempt:  # (once: after the second failure)
+            warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = {tau_c:.3g} = tau "
+                          f"/ {tau / tau_c:.3g}, and the step sizes tau / 2^j below it are under the step-size floor "
+                          f"min_tau = {floor:.3g}: the attempts go on halving (--set min_tau={tau_c / 4:.2g} lets the "
+                          "next one start below tau_c)", stacklevel=4)
         return None
 
     def _relax_start(self, willmore: float) -> None:
