@@ -68,9 +68,7 @@ def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tm
     sphere keeps the paper's 1 and no gauge; the gauge yields to a volume constraint):
     its first step at tau = h fights the scheme's tangential descent with weight 1 (IPOPT cut at the problem's
     30-iteration first-step budget at h, h/2, h/4 and h/8, taken at h/16: measured 4 retries, 120 rejected iterations
-    on this 16x8 grid torus; 400 with the flow's default budget of 100) and is taken at h/4 after 2 with weight 10.
-    The grid has 256 triangles, which the problem would refine (``COARSE_SIZE``): flowed here at its own resolution
-    (``remesh_target=None``)."""
+    on this 16x8 grid torus; 400 with the flow's default budget of 100) and is taken at h/4 after 2 with weight 10."""
     from willmore_nlp.mesh import shapes
     from willmore_nlp.mesh.io import save_mesh
 
@@ -87,7 +85,7 @@ def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tm
     out = {}
     budget = registry.problem_module("files").FIRST_STEP_BUDGET
     for weight in (1.0, None):
-        flow = pb.make_flow(remesh_target=None, **({} if weight is None else {"tangential_weight": weight}))
+        flow = pb.make_flow() if weight is None else pb.make_flow(tangential_weight=weight)
         w0 = flow.discrete_energy(flow.X)
         first = flow.step()
         assert first.energy < w0
