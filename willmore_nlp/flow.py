@@ -73,7 +73,8 @@ Lanczos cycles (:data:`~willmore_nlp.solvers.reduced.CONVEXITY_FIRST_RESTARTS`) 
 second attempt, at tau / 2, is the same hopeless non-convex problem and was half of a large noisy input's first
 step: 200 of 441 s at 39,891 vertices). Measured: the largest tau / tau_c whose attempt at tau / 2 converged is the
 smoothed box's 10,860 (a ninth of this), the smallest of the inputs that it catches 2.8e5 (a noisy 3,796-vertex
-capsule); the cone, cylinder and noisy torus pair (tau / 3.9e4 - tau / 5e4) keep their second attempt."""
+capsule); the cone, the cylinder and the noisy 10,192-vertex torus (tau / 3.0e4 - tau / 5.0e4) keep their second
+attempt."""
 
 FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
