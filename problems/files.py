@@ -8,7 +8,6 @@ import warnings
 from willmore_nlp.boundary import VARIANTS, Boundary
 from willmore_nlp.mesh.io import load_mesh
 from willmore_nlp.mesh.topology import components, euler_characteristic
-from willmore_nlp.mesh.validate import simplex_volumes
 from willmore_nlp.registry import Problem, ProblemError, register
 from willmore_nlp.remesh import equilateral_edge
 from willmore_nlp.settings import FlowSettings
@@ -107,6 +106,7 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     mesh = load_mesh(path)
     options: dict[str, object] = ({"adaptive": True, "max_retries": 8, "first_step_budget": FIRST_STEP_BUDGET}
                                   if mesh.d == 2 else {})
+    chi = euler_characteristic(mesh.simplices) if mesh.d == 2 else None
     if clamp:
         options["boundary"] = Boundary.outer_strip(mesh, clamp)
         if mesh.d == 2:
@@ -114,12 +114,11 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     elif not mesh.is_closed:
         raise ProblemError(f"the mesh has a boundary ({len(mesh.boundary_facets)} boundary facets): set "
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
-    elif mesh.d == 2 and euler_characteristic(mesh.simplices) <= 0:
+    elif chi is not None and chi <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True)
-    sphere = mesh.d == 2 and mesh.m == 3 and not clamp and euler_characteristic(mesh.simplices) == 2
-    if sphere and components(mesh)[0] == 1:  # (several components are the flow's error)
-        area = float(simplex_volumes(mesh.vertices, mesh.simplices).sum())  # (no metric: a sliver is an error later)
-        size, h = math.sqrt(area / (4 * math.pi)), equilateral_edge(mesh.vertices, mesh.simplices)
+    if chi == 2 and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several components: the flow's error)
+        h = equilateral_edge(mesh.vertices, mesh.simplices)  # (areas only: a sliver is an error later)
+        size = h * math.sqrt(math.sqrt(3) * len(mesh.simplices) / (16 * math.pi))  # sqrt(area / 4 pi)
         if size < COARSE_SIZE * h:
             options["remesh_target"] = size / COARSE_TARGET
             warnings.warn(f"{path}: a closed surface of {mesh.n_vertices} vertices only {size / h:.2g} edges "
