@@ -6,6 +6,8 @@ import math
 import warnings
 
 from willmore_nlp.boundary import VARIANTS, Boundary
+from willmore_nlp.geometry import enclosed_volume
+from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import load_mesh
 from willmore_nlp.mesh.topology import components, euler_characteristic
 from willmore_nlp.registry import Problem, ProblemError, register
@@ -38,12 +40,28 @@ icosphere(1) and the subdivided icosahedron (42 v, 1.7), the cylinder (66 v, 2.1
 2.6) shrank until a step failed at t = 0.04-2.3; refined toward R / 4 (195-218 v) each ran 40 steps at tau = h with
 0-1 retries to W = 24.72-24.77 (the round sphere at that resolution). The 162-vertex icosphere(2) (R / h = 3.3), the
 cylinder subdivided once (258 v, 4.2) and every genus-0 input of the docs' tables are above the threshold. Not for
-genus >= 1, where R is not the size that matters (a tube's radius is): the 128-vertex trimesh washer (R / h = 2.99)
-refined this way ended 20 steps 3.4 % below 4 pi^2 instead of 1.4 % as given (the end-of-run resolution warning
-advises such inputs)."""
+genus >= 1, where R is not the size that matters (a tube's radius is, :data:`COARSE_TUBE`): the 128-vertex trimesh
+washer (R / h = 2.99) refined this way (185 v) ended 20 steps 3.4 % below 4 pi^2 instead of 1.4 % as given."""
 
 COARSE_TARGET = 4.0
-"""A coarse closed surface (:data:`COARSE_SIZE`) is remeshed toward the mean edge R / COARSE_TARGET."""
+"""A coarse closed surface of genus 0 (:data:`COARSE_SIZE`) is remeshed toward the mean edge R / COARSE_TARGET."""
+
+COARSE_TUBE = 1.5
+"""A closed surface of genus >= 1 whose tube radius r = 2 V / A (exact for a torus of revolution with a round
+section: V = 2 pi^2 R r^2, A = 4 pi^2 R r) is below this many edges h is refined before the first step
+(``remesh_target = r /`` :data:`COARSE_TUBE_TARGET`). Its nodes drift until a fold stops the run: measured,
+`willmore-nlp run X.obj --steps 40` (r / h): the 18 x 9 grid torus R = 1, r = 0.5 (162 v, 1.3) failed at step 9 (t =
+1.33, W 34.1, the smallest angle 26.8 -> 5.3 deg in step 1); refined to 891 v it ran 40 steps, 10 retries, no failed
+step, >= 25.4 deg, R/r 1.410, W 0.56 % below its mesh-matched Clifford torus. trimesh's 16 x 8 torus (128 v, 1.1) and
+washer (128 v, 0.8) ran as given only through ``refine_dihedral`` (382 / 402 v, R/r 1.444 / 1.437); refined (897 /
+1,938 v) R/r 1.424 / 1.419, 0.88 / 0.41 % below the reference, in 126 / 406 s instead of 29 / 29 s. The 24 x 12 grid
+(1.7), trimesh's default torus (32 x 32 sections, 3.3), the level-set genus-2 surface (``shapes.genus2``, 1.9) and the
+Lawson surface (4.3) are above the threshold; refined to r / 3 the 24 x 12 grid ran as well (924 v,
+0.70 % below) but as given in 77 s instead of 133 s (542 v by refine_dihedral, 0.36 % below). Times beside
+another run."""
+
+COARSE_TUBE_TARGET = 3.0
+"""A coarse closed surface of genus >= 1 (:data:`COARSE_TUBE`) is remeshed toward the mean edge r / this."""
 
 
 @register("file")
@@ -92,7 +110,10 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     262 triangles) gets ``remesh_target`` a quarter of that size, with a warning: the scheme's shrinkage of order
     tau_tilde collapses or stops surfaces that coarse (trimesh's raw box, icosahedron, icosphere(1) and cylinder),
     and ``input_repair`` refines them to about 200 vertices before the first step (``--set remesh_target=H`` asks
-    for another resolution, ``--set input_repair=false`` flows the input as given).
+    for another resolution, ``--set input_repair=false`` flows the input as given). A closed surface of genus >= 1
+    whose tube radius 2 volume / area is below :data:`COARSE_TUBE` (1.5) edges gets ``remesh_target`` a third of it,
+    with the same warning: the nodes of a tube that coarse drift until the mesh folds (an 18 x 9 grid torus failed at
+    step 9; refined to 891 v it ran 40 steps without one).
 
     The surface step sizes this problem chooses (tau = h, tau_tilde = h^2 / 100; not those given) are those of
     the mesh the flow runs on: when ``input_repair`` remeshes the input they follow its mean edge
@@ -116,16 +137,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     elif chi is not None and chi <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True)
-    if chi == 2 and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several components: the flow's error)
-        h = equilateral_edge(mesh.vertices, mesh.simplices)  # (areas only: a sliver is an error later)
-        size = h * math.sqrt(math.sqrt(3) * len(mesh.simplices) / (16 * math.pi))  # sqrt(area / 4 pi)
-        if size < COARSE_SIZE * h:
-            options["remesh_target"] = size / COARSE_TARGET
-            warnings.warn(f"{path}: a closed surface of {mesh.n_vertices} vertices only {size / h:.2g} edges "
-                          f"in size (sqrt(area / 4 pi) = {size:.3g}): the scheme's shrinkage of order tau_tilde "
-                          f"collapses surfaces that coarse, so remesh_target = {size / COARSE_TARGET:.3g} refines it "
-                          "(--set remesh_target=H for another, --set input_repair=false flows it as given)",
-                          stacklevel=2)
+    if chi is not None and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several: the flow's error)
+        _refine_if_coarse(mesh, chi, options, path)
     if mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
         options.update(solver="newton-krylov", fallback_solver="ipopt")
     if mesh.d == 2:  # tau = h and tau_tilde = h^2/100 of the mesh flowed, also when input_repair remeshes it
@@ -135,3 +148,21 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     tt_factor = 0.25 if mesh.d == 1 else 0.01
     return Problem(mesh, h if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
                    lam, steps=steps, flow_options=options, description=f"mesh from {path}")
+
+
+def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: str) -> None:
+    """Set ``remesh_target`` (with a warning) when the closed surface ``mesh`` is coarse: genus 0 by its size
+    sqrt(area / 4 pi) (:data:`COARSE_SIZE`), genus >= 1 by its tube radius 2 volume / area (:data:`COARSE_TUBE`)."""
+    h = equilateral_edge(mesh.vertices, mesh.simplices)  # (areas only: a sliver is an error later)
+    area = math.sqrt(3) / 4 * h * h * len(mesh.simplices)
+    if chi == 2:
+        size, limit, target = math.sqrt(area / (4 * math.pi)), COARSE_SIZE, COARSE_TARGET
+        what, why = "sqrt(area / 4 pi)", "the scheme's shrinkage of order tau_tilde collapses surfaces that coarse"
+    else:
+        size, limit, target = 2 * abs(enclosed_volume(mesh)) / area, COARSE_TUBE, COARSE_TUBE_TARGET
+        what, why = "its tube radius 2 volume / area", "the nodes of tubes that coarse drift until the mesh folds"
+    if size < limit * h:
+        options["remesh_target"] = size / target
+        warnings.warn(f"{path}: a closed surface of {mesh.n_vertices} vertices only {size / h:.2g} edges in size "
+                      f"({what} = {size:.3g}): {why}, so remesh_target = {size / target:.3g} refines it "
+                      "(--set remesh_target=H for another, --set input_repair=false flows it as given)", stacklevel=3)

@@ -85,7 +85,8 @@ def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tm
     out = {}
     budget = registry.problem_module("files").FIRST_STEP_BUDGET
     for weight in (1.0, None):
-        flow = pb.make_flow() if weight is None else pb.make_flow(tangential_weight=weight)
+        flow = (pb.make_flow(input_repair=False) if weight is None
+                else pb.make_flow(tangential_weight=weight, input_repair=False))
         w0 = flow.discrete_energy(flow.X)
         first = flow.step()
         assert first.energy < w0
@@ -108,7 +109,8 @@ def test_a_file_torus_run_from_before_the_gauge_default_resumes_without_it(tmp_p
     from willmore_nlp.mesh.io import save_mesh
 
     save_mesh(shapes.torus(1.0, 0.5, 16, 8), tmp_path / "torus.obj")
-    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "torus.obj"), "--quiet"]
+    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "torus.obj"), "--quiet", "--set",
+           "input_repair=false"]  # (flowed as given, not refined as a coarse torus)
     ref, old = tmp_path / "ref", tmp_path / "old"
     for out, steps in ((ref, "2"), (old, "1")):
         r = subprocess.run([*cli, "--set", "conformal_gauge=false", "--steps", steps, "--out", str(out)],
@@ -293,3 +295,44 @@ def test_a_coarse_closed_surface_is_refined_before_it_shrinks_away(tmp_path) -> 
     trimesh.creation.icosphere(2).export(tmp_path / "fine.obj")
     pb, _ = registry.build("file", path=str(tmp_path / "fine.obj"))
     assert "remesh_target" not in pb.flow_options
+
+
+def test_a_coarse_torus_is_refined_by_its_tube_radius(tmp_path) -> None:
+    """A closed surface of genus >= 1 is coarse when its tube radius 2 V / A (exact for a torus of revolution with
+    a round section) is below 1.5 edges: grid tori of 12 x 6, 16 x 8 and 18 x 9 vertices (0.8-1.3 edges) get
+    ``remesh_target`` a third of it, which recovers r = 0.5 at the polyhedra's order 2 (fitted over the three);
+    24 x 12 (1.7 edges) is flowed as given. The 18 x 9 grid as given (``input_repair=false``) folds at once (the
+    smallest angle 26.8 -> 5.3 deg in its first step at tau = h; measured: a step fails at t = 1.33 on a fold); refined
+    (891 v) its first steps keep every triangle above 25 deg, the energy decreasing (measured over 40 steps: no failed
+    step, the smallest angle >= 25.4 deg; docs/guide/mesh_quality.md)."""
+    from willmore_nlp.analysis import fit_order
+    from willmore_nlp.geometry import min_angles
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.mesh.io import save_mesh
+
+    files = registry.problem_module("files")
+    errors = []
+    for n in (12, 16, 18):
+        save_mesh(shapes.torus(1.0, 0.5, n, n // 2), tmp_path / f"t{n}.obj")
+        with pytest.warns(UserWarning, match=rf"{n * n // 2} vertices only .* edges in size \(its tube radius"):
+            pb, _ = registry.build("file", path=str(tmp_path / f"t{n}.obj"))
+        errors.append(0.5 - files.COARSE_TUBE_TARGET * pb.flow_options["remesh_target"])
+    assert 1.8 < fit_order([1 / 12, 1 / 16, 1 / 18], errors) < 2.2
+    save_mesh(shapes.torus(1.0, 0.5, 24, 12), tmp_path / "t24.obj")
+    assert "remesh_target" not in registry.build("file", path=str(tmp_path / "t24.obj"))[0].flow_options
+
+    # input_repair=false flows it as given: the problem's target goes too (a target the user gives stays)
+    assert "remesh_target" not in pb.effective_options({"input_repair": False})
+    assert pb.effective_options({"input_repair": False, "remesh_target": 0.2})["remesh_target"] == 0.2
+    raw = pb.make_flow(input_repair=False)
+    assert raw.settings.remesh_target is None and min_angles(raw.X, raw.mesh.simplices).min() > 26
+    raw.step()
+    assert raw.mesh.n_vertices == 162 and min_angles(raw.X, raw.mesh.simplices).min() < 10
+    with pytest.warns(UserWarning, match="remeshed toward remesh_target"):
+        flow = pb.make_flow()
+    assert 700 <= flow.mesh.n_vertices <= 1100
+    energies = [flow.discrete_energy(flow.X)]
+    for _ in range(4):
+        energies.append(flow.step().energy)
+        assert min_angles(flow.X, flow.mesh.simplices).min() > 25
+    assert np.all(np.diff(energies) < 0)

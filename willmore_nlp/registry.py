@@ -76,7 +76,9 @@ class Problem:
         an error. A surface of at least :data:`LARGE_SURFACE` vertices whose problem names no solver gets
         newton-krylov with the IPOPT fallback. A ``first_step_solver`` or ``fallback_solver`` of the problem's own
         (the ``file`` problem's large surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp``
-        runs every step with sqp."""
+        runs every step with sqp. A ``remesh_target`` of the problem's own (the ``file`` problem's coarse inputs) gives
+        way to ``input_repair = false`` among the overrides: ``--set input_repair=false`` flows the input as given, its
+        later remeshings toward their default target."""
         options = dict(self.flow_options)
         if self.mesh.d == 2 and self.mesh.n_vertices >= LARGE_SURFACE and "solver" not in options:
             options.update(solver="newton-krylov", fallback_solver="ipopt")
@@ -86,6 +88,8 @@ class Problem:
         for key in ("first_step_solver", "fallback_solver"):
             if "solver" in overrides and key not in overrides:
                 options.pop(key, None)
+        if overrides.get("input_repair") is False and "remesh_target" not in overrides:
+            options.pop("remesh_target", None)
         return {**options, **overrides}
 
 
