@@ -123,13 +123,15 @@ def test_a_first_step_that_fails_at_tau_is_retried_below_tau_c(tmp_path) -> None
     assert old.retries > 1 and old.tau == tau / 2**old.retries > first.tau
 
 
-def test_the_first_look_after_one_failure_jumps_only_far_below(tmp_path, monkeypatch) -> None:
-    """The first look (two Lanczos cycles after the first failed attempt) gives the cylinder's tau_c exactly (the
-    same deterministic iteration; with newton-krylov's factorisations to rounding); tau / 5e4 is not below tau /
-    ``CONVEX_FAR`` (1e5), so the cylinder keeps its second attempt (the test above). With ``CONVEX_FAR`` lowered to
-    1e4 its first step jumps after the first failure to the step size that two failures give: one retry, the same
-    accepted state."""
+def test_the_first_look_before_the_first_attempt_jumps_only_far_below(tmp_path, monkeypatch) -> None:
+    """The first look (two Lanczos cycles, before newton-krylov's first attempt) gives the cylinder's tau_c exactly
+    (the same deterministic iteration; with newton-krylov's factorisations to rounding); tau / 5e4 is not below tau /
+    ``CONVEX_FAR`` (1e5), so the cylinder keeps its attempts at tau and tau / 2 (the test above). With ``CONVEX_FAR``
+    lowered to 1e4 its first step starts at the step size that two failures give: no retry, the same accepted
+    state; with IPOPT the look follows its first failed attempt (one retry). D is factorised with newton-krylov's
+    ``cholesky`` backend (scipy here: the same tau_c)."""
     import willmore_nlp.flow as flow_module
+    from willmore_nlp.solvers import reduced
     from willmore_nlp.solvers.reduced import CONVEXITY_FIRST_RESTARTS
 
     pb, _ = registry.build("file", path=_cylinder(tmp_path))
@@ -140,15 +142,28 @@ def test_the_first_look_after_one_failure_jumps_only_far_below(tmp_path, monkeyp
     assert flow.solver.name == "newton-krylov"  # its Cholesky factors of J_Y's block: the same value
     assert convexity_limit(flow.evaluator, z0, p, solver=flow.solver) == pytest.approx(tau_c, rel=1e-6)
     assert flow.tau / flow_module.CONVEX_FAR < tau_c < flow.tau / 1e4
+    # D is factorised with the backend the user chose for newton-krylov (``cholesky``), not CHOLMOD regardless
+    backends, factor = [], reduced.SymmetricFactor
+    monkeypatch.setattr(reduced, "SymmetricFactor", lambda backend="auto", **kw: backends.append(backend)
+                        or factor(backend, **kw))
+    scipy = pb.make_flow(cholesky="scipy")
+    assert convexity_limit(scipy.evaluator, z0, p, solver=scipy.solver) == pytest.approx(tau_c, rel=1e-6)
+    assert backends == ["scipy"]
+    monkeypatch.undo()
     with pytest.warns(UserWarning, match="convex at the initial state only below"):
         two = flow.step()
     monkeypatch.setattr(flow_module, "CONVEX_FAR", 1e4)
     flow = pb.make_flow()
     with pytest.warns(UserWarning, match="convex at the initial state only below"):
         one = flow.step()
-    assert (two.retries, one.retries) == (2, 1) and one.tau == two.tau
-    assert [r.split(":")[0] for r in one.rejected] == [f"tau={flow.tau:.6g}"]
+    assert (two.retries, one.retries) == (2, 0) and one.tau == two.tau and one.rejected == []
     assert np.array_equal(one.vertices, two.vertices)
+    # IPOPT's failed attempts are cheap and it took some far below tau_c at tau: it looks after its first failure
+    flow = pb.make_flow(solver="ipopt", fallback_solver="")
+    with pytest.warns(UserWarning, match="convex at the initial state only below"):
+        ipopt = flow.step()
+    assert ipopt.retries == 1 and ipopt.tau == two.tau
+    assert [r.split(":")[0] for r in ipopt.rejected] == [f"tau={flow.tau:.6g}"]
 
 
 def test_a_first_step_taken_at_tau_over_2_is_unchanged(tmp_path) -> None:

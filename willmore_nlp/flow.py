@@ -68,13 +68,14 @@ smooth files of docs/guide/mesh_quality.md tau / 2.9 - tau / 11.9 or none; its n
 tau / 6.3e6)."""
 
 CONVEX_FAR = 1e5
-"""``convex_start``: the first step jumps below tau_c after its first failed attempt already when a first look of two
-Lanczos cycles (:data:`~willmore_nlp.solvers.reduced.CONVEXITY_FIRST_RESTARTS`) finds tau_c < tau / CONVEX_FAR (the
-second attempt, at tau / 2, is the same hopeless non-convex problem and was half of a large noisy input's first
-step: 200 of 441 s at 39,891 vertices). Measured: the largest tau / tau_c whose attempt at tau / 2 converged is the
-smoothed box's 10,860 (a ninth of this), the smallest of the inputs that it catches 2.8e5 (a noisy 3,796-vertex
-capsule); the cone, the cylinder and the noisy 10,192-vertex torus (tau / 3.0e4 - tau / 5.0e4) keep their second
-attempt."""
+"""``convex_start``: the first step starts below tau_c, before newton-krylov's first attempt (after another solver's
+first failure), when a first look of two Lanczos cycles (:data:`~willmore_nlp.solvers.reduced.CONVEXITY_FIRST_RESTARTS`)
+finds tau_c < tau / CONVEX_FAR: the attempts at tau and tau / 2 are then the same hopeless non-convex problem and were
+most of a large noisy input's first step (400 of 441 s at 39,891 vertices). Measured: the largest tau / tau_c whose
+attempt at tau / 2 converged is the smoothed box's 10,860 (a ninth of this); newton-krylov's attempt at tau converged
+up to 3.4e4 (a noisy capsule of 445 v) and failed on each of 9 inputs above 1e5 (1.0e5-3.3e6); IPOPT took one of
+them at tau (a noisy icosphere of 2,279 v, 2.8e5), so it keeps its first attempt. The cone, the cylinder and the
+noisy 10,192-vertex torus (tau / 3.0e4 - tau / 5.0e4) keep their attempts at tau and tau / 2."""
 
 FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
@@ -654,10 +655,13 @@ class WillmoreFlow:
         below: float | None = None  # a step size that fell below min_tau
         tau0, tries = tau, -1  # tries: attempts so far (the step's retries when it is accepted)
         solvers = self._step_solvers()
+        start = None  # the first step's step size below tau_c, when the first look finds it far below tau
         for name in solvers:
             if self.solver.name != name:  # after a first step of first_step_solver, or the fallback_solver's turn
                 self._make_solver(name)
-            tau = tau0
+            if self.k == 0 and name == solvers[0] == "newton-krylov" and self.settings.max_retries:
+                start = self._convex_start(tau0, 0)  # (its failed attempts are the costly ones: look first)
+            tau = tau0 if start is None else start
             for attempt in range(self.settings.max_retries + 1):
                 tries += 1
                 if self.stop_requested():
@@ -677,7 +681,8 @@ class WillmoreFlow:
                     raise StepInterrupted(self.k + 1)
                 rejected.append(f"tau={tau:.6g}: {name + ': ' if len(solvers) > 1 else ''}{reason}")
                 last = attempt == self.settings.max_retries
-                jump = self._convex_start(tau0, attempt) if attempt <= 1 and self.k == 0 and not last else None
+                jump = self._convex_start(tau0, attempt + 1) if attempt <= 1 and self.k == 0 and start is None \
+                    and not last else None
                 tau = tau / 2 if jump is None else jump
         if below is not None:
             raise FlowError(f"step {self.k + 1} at t={self.t:.6g} failed: the step size fell to {below:.3g}, below "
@@ -1054,14 +1059,15 @@ class WillmoreFlow:
         if self.relax_max_tau < self.tau:
             raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {s.relax_max_tau!r}")
 
-    def _convex_start(self, tau: float, attempt: int) -> float | None:
-        """``convex_start``: where the first attempt (``attempt`` 0, at ``tau``) or the first two attempts (1: at tau
-        and tau / 2) of the first step failed, with adaptive or relax steps, the next attempt's step size: below the
-        step problem's convexity limit tau_c at X^0 (:func:`~willmore_nlp.solvers.reduced.convexity_limit`), the
-        largest tau / 2^j not above tau_c / 2, or not above tau_c when that one is below the floor ``min_tau``. After
-        the first failure only when the first look finds tau_c < tau / :data:`CONVEX_FAR`; after the second when
-        tau_c < tau / :data:`CONVEX_JUMP` (its restarts then :data:`~willmore_nlp.solvers.reduced.CONVEXITY_RESTARTS`
-        unless the first look converged). None: halve tau as usual."""
+    def _convex_start(self, tau: float, failed: int) -> float | None:
+        """``convex_start``: the first step's next step size below the step problem's convexity limit tau_c at X^0
+        (:func:`~willmore_nlp.solvers.reduced.convexity_limit`), with adaptive or relax steps, after ``failed`` failed
+        attempts: when a first look (:data:`~willmore_nlp.solvers.reduced.CONVEXITY_FIRST_RESTARTS`) finds tau_c <
+        tau / :data:`CONVEX_FAR`, before the first attempt (``failed`` 0: newton-krylov's) or after it (1: other
+        solvers'); after the first two attempts (2: at tau and tau / 2) when tau_c < tau / :data:`CONVEX_JUMP` (the
+        restarts then :data:`~willmore_nlp.solvers.reduced.CONVEXITY_RESTARTS` unless the first look converged). The
+        step size is the largest tau / 2^j not above tau_c / 2, or not above tau_c when that one is below the floor
+        ``min_tau``. None: the first attempt at tau, or halve tau as usual."""
         from willmore_nlp.solvers.reduced import (
             CONVEXITY_FIRST_RESTARTS,
             CONVEXITY_RESTARTS,
@@ -1072,24 +1078,25 @@ class WillmoreFlow:
         s = self.settings
         if not (s.convex_start and (s.adaptive or s.relax)):
             return None
-        restarts = CONVEXITY_FIRST_RESTARTS if attempt == 0 else CONVEXITY_RESTARTS
+        restarts = CONVEXITY_FIRST_RESTARTS if failed <= 1 else CONVEXITY_RESTARTS
         # (once per number of restarts: a fallback solver's failures jump to the same step sizes)
         if self._tau_c is None or (np.isnan(self._tau_c[0]) and self._tau_c[1] < restarts):
             z0 = self.problem.pack_z(self.X, self.Y)
             solver = self.solver if isinstance(self.solver, ReducedSolver) else None  # (newton-krylov: its factors)
             self._tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver), restarts
         tau_c = self._tau_c[0]
-        if not tau_c < tau / (CONVEX_FAR if attempt == 0 else CONVEX_JUMP):  # (nan: not found)
+        if not tau_c < tau / (CONVEX_FAR if failed <= 1 else CONVEX_JUMP):  # (nan: not found)
             return None
         floor = min(self.min_tau, self.tau)
         for limit in (tau_c / 2, tau_c):
             j = int(np.ceil(np.log2(tau / limit)))
             if tau / 2**j >= floor:
                 warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = {tau_c:.3g} "
-                              f"= tau / {tau / tau_c:.3g}; the next attempt is at tau / 2^{j} = {tau / 2**j:.3g} "
-                              "(convex_start=false halves instead)", stacklevel=4)
+                              f"= tau / {tau / tau_c:.3g}; the {'next' if failed else 'first'} attempt is at tau / "
+                              f"2^{j} = {tau / 2**j:.3g} (convex_start=false "
+                              f"{'halves instead' if failed else 'starts at tau'})", stacklevel=4)
                 return tau / 2**j
-        if attempt:  # (once: after the second failure)
+        if failed == 2:  # (once: after the second failure)
             warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = {tau_c:.3g} = tau "
                           f"/ {tau / tau_c:.3g}, and the step sizes tau / 2^j below it are under the step-size floor "
                           f"min_tau = {floor:.3g}: the attempts go on halving (--set min_tau={tau_c / 4:.2g} lets the "

@@ -334,16 +334,17 @@ class FlowSettings(Settings):
     convex_start : bool
         With ``adaptive`` or ``relax`` steps: when the first two attempts of a run's first step (at tau and tau / 2)
         fail, the next one is taken below the step size tau_c at which the step problem stops being convex at the
-        initial state (:func:`willmore_nlp.solvers.reduced.convexity_limit`): at the largest tau / 2^j not above
-        tau_c / 2 (tau_c when that is below ``min_tau``) instead of at tau / 4, when tau_c < tau / 16
-        (``flow.CONVEX_JUMP``: beyond the default four halvings), and after the first failure already when a first,
-        cheap Lanczos look finds tau_c < tau / 10^5 (``flow.CONVEX_FAR``); the adaptive steps then grow from there as
-        after any retried step (a warning names it). A noisy input's step problem is convex only below tau / 10^3 -
-        tau / 10^7 (its noise is smoothed on that time scale, about 0.01-0.04 h^4): its first step at tau / 2^j is a
-        non-convex problem that the solvers took after several failed attempts or not at all, where from tau_c the steps
-        converge at their first attempt in 4-9 Newton iterations while tau doubles (docs/guide/mesh_quality.md, "Below
-        the convexity limit"). A first step taken at tau or tau / 2, and every smooth input, are unchanged (the first
-        look costs 0.1-10 s where a first attempt failed). Default true.
+        initial state (:func:`willmore_nlp.solvers.reduced.convexity_limit`): at the largest tau / 2^j not above tau_c /
+        2 (tau_c when that is below ``min_tau``) instead of at tau / 4, when tau_c < tau / 16 (``flow.CONVEX_JUMP``:
+        beyond the default four halvings), and already before newton-krylov's first attempt (after IPOPT's or another
+        solver's first failure) when a first, cheap Lanczos look finds tau_c < tau / 10^5 (``flow.CONVEX_FAR``); the
+        adaptive steps then grow from there (a warning names it). A noisy input's step problem is convex only below tau
+        / 10^3 - tau / 10^7 (its noise is smoothed on that time scale, about 0.01-0.04 h^4): its first step at tau / 2^j
+        is a non-convex problem that the solvers took after several failed attempts or not at all, where from tau_c the
+        steps converge at their first attempt in 4-9 Newton iterations while tau doubles (docs/guide/mesh_quality.md,
+        "Below the convexity limit"). A first step taken at tau or tau / 2, and every smooth input, are unchanged (the
+        first look costs 0.1-10 s: on newton-krylov's first step, on other solvers' where a first attempt failed).
+        Default true.
     min_tau : float, optional
         Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
         fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4

@@ -299,7 +299,8 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
         A reduced solver of ``evaluator`` whose factorisations of J_Y serve Y[X], the adjoint and the products (the
         flow's newton-krylov: a Cholesky factor of J_Y's N x N block; default: a ``newton`` solver, a sparse LU of
         the 3N x 3N J_Y). Measured at 39,891 vertices (two cycles, 81 products): 9.5 s with newton-krylov's factors,
-        16.3 s with the default (34-36 s when D was factorised by a sparse LU as well).
+        16.3 s with the default (34-36 s when D was factorised by a sparse LU as well). D is factorised by Cholesky
+        with the evaluator's backend (newton-krylov's ``cholesky`` option; "auto" otherwise).
 
     Returns
     -------
@@ -316,7 +317,7 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
     n = x0.size
     hess = spla.LinearOperator((n, n), matvec=lambda v: red._hessp(pt, p, np.ravel(v)), dtype=float)
-    chol = SymmetricFactor().factor(D)
+    chol = SymmetricFactor(evaluator.cholesky or "auto").factor(D)  # (the user's backend where newton-krylov's)
     dinv = spla.LinearOperator((n, n), matvec=lambda v: chol.solve(np.ravel(v)), dtype=float)
     # a deterministic start (ARPACK's own random one depends on the calls before): the gradient, which is largest
     # where the energy concentrates
