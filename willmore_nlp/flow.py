@@ -73,9 +73,9 @@ first failure), when a first look of two Lanczos cycles (:data:`~willmore_nlp.so
 finds tau_c < tau / CONVEX_FAR: the attempts at tau and tau / 2 are then the same hopeless non-convex problem and were
 most of a large noisy input's first step (400 of 441 s at 39,891 vertices). Measured: the largest tau / tau_c whose
 attempt at tau / 2 converged is the smoothed box's 10,860 (a ninth of this); newton-krylov's attempt at tau converged
-up to 3.4e4 (a noisy capsule of 445 v) and failed on each of 9 inputs above 1e5 (1.0e5-3.3e6); IPOPT took one of
-them at tau (a noisy icosphere of 2,279 v, 2.8e5), so it keeps its first attempt. The cone, the cylinder and the
-noisy 10,192-vertex torus (tau / 3.0e4 - tau / 5.0e4) keep their attempts at tau and tau / 2."""
+up to 3.4e4 (a noisy capsule of 445 v) and failed on each of 13 inputs above 1e5 (1.0e5-6.3e6, 1,613-40,962 v);
+IPOPT took one of them at tau (a noisy icosphere of 2,279 v, 2.8e5), so it keeps its first attempt. The cone, the
+cylinder and the noisy 10,192-vertex torus (tau / 3.0e4 - tau / 5.0e4) keep their attempts at tau and tau / 2."""
 
 FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
