@@ -50,6 +50,9 @@ class Problem:
     steps, t_end : default run length (either may be None)
     flow_options : further keyword arguments of :class:`~willmore_nlp.WillmoreFlow`
     description : one line shown by ``willmore-nlp problems``
+    repair_options : the keys of ``flow_options`` chosen for the mesh that ``input_repair`` makes of the input (the
+        ``file`` problem's coarse inputs: ``remesh_target``, and the solver chosen for the refined vertex count),
+        dropped when the overrides turn ``input_repair`` off
     """
 
     mesh: Mesh
@@ -60,6 +63,7 @@ class Problem:
     t_end: float | None = None
     flow_options: dict[str, Any] = field(default_factory=dict)
     description: str = ""
+    repair_options: tuple[str, ...] = ()
 
     def make_flow(self, **overrides: Any) -> WillmoreFlow:
         """The problem's :class:`~willmore_nlp.flow.WillmoreFlow`; ``overrides`` (``tau``, flow and solver
@@ -76,9 +80,10 @@ class Problem:
         an error. A surface of at least :data:`LARGE_SURFACE` vertices whose problem names no solver gets
         newton-krylov with the IPOPT fallback. A ``first_step_solver`` or ``fallback_solver`` of the problem's own
         (the ``file`` problem's large surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp``
-        runs every step with sqp. A ``remesh_target`` of the problem's own (the ``file`` problem's coarse inputs) gives
-        way to ``input_repair = false`` among the overrides: ``--set input_repair=false`` flows the input as given, its
-        later remeshings toward their default target."""
+        runs every step with sqp. The problem's :attr:`repair_options` (the ``file`` problem's coarse inputs:
+        ``remesh_target`` and the solver chosen for the refined mesh) give way to ``input_repair = false`` among the
+        overrides: ``--set input_repair=false`` flows the input as given, its later remeshings toward their default
+        target."""
         options = dict(self.flow_options)
         if self.mesh.d == 2 and self.mesh.n_vertices >= LARGE_SURFACE and "solver" not in options:
             options.update(solver="newton-krylov", fallback_solver="ipopt")
@@ -88,8 +93,9 @@ class Problem:
         for key in ("first_step_solver", "fallback_solver"):
             if "solver" in overrides and key not in overrides:
                 options.pop(key, None)
-        if overrides.get("input_repair") is False and "remesh_target" not in overrides:
-            options.pop("remesh_target", None)
+        if overrides.get("input_repair") is False:
+            for key in set(self.repair_options) - set(overrides):
+                options.pop(key, None)
         return {**options, **overrides}
 
 
