@@ -20,8 +20,10 @@ FIRST_STEP_BUDGET = FlowSettings().iteration_budget_min
 attempt cut early costs little: the step continues from the step size that worked and grows back."""
 
 NEWTON_KRYLOV_FROM = 500
-"""Surfaces of at least this many vertices (as read, or as refined when the input is coarse) flow with ``solver =
-"newton-krylov"`` and ``fallback_solver = "ipopt"`` (a step newton-krylov fails at every tau is taken over by IPOPT).
+"""Surfaces of at least this many vertices flow with ``solver = "newton-krylov"`` and ``fallback_solver = "ipopt"``
+(a step newton-krylov fails at every tau is taken over by IPOPT); smaller ones with IPOPT and ``large_solver =
+"newton-krylov"`` from this size, so the steps after ``input_repair`` refined a coarse input, or after a refinement
+(``refine_dihedral``) grew the mesh, are newton-krylov's.
 Measured, 20 steps each (docs/guide/performance.md, "The default for large files"): 12 users' surfaces of 550-2,562
 vertices, 10 closed and 2 clamped, in 1.5-11.7x less time than IPOPT (7.3x on a 2,562-vertex ellipsoid), no step left to
 the fallback; newton-krylov's first steps are sometimes taken at a smaller tau than IPOPT's. At 10,000-17,000 vertices:
@@ -60,8 +62,8 @@ washer (128 v, 0.8) ran as given only through ``refine_dihedral`` (382 / 402 v, 
 (1.7), trimesh's default torus (32 x 32 sections, 3.3), the level-set genus-2 surface (``shapes.genus2``, 1.9) and the
 Lawson surface (4.3) are above the threshold; refined to r / 3 the 24 x 12 grid ran as well (924 v,
 0.70 % below) but as given in 77 s instead of 133 s (542 v by refine_dihedral, 0.36 % below). These runs were
-IPOPT's; the refined count now chooses newton-krylov (:data:`NEWTON_KRYLOV_FROM`): the 18 x 9 grid in 75 s, the washer
-in 186 s. Times beside another run."""
+IPOPT's; the refined mesh's steps are now newton-krylov's (:data:`NEWTON_KRYLOV_FROM`): the 18 x 9 grid in 75 s, the
+washer in 186 s. Times beside another run."""
 
 COARSE_TUBE_TARGET = 3.0
 """A coarse closed surface of genus >= 1 (:data:`COARSE_TUBE`) is remeshed toward the mean edge r / this."""
@@ -86,9 +88,11 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     first step is taken at h without a retry), and ``first_step_budget = 30`` (:data:`FIRST_STEP_BUDGET`; the
     failing first attempts of tori and creased inputs do not converge however long they run: step 1 of a 48x24 grid
     torus 117 -> 36 s, of the Lawson genus-2 surface 164 -> 48 s, the same trajectories; docs/guide/mesh_quality.md,
-    "Noisy inputs: the first step"). A surface of at least :data:`NEWTON_KRYLOV_FROM` (500) vertices (counting a
-    coarse input's refined vertices) gets ``solver = "newton-krylov"`` with ``fallback_solver = "ipopt"``: 1.5-12x
-    faster than IPOPT over 20 steps on the measured inputs (``--set solver=ipopt`` runs every step with IPOPT).
+    "Noisy inputs: the first step"). A surface of at least :data:`NEWTON_KRYLOV_FROM` (500) vertices gets
+    ``solver = "newton-krylov"`` with ``fallback_solver = "ipopt"``: 1.5-12x faster than IPOPT over 20 steps on
+    the measured inputs; a smaller one gets IPOPT and ``large_solver = "newton-krylov"`` from that size (the steps
+    on a mesh that ``input_repair`` or ``refine_dihedral`` made larger; ``--set solver=ipopt`` runs every step with
+    IPOPT).
     Curves: tau_tilde = h^2 / 4, fixed tau.
 
     A mesh with a boundary needs ``clamp``: its outermost strip of simplices (every simplex with a
@@ -141,14 +145,13 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     elif chi is not None and chi <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True)
-    refined = 0  # (the vertex count of a coarse input refined by input_repair)
+    refined = False  # (a coarse input that input_repair refines)
     if chi is not None and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several: the flow's error)
         refined = _refine_if_coarse(mesh, chi, options, path)
-    repair_options = ("remesh_target",) if refined else ()
-    if mesh.d == 2 and max(mesh.n_vertices, refined) >= NEWTON_KRYLOV_FROM:
+    if mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
         options.update(solver="newton-krylov", fallback_solver="ipopt")
-        if mesh.n_vertices < NEWTON_KRYLOV_FROM:  # (chosen for the refined mesh: not for the input as given)
-            repair_options += ("solver", "fallback_solver")
+    elif mesh.d == 2:  # (from the refined input's first step, or a refinement's next step, on)
+        options.update(large_solver="newton-krylov", large_vertices=NEWTON_KRYLOV_FROM)
     if mesh.d == 2:  # tau = h and tau_tilde = h^2/100 of the mesh flowed, also when input_repair remeshes it
         chosen = [name for name, given in (("tau", tau), ("tau_tilde", tau_tilde)) if given is None]
         options["steps_from_h"] = "both" if len(chosen) == 2 else (chosen[0] if chosen else "none")
@@ -156,20 +159,13 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     tt_factor = 0.25 if mesh.d == 1 else 0.01
     return Problem(mesh, h if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
                    lam, steps=steps, flow_options=options, description=f"mesh from {path}",
-                   repair_options=repair_options)
+                   repair_options=("remesh_target",) if refined else ())
 
 
-def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: str) -> int:
+def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: str) -> bool:
     """Set ``remesh_target`` (with a warning) when the closed surface ``mesh`` is coarse: genus 0 by its size
-    sqrt(area / 4 pi) (:data:`COARSE_SIZE`), genus >= 1 by its tube radius 2 volume / area (:data:`COARSE_TUBE`).
-
-    Returns
-    -------
-    int
-        The vertex count of the refined mesh (equilateral triangles of that edge: area / (sqrt 3 / 4 target^2)
-        triangles, half as many vertices plus chi: 1,921 / 913 for the washer and the 18 x 9 grid torus, remeshed
-        to 1,855 / 891), 0 when not coarse.
-    """
+    sqrt(area / 4 pi) (:data:`COARSE_SIZE`), genus >= 1 by its tube radius 2 volume / area (:data:`COARSE_TUBE`);
+    whether it did."""
     h = equilateral_edge(mesh.vertices, mesh.simplices)  # (areas only: a sliver is an error later)
     area = math.sqrt(3) / 4 * h * h * len(mesh.simplices)
     if chi == 2:
@@ -179,9 +175,9 @@ def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: st
         size, limit, target = 2 * abs(enclosed_volume(mesh)) / area, COARSE_TUBE, COARSE_TUBE_TARGET
         what, why = "its tube radius 2 volume / area", "the nodes of tubes that coarse drift until the mesh folds"
     if size >= limit * h:
-        return 0
+        return False
     options["remesh_target"] = size / target
     warnings.warn(f"{path}: a closed surface of {mesh.n_vertices} vertices only {size / h:.2g} edges in size "
                   f"({what} = {size:.3g}): {why}, so remesh_target = {size / target:.3g} refines it "
                   "(--set remesh_target=H for another, --set input_repair=false flows it as given)", stacklevel=3)
-    return round(area / (math.sqrt(3) / 4 * (size / target) ** 2) / 2) + chi
+    return True

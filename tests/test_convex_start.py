@@ -218,3 +218,38 @@ def test_a_convexity_limit_under_the_floor_is_named_with_the_min_tau_that_reache
     with pytest.warns(UserWarning, match="the next attempt is at tau"):
         first = flow.step()
     assert first.retries == 2 and first.tau <= tau_c / 2 * 1.01  # (tau_c as printed: 3 digits)
+
+
+def test_newton_krylov_leaves_a_first_step_far_from_convex_under_the_floor_to_its_fallback(tmp_path) -> None:
+    """When the first look finds tau_c far below tau (< tau / ``CONVEX_FAR``) and under the step-size floor, so that
+    no attempt can start below it, newton-krylov's first-step attempts are left to the fallback (IPOPT): a trimesh
+    icosphere(3) with normal noise 0.2 h (625 v after the input repair) at tau = 20 h with min_tau = tau / 10^4
+    (tau / tau_c = 2.9e5, measured) is IPOPT's step at tau, bit for bit that of an IPOPT flow, with a warning naming
+    tau_c and the floor (measured on a noisy 2,279-vertex icosphere at tau = h, where tau_c is under the default
+    floor: nine failed newton-krylov attempts, then IPOPT at tau, 73.5 s -> 13.0 s, the same state)."""
+    import re
+
+    from willmore_nlp.flow import CONVEX_FAR, SKIP_REASON
+
+    m = trimesh.creation.icosphere(3)
+    m.vertices += 0.2 * m.edges_unique_length.mean() * np.random.default_rng(1).standard_normal(m.vertices.shape)
+    m.export(tmp_path / "noisy.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "noisy.obj"))
+    tau = 20 * pb.tau
+    flow = pb.make_flow(tau=tau, min_tau=tau / 1e4)
+    ref = pb.make_flow(tau=tau, min_tau=tau / 1e4, solver="ipopt", fallback_solver="")
+    assert flow._step_solvers() == ("newton-krylov", "ipopt")
+    ref.evaluator.cholesky = flow.evaluator.cholesky  # newton-krylov gives the flow's Y[X] solves its Cholesky
+    ref.Y = ref._solve_y(ref.X, ref.tau)
+    notes: list[str] = []
+    flow.on_retry = notes.append
+    with pytest.warns(UserWarning, match="under the step-size floor") as record:
+        r = flow.step()
+    message = next(str(w.message) for w in record if "under the step-size floor" in str(w.message))
+    tau_c = float(re.search(r"only below tau = ([0-9.e+-]+)", message).group(1))
+    assert tau_c < flow.tau / CONVEX_FAR and tau_c < flow.min_tau
+    q = ref.step()
+    assert r.stats["solver"] == "ipopt" and r.retries == q.retries == 0 and r.tau == q.tau == flow.tau
+    assert r.rejected == [f"tau={flow.tau:.6g}: newton-krylov: {SKIP_REASON} = {flow.min_tau:.3g}"]
+    assert len(notes) == 1 and notes[0].endswith(f"attempt 1: ipopt at tau={flow.tau:.3g}")  # no attempt before
+    np.testing.assert_array_equal(r.vertices, q.vertices)

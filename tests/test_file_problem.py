@@ -199,6 +199,8 @@ def test_large_file_surfaces_take_newton_krylov_steps_with_an_ipopt_fallback(tmp
     assert (pb.flow_options["solver"], pb.flow_options["fallback_solver"]) == ("newton-krylov", "ipopt")
     small, _ = registry.build("file", path=_noisy_capsule(tmp_path))
     assert "solver" not in small.flow_options and "fallback_solver" not in small.flow_options
+    assert (small.flow_options["large_solver"], small.flow_options["large_vertices"]) == ("newton-krylov", 500)
+    assert "large_solver" not in small.effective_options({"solver": "ipopt"})  # every step IPOPT's
     assert "fallback_solver" not in pb.effective_options({"solver": "sqp"})
     assert "fallback_solver" not in pb.effective_options({"solver": "ipopt"})  # every step IPOPT's
     open_part = trimesh.Trimesh(sphere.vertices, sphere.faces[sphere.triangles_center[:, 2] < 0.6])
@@ -301,11 +303,11 @@ def test_a_coarse_torus_is_refined_by_its_tube_radius(tmp_path) -> None:
     """A closed surface of genus >= 1 is coarse when its tube radius 2 V / A (exact for a torus of revolution with
     a round section) is below 1.5 edges: grid tori of 12 x 6, 16 x 8 and 18 x 9 vertices (0.8-1.3 edges) get
     ``remesh_target`` a third of it, which recovers r = 0.5 at the polyhedra's order 2 (fitted over the three);
-    24 x 12 (1.7 edges) is flowed as given. Refined, the 18 x 9 grid has more than 500 vertices and gets newton-krylov
-    (IPOPT as given). The 18 x 9 grid as given (``input_repair=false``) folds at once (the
-    smallest angle 26.8 -> 5.3 deg in its first step at tau = h; measured: a step fails at t = 1.33 on a fold); refined
-    (891 v) its first steps keep every triangle above 25 deg, the energy decreasing (measured over 40 steps: no failed
-    step, the smallest angle >= 25.4 deg; docs/guide/mesh_quality.md)."""
+    24 x 12 (1.7 edges) is flowed as given. Refined, the 18 x 9 grid has more than 500 vertices and its steps are
+    newton-krylov's (``large_solver``; IPOPT's as given). The 18 x 9 grid as given (``input_repair=false``) folds at
+    once (the smallest angle 26.8 -> 5.3 deg in its first step at tau = h; measured: a step fails at t = 1.33 on a
+    fold); refined (891 v) its first steps keep every triangle above 25 deg, the energy decreasing (measured over 40
+    steps: no failed step, the smallest angle >= 25.4 deg; docs/guide/mesh_quality.md)."""
     from willmore_nlp.analysis import fit_order
     from willmore_nlp.geometry import min_angles
     from willmore_nlp.mesh import shapes
@@ -322,10 +324,10 @@ def test_a_coarse_torus_is_refined_by_its_tube_radius(tmp_path) -> None:
     save_mesh(shapes.torus(1.0, 0.5, 24, 12), tmp_path / "t24.obj")
     assert "remesh_target" not in registry.build("file", path=str(tmp_path / "t24.obj"))[0].flow_options
 
-    # refined to about 900 vertices it gets newton-krylov (from 500); input_repair=false flows it as given: the
-    # problem's target and solver go too (what the user gives stays)
-    assert pb.flow_options["solver"] == "newton-krylov" and pb.mesh.n_vertices < files.NEWTON_KRYLOV_FROM
-    assert not {"remesh_target", "solver", "fallback_solver"} & set(pb.effective_options({"input_repair": False}))
+    # refined to about 900 vertices its steps are newton-krylov's (from 500); input_repair=false flows it as given:
+    # the problem's target goes too (what the user gives stays), and the steps of the 162 vertices are IPOPT's
+    assert pb.flow_options["large_vertices"] == files.NEWTON_KRYLOV_FROM > pb.mesh.n_vertices
+    assert "remesh_target" not in pb.effective_options({"input_repair": False})
     assert pb.effective_options({"input_repair": False, "remesh_target": 0.2})["remesh_target"] == 0.2
     raw = pb.make_flow(input_repair=False)
     assert raw.settings.remesh_target is None and raw.solver.name == "ipopt"
@@ -334,7 +336,7 @@ def test_a_coarse_torus_is_refined_by_its_tube_radius(tmp_path) -> None:
     assert raw.mesh.n_vertices == 162 and min_angles(raw.X, raw.mesh.simplices).min() < 10
     with pytest.warns(UserWarning, match="remeshed toward remesh_target"):
         flow = pb.make_flow()
-    assert 700 <= flow.mesh.n_vertices <= 1100
+    assert 700 <= flow.mesh.n_vertices <= 1100 and flow.solver.name == "newton-krylov"
     energies = [flow.discrete_energy(flow.X)]
     for _ in range(4):
         energies.append(flow.step().energy)

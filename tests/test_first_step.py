@@ -146,3 +146,43 @@ def test_the_command_line_shows_a_retry_under_way(tmp_path) -> None:
     assert r.returncode == 0, r.stderr
     assert "step 1: tau=" in r.stderr and "rejected (solver did not converge (Iteration_Budget, 2 iterations)" \
         in r.stderr and "attempt 2: ipopt at tau=" in r.stderr
+
+
+def test_large_solver_takes_the_steps_of_a_mesh_grown_past_its_size() -> None:
+    """``large_solver = "newton-krylov"`` from ``large_vertices``: the steps of the 162-vertex ellipsoid are IPOPT's;
+    a state on a 642-vertex connectivity (as a refinement or a resumed refined run leaves it) takes newton-krylov
+    with IPOPT as its fallback, bit for bit the step of a flow given ``solver = "newton-krylov"`` and
+    ``fallback_solver = "ipopt"`` from that state; the iteration budget counts each step's main solver, replayed from
+    the history rows by the sizes the steps started on."""
+    from willmore_nlp.registry import LARGE_SURFACE, Problem
+
+    small = _ellipsoid()
+    s3 = shapes.icosphere(3)
+    V = np.array(s3.vertices)
+    V[:, 2] *= 2.0
+    big = Mesh(V, s3.simplices, "ellipsoid 1:1:2 (642 v)")
+    tau, tt = small.h, 0.01 * small.h**2
+    flow = WillmoreFlow(small, tau, tt, large_solver="newton-krylov", large_vertices=500)
+    assert flow._step_solvers() == ("ipopt",) and flow.main_solver(642) == "newton-krylov"
+    r1 = flow.step()
+    assert r1.stats["solver"] == "ipopt" and flow._accepted_iterations == [r1.iterations]
+    ref = WillmoreFlow(big, tau, tt, solver="newton-krylov", fallback_solver="ipopt")
+    flow.restart(ref.X, ref.Y, r1.t, 1, simplices=big.simplices)
+    ref.restart(ref.X, ref.Y, r1.t, 1)
+    assert flow._step_solvers() == ("newton-krylov", "ipopt") and flow.solver.name == "newton-krylov"
+    r2, q2 = flow.step(), ref.step()
+    assert r2.stats["solver"] == q2.stats["solver"] == "newton-krylov" and r2.tau == q2.tau
+    np.testing.assert_array_equal(r2.vertices, q2.vertices)
+    assert flow._accepted_iterations == [r2.iterations]
+
+    rows = [{"step": 0, "vertices": 162}, {"step": 1, "vertices": 162, "solver": "ipopt", "iterations": 12},
+            {"step": 2, "vertices": 642, "solver": "ipopt", "iterations": 15},  # refined after its step
+            {"step": 3, "vertices": 642, "solver": "newton-krylov", "iterations": 4},
+            {"step": 4, "vertices": 642, "solver": "ipopt", "iterations": 40}]  # the fallback's: not counted
+    assert flow.budget_iterations(rows) == [12, 15, 4]
+
+    # the problems' default: a surface that names no solver gets newton-krylov from LARGE_SURFACE vertices
+    pb = Problem(small, tau, tt)
+    assert {k: pb.effective_options({})[k] for k in ("large_solver", "large_vertices")} == {
+        "large_solver": "newton-krylov", "large_vertices": LARGE_SURFACE}
+    assert "large_solver" not in pb.effective_options({"solver": "sqp"})  # every step sqp's

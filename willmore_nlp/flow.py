@@ -77,6 +77,10 @@ up to 3.4e4 (a noisy capsule of 445 v) and failed on each of 13 inputs above 1e5
 IPOPT took one of them at tau (a noisy icosphere of 2,279 v, 2.8e5), so it keeps its first attempt. The cone, the
 cylinder and the noisy 10,192-vertex torus (tau / 3.0e4 - tau / 5.0e4) keep their attempts at tau and tau / 2."""
 
+SKIP_REASON = "not tried: convex only below tau_c, under min_tau"
+"""The reason recorded when newton-krylov's first-step attempts are left to the ``fallback_solver`` (:data:`CONVEX_FAR`:
+the first look finds tau_c far below tau and below the step-size floor, so no attempt can start below it)."""
+
 FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
 
@@ -475,22 +479,46 @@ class WillmoreFlow:
         self._make_solver(self._step_solvers()[0])
 
     def _solver_names(self) -> set[str]:
-        """Every solver the flow may use: ``solver``, ``first_step_solver`` and ``fallback_solver``."""
+        """Every solver the flow may use: ``solver``, ``first_step_solver``, ``fallback_solver`` and
+        ``large_solver``."""
         s = self.settings
-        return {n for n in (s.solver, s.first_step_solver, s.fallback_solver) if n}
+        return {n for n in (s.solver, s.first_step_solver, s.fallback_solver, s.large_solver) if n}
+
+    def main_solver(self, n_vertices: int) -> str:
+        """The solver of a step that starts on a mesh of ``n_vertices`` vertices: ``large_solver`` from
+        ``large_vertices`` on (when set), else ``solver``."""
+        s = self.settings
+        return s.large_solver if s.large_solver and n_vertices >= s.large_vertices else s.solver
+
+    def budget_iterations(self, rows: list[dict[str, Any]]) -> list[int]:
+        """The iteration counts that the iteration budget of a run with the history ``rows`` (from the initial
+        state on, as in history.csv) was taken from: those of the steps whose solver was the main solver
+        (:meth:`main_solver`) of the mesh they started from (the previous row's vertices), the last
+        ``BUDGET_WINDOW``."""
+        counts, n = [], None
+        for r in rows:
+            main = self.settings.solver if n is None else self.main_solver(n)
+            if int(float(r["step"])) > 0 and "iterations" in r and r.get("solver") in (None, "", main):
+                counts.append(int(float(r["iterations"])))
+            n = int(float(r["vertices"])) if r.get("vertices") not in (None, "") else None
+        return counts[-BUDGET_WINDOW:]
 
     def _step_solvers(self) -> tuple[str, ...]:
-        """The solvers of the next step, in turn: ``first_step_solver`` (when set) for the first step, else
-        ``solver``; then ``fallback_solver`` (when set and not that one) if every attempt of the first fails."""
+        """The solvers of the next step, in turn: ``first_step_solver`` (when set) for the first step, else the
+        main solver of the current mesh (:meth:`main_solver`); then ``fallback_solver`` (when set and not that
+        one; else ``solver`` after a ``large_solver``) if every attempt of the first fails."""
         s = self.settings
-        first = s.first_step_solver if self.k == 0 and s.first_step_solver else s.solver
-        return (first,) if s.fallback_solver in ("", first) else (first, s.fallback_solver)
+        main = self.main_solver(self.mesh.n_vertices)
+        first = s.first_step_solver if self.k == 0 and s.first_step_solver else main
+        fallback = s.fallback_solver or (s.solver if main != s.solver else "")
+        return (first,) if fallback in ("", first) else (first, fallback)
 
     def _solver_options(self, name: str) -> dict[str, Any]:
-        """The solver options of ``name``: with a ``first_step_solver`` or ``fallback_solver`` other than ``solver``,
-        the ``NAME.KEY`` ones (as KEY) are that solver's and the others ``solver``'s; else all of them."""
+        """The solver options of ``name``: with a ``first_step_solver``, ``fallback_solver`` or ``large_solver``
+        other than ``solver``, the ``NAME.KEY`` ones (as KEY) are that solver's and the others ``solver``'s; else
+        all of them."""
         s = self.settings
-        others = {n for n in (s.first_step_solver, s.fallback_solver) if n and n != s.solver}
+        others = {n for n in (s.first_step_solver, s.fallback_solver, s.large_solver) if n and n != s.solver}
         if name in others:
             return {k.removeprefix(name + "."): v for k, v in self._options.items() if k.startswith(name + ".")}
         return {k: v for k, v in self._options.items() if not any(k.startswith(o + ".") for o in others)}
@@ -661,6 +689,13 @@ class WillmoreFlow:
                 self._make_solver(name)
             if self.k == 0 and name == solvers[0] == "newton-krylov" and self.settings.max_retries:
                 start = self._convex_start(tau0, 0)  # (its failed attempts are the costly ones: look first)
+                if start is None and len(solvers) > 1 and self._convex_far(tau0):
+                    tau_c = self._tau_c[0] if self._tau_c else float("nan")
+                    warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = "
+                                  f"{tau_c:.3g}, under the step-size floor min_tau = {floor:.3g}: "
+                                  f"{solvers[1]} takes the step", stacklevel=2)
+                    rejected.append(f"tau={tau0:.6g}: {name}: {SKIP_REASON} = {floor:.3g}")
+                    continue  # (its attempts failed at tau / 2^j, all far above tau_c: the fallback's turn)
             tau = tau0 if start is None else start
             for attempt in range(self.settings.max_retries + 1):
                 tries += 1
@@ -751,7 +786,7 @@ class WillmoreFlow:
         self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
         self.lam_g = res.lam_g
         self._grow_tau(tau, tries)
-        if self.solver.name == self.settings.solver:  # another solver's count is no measure of solver's
+        if self.solver.name == self.main_solver(self.mesh.n_vertices):  # (another solver's count is no measure)
             self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
         solver_name = self.solver.name
         t_control = time.perf_counter()
@@ -1103,6 +1138,14 @@ class WillmoreFlow:
                           "next one start below tau_c)", stacklevel=4)
         return None
 
+    def _convex_far(self, tau: float) -> bool:
+        """Whether the first look of :meth:`_convex_start` found tau_c < tau / :data:`CONVEX_FAR` (a step problem
+        that no attempt near tau solves with newton-krylov). When the step sizes below tau_c are under the floor
+        ``min_tau`` too, newton-krylov's first-step attempts are left to the ``fallback_solver`` (a noisy icosphere
+        of 2,279 v, tau / tau_c = 2.8e5, tau_c under the floor: nine failed attempts of newton-krylov, then IPOPT's
+        step at tau, 83 s; docs/guide/performance.md)."""
+        return self._tau_c is not None and bool(self._tau_c[0] < tau / CONVEX_FAR)
+
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""
         self._relax_window: list[tuple[float, bool, float]] = [(willmore, False, 0.0)]
@@ -1197,8 +1240,8 @@ class WillmoreFlow:
             NLP is rebuilt for it); None: the current connectivity
         free : (N,) bool free-vertex mask of a clamped problem on that connectivity
         iterations : solver iterations of the accepted steps up to this state (the iteration budget
-            is a multiple of their median over the last ``BUDGET_WINDOW``), those of ``solver`` (not of a
-            ``first_step_solver``: history's ``solver`` column); None: an empty history
+            is a multiple of their median over the last ``BUDGET_WINDOW``), those of the main solver of each
+            step (:meth:`budget_iterations` picks them from the history); None: an empty history
         history : rows (:meth:`StepResult.row`, e.g. read from history.csv) of the states up to this one, from
             the initial state on: the relax test continues from its window over them; None: from this state
         tau_tilde, rest_steps : the state's tau_tilde and count of steps at rest (``rest_tau_tilde``; columns of

@@ -78,19 +78,22 @@ class Problem:
         the problem's own (the ``file`` problem's closed surfaces of genus >= 1) gives way to a volume or area
         constraint among the overrides: the gauge is for unconstrained flows, and only asking for both at once is
         an error. A surface of at least :data:`LARGE_SURFACE` vertices whose problem names no solver gets
-        newton-krylov with the IPOPT fallback. A ``first_step_solver`` or ``fallback_solver`` of the problem's own
-        (the ``file`` problem's large surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp``
-        runs every step with sqp. The problem's :attr:`repair_options` (the ``file`` problem's coarse inputs:
+        newton-krylov with the IPOPT fallback, a smaller one ``large_solver = "newton-krylov"`` from that size (a
+        refinement's steps). A ``first_step_solver``, ``fallback_solver`` or ``large_solver`` of the problem's own
+        (the ``file`` problem's surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp`` runs
+        every step with sqp. The problem's :attr:`repair_options` (the ``file`` problem's coarse inputs:
         ``remesh_target`` and the solver chosen for the refined mesh) give way to ``input_repair = false`` among the
         overrides: ``--set input_repair=false`` flows the input as given, its later remeshings toward their default
         target."""
         options = dict(self.flow_options)
-        if self.mesh.d == 2 and self.mesh.n_vertices >= LARGE_SURFACE and "solver" not in options:
-            options.update(solver="newton-krylov", fallback_solver="ipopt")
+        if self.mesh.d == 2 and "solver" not in options and "large_solver" not in options:
+            options.update(dict(solver="newton-krylov", fallback_solver="ipopt")
+                           if self.mesh.n_vertices >= LARGE_SURFACE
+                           else dict(large_solver="newton-krylov", large_vertices=LARGE_SURFACE))
         if (overrides.get("volume") is not None or overrides.get("area") is not None) \
                 and "conformal_gauge" not in overrides:
             options.pop("conformal_gauge", None)
-        for key in ("first_step_solver", "fallback_solver"):
+        for key in ("first_step_solver", "fallback_solver", "large_solver"):
             if "solver" in overrides and key not in overrides:
                 options.pop(key, None)
         if overrides.get("input_repair") is False:

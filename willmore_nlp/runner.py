@@ -331,7 +331,8 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
     the options they gave; the ``conformal_gauge`` of its effective options (false for ``file`` tori written before
     the problem turned it on, 2026-11-27) and its ``steps_from_h`` ("none" for runs written before it existed: their
     tau and tau_tilde were the input's); its ``solver``, ``first_step_solver`` and ``fallback_solver`` ("ipopt", ""
-    and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28); and
+    and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28) and
+    ``large_solver`` and ``large_vertices`` ("" and 0 for runs written before they existed, 2026-11-29); and
     ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their
     initial state is the input as given, and the repair would give the flow another connectivity) and for runs whose
     repair did nothing (an empty record: the input as given, also when a later rule would remesh it, as a
@@ -344,7 +345,8 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
     out = {"tangential_control": stored["method"], "tangential_control_weight": stored["weight"],
            "conformal_gauge": given.get("conformal_gauge", False), "steps_from_h": given.get("steps_from_h", "none"),
            "solver": given.get("solver", "ipopt"), "first_step_solver": given.get("first_step_solver", ""),
-           "fallback_solver": given.get("fallback_solver", "")}
+           "fallback_solver": given.get("fallback_solver", ""), "large_solver": given.get("large_solver", ""),
+           "large_vertices": given.get("large_vertices", 0)}
     return out if cfg.get("input_repair") else {**out, "input_repair": False}
 
 
@@ -435,9 +437,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                 last = ck.row if ck.step > 0 else {}
                 flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)),
                              simplices=ck.simplices, free=ck.free,
-                             iterations=[int(float(r["iterations"])) for r in writer.rows
-                                         if int(float(r["step"])) > 0 and "iterations" in r
-                                         and r.get("solver") in (None, "", flow.settings.solver)],
+                             iterations=flow.budget_iterations(writer.rows),
                              history=writer.rows,
                              tau_tilde=last.get("tau_tilde"), rest_steps=int(float(last.get("rest_steps") or 0)),
                              warm=load_solver_state(d, ck.step))

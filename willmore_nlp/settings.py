@@ -241,6 +241,16 @@ class FlowSettings(Settings):
         ``fallback_solver = "ipopt"``: newton-krylov fails the first step of some noisy inputs at every tau (its
         reduced Hessian too indefinite), IPOPT takes it, and newton-krylov is several times faster on the steps it
         takes (docs/guide/performance.md). The rejected attempts then name their solver.
+    large_solver : str
+        The solver of the steps that start on a mesh of at least ``large_vertices`` vertices ("" default: none,
+        ``solver`` throughout), with ``fallback_solver`` or else ``solver`` as its fallback: a run that a remeshing
+        (``refine_dihedral``) grows past that size changes solver at the next step, and a resumed run chooses the
+        same from its state. With ``solver = "ipopt"`` it is an option of that solver's ``NAME.KEY`` kind
+        (``newton-krylov.cholesky``). The ``file`` problem's surfaces whose flow starts below 500 vertices, and the
+        other problems' below 10,000, get ``large_solver = "newton-krylov"`` from those sizes when no solver is
+        named (a double torus refined from 453 to 6,339 vertices had gone on with IPOPT: docs/guide/performance.md).
+    large_vertices : int
+        The size from which ``large_solver`` takes the steps (vertices of the mesh a step starts from; 0 default).
     codegen : bool or None
         Compile the element kernels to C and cache the library (:mod:`willmore_nlp.codegen`).
         None (default): when a C compiler is found, else CasADi's virtual machine with a warning.
@@ -479,6 +489,8 @@ class FlowSettings(Settings):
     first_step_solver: str = option("", Kind("a solver name or '' (solver's)", lambda v: isinstance(v, str),
                                              parse=str))
     fallback_solver: str = option("", Kind("a solver name or '' (none)", lambda v: isinstance(v, str), parse=str))
+    large_solver: str = option("", Kind("a solver name or '' (none)", lambda v: isinstance(v, str), parse=str))
+    large_vertices: int = option(0, integer(0))
     codegen: bool | None = option(None, BOOL_OR_UNSET)
     max_retries: int = option(4, integer(0))
     check_energy: bool = option(True, BOOL)
