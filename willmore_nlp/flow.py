@@ -1155,9 +1155,10 @@ class WillmoreFlow:
         """Set the step size the next step starts from (``adaptive`` and ``relax``), after a step accepted at tau.
 
         A step accepted at its first attempt doubles tau, one accepted after retries keeps it, and the control
-        backs off after a failed doubling: it holds tau for 2, 4, 8, ... first-attempt steps (doubling the
-        hold at each failure, back to none when a doubled step succeeds), so a flow whose steps cannot reach
-        twice their size does not waste every other attempt on it.
+        backs off after a step with retries: it holds tau for 2, 4, 8, ... first-attempt steps (doubling the
+        hold at each such step, a failed doubling or a retry at the held tau; back to none when a doubled step
+        succeeds), so a flow whose steps cannot reach twice their size does not waste every other attempt on it
+        (not doubling it after retries at the held tau was slower: docs/guide/runs.md).
         """
         if attempt:
             self._backoff *= 2
