@@ -51,8 +51,8 @@ class Problem:
     flow_options : further keyword arguments of :class:`~willmore_nlp.WillmoreFlow`
     description : one line shown by ``willmore-nlp problems``
     repair_options : the keys of ``flow_options`` chosen for the mesh that ``input_repair`` makes of the input (the
-        ``file`` problem's coarse inputs: ``remesh_target``, and the solver chosen for the refined vertex count),
-        dropped when the overrides turn ``input_repair`` off
+        ``file`` problem's coarse inputs: ``remesh_target``; the solver follows the refined size by itself,
+        ``large_solver``), dropped when the overrides turn ``input_repair`` off
     """
 
     mesh: Mesh
@@ -82,7 +82,7 @@ class Problem:
         refinement's steps). A ``first_step_solver``, ``fallback_solver`` or ``large_solver`` of the problem's own
         (the ``file`` problem's surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp`` runs
         every step with sqp. The problem's :attr:`repair_options` (the ``file`` problem's coarse inputs:
-        ``remesh_target`` and the solver chosen for the refined mesh) give way to ``input_repair = false`` among the
+        ``remesh_target``) give way to ``input_repair = false`` among the
         overrides: ``--set input_repair=false`` flows the input as given, its later remeshings toward their default
         target."""
         options = dict(self.flow_options)
