@@ -145,9 +145,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     elif chi is not None and chi <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True)
-    refined = False  # (a coarse input that input_repair refines)
     if chi is not None and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several: the flow's error)
-        refined = _refine_if_coarse(mesh, chi, options, path)
+        _refine_if_coarse(mesh, chi, options, path)
     if mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
         options.update(solver="newton-krylov", fallback_solver="ipopt")
     elif mesh.d == 2:  # (from the refined input's first step, or a refinement's next step, on)
@@ -158,14 +157,12 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     h = mesh.h
     tt_factor = 0.25 if mesh.d == 1 else 0.01
     return Problem(mesh, h if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
-                   lam, steps=steps, flow_options=options, description=f"mesh from {path}",
-                   repair_options=("remesh_target",) if refined else ())
+                   lam, steps=steps, flow_options=options, description=f"mesh from {path}")
 
 
-def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: str) -> bool:
+def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: str) -> None:
     """Set ``remesh_target`` (with a warning) when the closed surface ``mesh`` is coarse: genus 0 by its size
-    sqrt(area / 4 pi) (:data:`COARSE_SIZE`), genus >= 1 by its tube radius 2 volume / area (:data:`COARSE_TUBE`);
-    whether it did."""
+    sqrt(area / 4 pi) (:data:`COARSE_SIZE`), genus >= 1 by its tube radius 2 volume / area (:data:`COARSE_TUBE`)."""
     h = equilateral_edge(mesh.vertices, mesh.simplices)  # (areas only: a sliver is an error later)
     area = math.sqrt(3) / 4 * h * h * len(mesh.simplices)
     if chi == 2:
@@ -174,10 +171,8 @@ def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: st
     else:
         size, limit, target = 2 * abs(enclosed_volume(mesh)) / area, COARSE_TUBE, COARSE_TUBE_TARGET
         what, why = "its tube radius 2 volume / area", "the nodes of tubes that coarse drift until the mesh folds"
-    if size >= limit * h:
-        return False
-    options["remesh_target"] = size / target
-    warnings.warn(f"{path}: a closed surface of {mesh.n_vertices} vertices only {size / h:.2g} edges in size "
-                  f"({what} = {size:.3g}): {why}, so remesh_target = {size / target:.3g} refines it "
-                  "(--set remesh_target=H for another, --set input_repair=false flows it as given)", stacklevel=3)
-    return True
+    if size < limit * h:
+        options["remesh_target"] = size / target
+        warnings.warn(f"{path}: a closed surface of {mesh.n_vertices} vertices only {size / h:.2g} edges in size "
+                      f"({what} = {size:.3g}): {why}, so remesh_target = {size / target:.3g} refines it "
+                      "(--set remesh_target=H for another, --set input_repair=false flows it as given)", stacklevel=3)

@@ -689,8 +689,8 @@ class WillmoreFlow:
                 self._make_solver(name)
             if self.k == 0 and name == solvers[0] == "newton-krylov" and self.settings.max_retries:
                 start = self._convex_start(tau0, 0)  # (its failed attempts are the costly ones: look first)
-                if start is None and len(solvers) > 1 and self._convex_far(tau0):
-                    tau_c = self._tau_c[0] if self._tau_c else float("nan")
+                tau_c = self._convex_far(tau0) if start is None and len(solvers) > 1 else None
+                if tau_c is not None:
                     warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = "
                                   f"{tau_c:.3g}, under the step-size floor min_tau = {floor:.3g}: "
                                   f"{solvers[1]} takes the step", stacklevel=2)
@@ -1138,13 +1138,13 @@ class WillmoreFlow:
                           "next one start below tau_c)", stacklevel=4)
         return None
 
-    def _convex_far(self, tau: float) -> bool:
-        """Whether the first look of :meth:`_convex_start` found tau_c < tau / :data:`CONVEX_FAR` (a step problem
-        that no attempt near tau solves with newton-krylov). When the step sizes below tau_c are under the floor
-        ``min_tau`` too, newton-krylov's first-step attempts are left to the ``fallback_solver`` (a noisy icosphere
-        of 2,279 v, tau / tau_c = 2.8e5, tau_c under the floor: nine failed attempts of newton-krylov, then IPOPT's
-        step at tau, 83 s; docs/guide/performance.md)."""
-        return self._tau_c is not None and bool(self._tau_c[0] < tau / CONVEX_FAR)
+    def _convex_far(self, tau: float) -> float | None:
+        """tau_c when the first look of :meth:`_convex_start` found tau_c < tau / :data:`CONVEX_FAR` (a step
+        problem that no attempt near tau solves with newton-krylov), else None. When the step sizes below tau_c are
+        under the floor ``min_tau`` too, newton-krylov's first-step attempts are left to the ``fallback_solver`` (a
+        noisy icosphere of 2,279 v, tau / tau_c = 2.8e5, tau_c under the floor: nine failed attempts of
+        newton-krylov, then IPOPT's step at tau, 83 s; docs/guide/performance.md)."""
+        return self._tau_c[0] if self._tau_c is not None and self._tau_c[0] < tau / CONVEX_FAR else None
 
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""

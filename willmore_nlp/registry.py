@@ -50,9 +50,6 @@ class Problem:
     steps, t_end : default run length (either may be None)
     flow_options : further keyword arguments of :class:`~willmore_nlp.WillmoreFlow`
     description : one line shown by ``willmore-nlp problems``
-    repair_options : the keys of ``flow_options`` chosen for the mesh that ``input_repair`` makes of the input (the
-        ``file`` problem's coarse inputs: ``remesh_target``; the solver follows the refined size by itself,
-        ``large_solver``), dropped when the overrides turn ``input_repair`` off
     """
 
     mesh: Mesh
@@ -63,7 +60,6 @@ class Problem:
     t_end: float | None = None
     flow_options: dict[str, Any] = field(default_factory=dict)
     description: str = ""
-    repair_options: tuple[str, ...] = ()
 
     def make_flow(self, **overrides: Any) -> WillmoreFlow:
         """The problem's :class:`~willmore_nlp.flow.WillmoreFlow`; ``overrides`` (``tau``, flow and solver
@@ -81,10 +77,9 @@ class Problem:
         newton-krylov with the IPOPT fallback, a smaller one ``large_solver = "newton-krylov"`` from that size (a
         refinement's steps). A ``first_step_solver``, ``fallback_solver`` or ``large_solver`` of the problem's own
         (the ``file`` problem's surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp`` runs
-        every step with sqp. The problem's :attr:`repair_options` (the ``file`` problem's coarse inputs:
-        ``remesh_target``) give way to ``input_repair = false`` among the
-        overrides: ``--set input_repair=false`` flows the input as given, its later remeshings toward their default
-        target."""
+        every step with sqp. A ``remesh_target`` of the problem's own (the ``file`` problem's coarse inputs) gives way
+        to ``input_repair = false`` among the overrides: ``--set input_repair=false`` flows the input as given, its
+        later remeshings toward their default target."""
         options = dict(self.flow_options)
         if self.mesh.d == 2 and "solver" not in options and "large_solver" not in options:
             options.update(dict(solver="newton-krylov", fallback_solver="ipopt")
@@ -96,9 +91,8 @@ class Problem:
         for key in ("first_step_solver", "fallback_solver", "large_solver"):
             if "solver" in overrides and key not in overrides:
                 options.pop(key, None)
-        if overrides.get("input_repair") is False:
-            for key in set(self.repair_options) - set(overrides):
-                options.pop(key, None)
+        if overrides.get("input_repair") is False and "remesh_target" not in overrides:
+            options.pop("remesh_target", None)
         return {**options, **overrides}
 
 

@@ -245,7 +245,7 @@ class FlowSettings(Settings):
         The solver of the steps that start on a mesh of at least ``large_vertices`` vertices ("" default: none,
         ``solver`` throughout), with ``fallback_solver`` or else ``solver`` as its fallback: a run that a remeshing
         (``refine_dihedral``) grows past that size changes solver at the next step, and a resumed run chooses the
-        same from its state. With ``solver = "ipopt"`` it is an option of that solver's ``NAME.KEY`` kind
+        same from its state. Its options, when it is not ``solver``, are written ``NAME.KEY``
         (``newton-krylov.cholesky``). The ``file`` problem's surfaces whose flow starts below 500 vertices, and the
         other problems' below 10,000, get ``large_solver = "newton-krylov"`` from those sizes when no solver is
         named (a double torus refined from 453 to 6,339 vertices had gone on with IPOPT: docs/guide/performance.md).
