@@ -310,6 +310,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     cfg["environment"] = thread_environment()
     cfg["tangential_control"] = {"method": flow.tangential_control.method, "weight": flow.tangential_control.weight}
     cfg["input_repair"] = flow.input_repair
+    cfg["refine_local"] = flow.settings.refine_local
     cfg["flow_steps"] = {"tau": flow.tau, "tau_tilde": flow.tau_tilde, "h": flow.mesh.h}  # of the mesh flowed
     with SignalGuard(ignore_late_signals) as guard:
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
@@ -325,18 +326,19 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
 
 
 def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
-    """The tangential control, conformal gauge, steps_from_h, solvers and input repair a run directory's flow ran with,
-    as flow options (a resumed run keeps them even when the library's defaults changed): ``config.json``'s
-    ``tangential_control`` entry, or, for runs written before it existed (when the default was "off" at weight 0.3),
-    the options they gave; the ``conformal_gauge`` of its effective options (false for ``file`` tori written before
-    the problem turned it on, 2026-11-27) and its ``steps_from_h`` ("none" for runs written before it existed: their
-    tau and tau_tilde were the input's); its ``solver``, ``first_step_solver`` and ``fallback_solver`` ("ipopt", ""
-    and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28) and
-    ``large_solver`` and ``large_vertices`` ("" and 0 for runs written before they existed, 2026-11-29); and
-    ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their
-    initial state is the input as given, and the repair would give the flow another connectivity) and for runs whose
-    repair did nothing (an empty record: the input as given, also when a later rule would remesh it, as a
-    ``remesh_target`` does since 2026-11-28)."""
+    """The tangential control, conformal gauge, steps_from_h, solvers, refinement and input repair a run directory's
+    flow ran with, as flow options (a resumed run keeps them even when the library's defaults changed):
+    ``config.json``'s ``tangential_control`` entry, or, for runs written before it existed (when the default was "off"
+    at weight 0.3), the options they gave; the ``conformal_gauge`` of its effective options (false for ``file`` tori
+    written before the problem turned it on, 2026-11-27) and its ``steps_from_h`` ("none" for runs written before it
+    existed: their tau and tau_tilde were the input's); its ``solver``, ``first_step_solver`` and ``fallback_solver``
+    ("ipopt", "" and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28)
+    and ``large_solver`` and ``large_vertices`` ("" and 0 for runs written before they existed, 2026-11-29); its
+    ``refine_local`` record (false for runs written before it existed, 2026-11-29: their refinements were global); and
+    ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their initial
+    state is the input as given, and the repair would give the flow another connectivity) and for runs whose repair did
+    nothing (an empty record: the input as given, also when a later rule would remesh it, as a ``remesh_target`` does
+    since 2026-11-28)."""
     given = cfg.get("effective_flow_options", cfg.get("flow_options", {}))
     stored = cfg.get("tangential_control")
     if stored is None:
@@ -346,7 +348,7 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
            "conformal_gauge": given.get("conformal_gauge", False), "steps_from_h": given.get("steps_from_h", "none"),
            "solver": given.get("solver", "ipopt"), "first_step_solver": given.get("first_step_solver", ""),
            "fallback_solver": given.get("fallback_solver", ""), "large_solver": given.get("large_solver", ""),
-           "large_vertices": given.get("large_vertices", 0)}
+           "large_vertices": given.get("large_vertices", 0), "refine_local": cfg.get("refine_local", False)}
     return out if cfg.get("input_repair") else {**out, "input_repair": False}
 
 
