@@ -427,6 +427,7 @@ def test_cli_runs_newton_krylov(tmp_path) -> None:
     assert [row["status"] for row in rows] == ["initial", "converged", "converged", "converged"]  # IPOPT: Solve_...
     for row in rows[1:]:  # its own counts and time split (CG iterations, Cholesky factorisations) per step
         assert int(row["n_cg"]) >= int(row["iterations"]) >= 1 and int(row["n_factorizations"]) >= 1
+        assert row["n_guarded"] == row["n_guard"] == "0"  # (a circle's steps need no guarded pass)
         assert float(row["t_wall_factor"]) > 0 and float(row["t_wall_cg"]) > 0 and row["solver"] == "newton-krylov"
     R = [np.linalg.norm(s.vertices, axis=1).mean() for s in run.states]
     assert len(R) == 4 and np.all(np.diff(R) > 0)

@@ -257,7 +257,9 @@ class StepResult:
         r.update({f"q_{k}": v for k, v in self.quality.items()})
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "t_wall_control", "n_eval_hess",
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
-                  "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg"):  # (the last four: newton-krylov's)
+                  "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard"):
+            # (the last six: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
+            # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS)
             if k in self.stats:
                 r[k] = self.stats[k]
         return r

@@ -525,7 +525,8 @@ class NewtonKrylovSolver(ReducedSolver):
         stats["iteration"] = "full-space" if self._counts.get("n_full_space") else "reduced"
         stats.update(self._counts)
         stats["newton_iterations"] = it
-        stats.setdefault("n_cg", 0)
+        for key in ("n_cg", "n_guarded", "n_guard"):
+            stats.setdefault(key, 0)
         stats["cholesky"] = self.backend
         stats["blas"] = BLAS if self.backend == "cholmod" else ""
         stats["t_wall_total"] = time.perf_counter() - t0
