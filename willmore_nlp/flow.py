@@ -935,9 +935,9 @@ class WillmoreFlow:
             actions.append("smooth")
         if self._needs_repair(X1, F1, drop) and not _explicit(boundary):
             # a graded mesh keeps its resolution: only the triangles below the threshold and LOCAL_RINGS around them
-            bad = F1[geometry.min_angles(X1, F1) < self.settings.remesh_min_angle + drop]
-            local = self._local_patch(X1, F1, bad) if self._graded() else None
-            remeshed = self._isotropic_remesh(X1, F1, boundary, local=local) if local is None or bad.size else None
+            bad = F1[geometry.min_angles(X1, F1) < self.settings.remesh_min_angle + drop] if self._graded() else None
+            remeshed = (None if bad is not None and not bad.size else self._isotropic_remesh(
+                X1, F1, boundary, local=None if bad is None else self._local_patch(X1, F1, bad)))
             if remeshed is not None:
                 X1, F1, boundary = remeshed
                 actions.append("remesh")
@@ -949,9 +949,10 @@ class WillmoreFlow:
                 turn = geometry.dihedral_angles(X1, F1, pairs)
                 local = self._local_patch(X1, F1, ends[turn > LOCAL_REFINE_ANGLE * self.settings.refine_dihedral],
                                           REFINE_FACTOR)
+            else:  # (the global refinement compares with the stepped state)
+                turn = geometry.dihedral_angles(X, F)
             refined = self._isotropic_remesh(X1, F1, boundary, retarget=True, target=target, local=local)
-            if refined is not None and (geometry.dihedral_angles(*refined[:2]).max()
-                                        < geometry.dihedral_angles(*((X, F) if local is None else (X1, F1))).max()):
+            if refined is not None and geometry.dihedral_angles(*refined[:2]).max() < turn.max():
                 X1, F1, boundary = refined
                 actions.append("refine")
         if not actions:
