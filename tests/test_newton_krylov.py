@@ -580,6 +580,34 @@ def test_a_noisy_first_step_that_both_passes_fail_is_taken_by_the_guarded_pass(t
         assert np.abs(steps["newton-krylov", k][0] - steps["ipopt", k][0]).max() <= 1e-6 * h
 
 
+def test_a_grown_step_runs_without_the_guarded_pass(tmp_path, monkeypatch) -> None:
+    """Adaptive steps on the noisy torus above (the ``file`` problem's flow: newton-krylov, adaptive): the first step's
+    attempts may run the guarded pass (its step at h/32 is the guarded pass's), an attempt above the last accepted
+    step size (the adaptive control's doubling) may not (a grown step that needs the guard is retried at the size
+    that worked: in a 766-step genus-2 flow no step after the first was ever taken by a guarded pass,
+    docs/guide/performance.md), and a retry at or below that size may again."""
+    pb = _noisy_torus_problem(tmp_path)
+    flow = pb.make_flow()
+    assert flow.solver.name == "newton-krylov" and flow.settings.adaptive
+    seen = []
+    attempt = WillmoreFlow._attempt
+
+    def recorded(self, tau, last):
+        k, before = self.k, self._last_tau
+        out = attempt(self, tau, last)
+        seen.append((k, before, tau, self.solver.guard_allowed, (out[2].stats if out[2] is not None else {})))
+        return out
+
+    monkeypatch.setattr(WillmoreFlow, "_attempt", recorded)
+    while flow.k < 8 and all(allowed for *_, allowed, _ in seen):  # (the first step's retries hold tau for two)
+        flow.step()
+    for k, before, tau, allowed, _ in seen:
+        assert allowed == (not (k > 0 and 0 < before < tau)), (k, before, tau)
+    assert any(k == 0 and stats.get("n_guarded") == 1 for k, _, _, _, stats in seen)
+    grown = [stats for _, _, _, allowed, stats in seen if not allowed]
+    assert grown and all(stats.get("n_guarded", 0) == 0 for stats in grown)
+
+
 def test_a_guarded_pass_that_the_guard_keeps_refusing_ends_early(tmp_path, monkeypatch) -> None:
     """The noisy torus of the test above at tau = h, where the guarded pass fails: it ends once the mesh guard has
     refused GUARD_REFUSALS trial points, with that status, in fewer Newton iterations than the same pass without the

@@ -755,6 +755,8 @@ class WillmoreFlow:
         f0 = self.evaluator.f(z0, p)
         if hasattr(self.solver, "iteration_limit"):
             self.solver.iteration_limit = None if last else self._iteration_limit() or self._first_step_limit()
+        if hasattr(self.solver, "guard_allowed"):  # a grown step that needs the guard is retried at the last size
+            self.solver.guard_allowed = not (self.k > 0 and 0 < self._last_tau < tau)
         X, Y, moved = self.X, self.Y, {}
         try:
             res = self.solver.solve(z0, p, self.lam_g)

@@ -76,7 +76,8 @@ differs is the linear algebra and the globalisation:
   cone at h/8 (the first pass fails at every tau), each solve in 1-5 s; failing, it fails in 1-6 s at these sizes
   (600-800 vertices); a noisy 10,192-vertex torus's first step at h/32 in 192 s where IPOPT took 939 s
   (docs/guide/performance.md). Smooth inputs never reach it (the first pass converges): their steps are unchanged bit
-  for bit.
+  for bit. The flow allows it per attempt (``guard_allowed``): not for an attempt above the last accepted step size
+  (an adaptive doubling), which is retried at that size instead.
 * Globalisation (reduced iteration). Backtracking (halving) line search with the Armijo condition on W^. A step whose
   predicted decrease is below the rounding level of W^ (100 eps |W^|) is accepted when it reduces
   |grad W^|_inf instead, whatever W^ does there (the last, quadratically convergent iterations:
@@ -242,11 +243,15 @@ class NewtonKrylovSolver(ReducedSolver):
         IPOPT): a solve still unconverged after this many Newton iterations stops with status
         ``"Iteration_Budget"`` (the same :class:`~willmore_nlp.solvers.ipopt.SolveMonitor` as IPOPT's);
         None: ``max_iter`` only.
+    guard_allowed : bool
+        Whether the next solve may run the guarded pass (with ``guarded``; set by the flow before each attempt: not
+        for a step grown past the last accepted size, which is retried at that size instead).
     """
 
     def __init__(self, evaluator: StepEvaluator, settings: NewtonKrylovSettings) -> None:
         super().__init__(evaluator, settings, "newton-krylov")
         self.iteration_limit: int | None = None
+        self.guard_allowed = True
         self.cg_max_iter = settings.cg_max_iter
         self.precond_move = settings.precond_move
         self.precond_move_indefinite = settings.precond_move_indefinite
@@ -512,7 +517,7 @@ class NewtonKrylovSolver(ReducedSolver):
         self._delta = self._delta_max = 0.0
         stats: dict[str, Any] = {}
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
-        if (self.guarded and self._delta_max > 0 and not (P.nh or P.nonlinear_inner)  # (no full space there)
+        if (self.guarded and self.guard_allowed and self._delta_max > 0 and not (P.nh or P.nonlinear_inner)
                 and status.startswith(("reduced Hessian too indefinite", "line search failed"))):
             # indefinite and not solved: the guarded pass from the same start (module docstring)
             self._guard = self._mesh_guard(Xk)
