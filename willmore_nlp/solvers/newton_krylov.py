@@ -519,7 +519,8 @@ class NewtonKrylovSolver(ReducedSolver):
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
         if (self.guarded and self.guard_allowed and self._delta_max > 0 and not (P.nh or P.nonlinear_inner)
                 and status.startswith(("reduced Hessian too indefinite", "line search failed"))):
-            # indefinite and not solved: the guarded pass from the same start (module docstring)
+            # indefinite and not solved: the guarded pass from the same start (module docstring; not with outer
+            # constraints or a nonlinear inner equation: no full space there)
             self._guard = self._mesh_guard(Xk)
             self._count("n_guarded")
             self._delta = self._delta_max = 0.0
