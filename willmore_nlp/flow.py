@@ -312,6 +312,14 @@ def _sharp_edges(V: np.ndarray, F: np.ndarray, limit: float,
     return int(np.count_nonzero(over)), (int(ends[i, 0]), int(ends[i, 1])), float(turn[i])
 
 
+def _sharpens(V: np.ndarray, F: np.ndarray, V1: np.ndarray, F1: np.ndarray, limit: float) -> bool:
+    """Whether (V1, F1), a repair or remeshing of the surface (V, F) in R^3 (the connectivities may differ), has an edge
+    whose triangles' normals turn by more than ``limit`` degrees and more than any edge of (V, F)."""
+    turn = geometry.dihedral_angles(V1, F1)
+    top = float(turn.max()) if turn.size else 0.0
+    return top > limit and top > float(geometry.dihedral_angles(V, F).max())
+
+
 def _warn_folds(mesh: Mesh, limit: float) -> None:
     """Warn when the initial surface ``mesh`` (in R^3) has edges whose triangles' normals turn by more than ``limit``
     degrees (``max_dihedral``): folds or creases that steps may keep or soften but not sharpen."""
@@ -962,7 +970,7 @@ class WillmoreFlow:
         q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
         if not light and "refine" not in actions and not _improves(q0, q1):
             return "", {}  # no improvement: keep the flow's own mesh rather than churn
-        if self._folds_more(X, F, X1, F1):
+        if _sharpens(X, F, X1, F1, self.settings.max_dihedral):
             return "", {}  # the stepped state passed the fold check; a repair across a crease must not fold it
         e_before = self.discrete_energy(X, self.Y)
         w_before = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
@@ -1020,8 +1028,7 @@ class WillmoreFlow:
             return False
         if repaired is None:
             return _sharp_edges(X, F, s.refine_dihedral, Xk) is not None
-        top = geometry.dihedral_angles(*repaired).max()
-        return bool(top > s.refine_dihedral and top > geometry.dihedral_angles(Xk, F).max())
+        return _sharpens(Xk, F, *repaired, s.refine_dihedral)
 
     def _remesh_target(self, X: np.ndarray, F: np.ndarray, free: np.ndarray | None) -> float:
         """Target edge of an isotropic remeshing of (X, F): ``remesh_target`` divided by :data:`REFINE_FACTOR` once per
@@ -1031,13 +1038,6 @@ class WillmoreFlow:
         if self.settings.remesh_target:
             return self.settings.remesh_target / REFINE_FACTOR**self._refinements
         return rm.equilateral_edge(X, F, free)
-
-    def _folds_more(self, X: np.ndarray, F: np.ndarray, X1: np.ndarray, F1: np.ndarray) -> bool:
-        """Whether the repaired mesh (X1, F1) of the surface (X, F) in R^3 has an edge whose triangles' normals turn by
-        more than ``max_dihedral`` and more than any edge of (X, F) (the connectivities may differ)."""
-        turn = geometry.dihedral_angles(X1, F1)
-        top = float(turn.max()) if turn.size else 0.0
-        return top > self.settings.max_dihedral and top > float(geometry.dihedral_angles(X, F).max())
 
     def _isotropic_remesh(self, X: np.ndarray, F: np.ndarray, boundary: Any, smooth: bool = True,
                           quality: dict[str, float] | None = None, retarget: bool = False,
@@ -1069,8 +1069,7 @@ class WillmoreFlow:
         kept = (not self._below_thresholds(qb) or _improves(qa, qb)) if retarget else (
             qb["min_angle"] >= qa["min_angle"] and _improves(qa, qb))
         if kept and local is not None and not retarget:  # a local repair must not unresolve a sharp part
-            kept = (geometry.dihedral_angles(r.vertices, F2).max()
-                    <= max(geometry.dihedral_angles(X, F).max(), self.settings.refine_dihedral))
+            kept = not _sharpens(X, F, r.vertices, F2, self.settings.refine_dihedral)
         if not kept:
             return None
         return r.vertices, F2, None if boundary is None else rm.carry_boundary(boundary, r)
