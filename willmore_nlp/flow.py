@@ -87,6 +87,14 @@ FLOOR_REASON = "step size below min_tau"
 FOLD_REASON = "mesh folds"
 """How the reason of an attempt refused by the fold check (``max_dihedral``) begins."""
 
+GROWN_FALL = 0.01
+"""A grown step that lowers the step objective by less than this fraction may not take the mesh below
+``remesh_min_angle`` (:meth:`WillmoreFlow._crushes`): on a genus-2 flow the threshold remeshings lifted W by 0.1-0.7 %,
+the remeshing and refinement after one such step by 2.2 % (docs/guide/mesh_quality.md, "Grown steps")."""
+
+GROWN_REASON = "grown step crushes the mesh"
+"""How the reason of a grown attempt refused for the mesh's sake begins (:meth:`WillmoreFlow._crushes`)."""
+
 
 def _never() -> bool:
     return False
@@ -660,6 +668,25 @@ class WillmoreFlow:
             return f"mesh quality: min angle {q['min_angle']:.3g} deg < {self.settings.min_angle:g}"
         return self._fold(X, q)
 
+    def _grown(self, tau: float) -> bool:
+        """Whether an attempt at ``tau`` is a grown step: above the last accepted step size (the ``adaptive`` or
+        ``relax`` control's doubling; never the first step)."""
+        return self.k > 0 and 0 < self._last_tau < tau
+
+    def _crushes(self, X: np.ndarray, fall: float) -> str | None:
+        """Why a grown step to X is refused (it is then retried at the last accepted size), or None: with the mesh
+        control on, the step lowers the step objective by less than :data:`GROWN_FALL` of itself (``fall``, relative)
+        and takes the patch's smallest angle below ``remesh_min_angle`` from a state at or above it. Such a step buys
+        its size with the mesh: the remeshing that follows lifts W by more than the step lowered it, where the step at
+        the last size keeps the mesh."""
+        if not self.remesh or fall >= GROWN_FALL:
+            return None
+        F, limit = self.mesh.simplices, self.settings.remesh_min_angle
+        after = self._patch_quality(X, F, self.free)["min_angle"]
+        if after < limit <= self._patch_quality(self.X, F, self.free)["min_angle"]:
+            return f"{GROWN_REASON}: its smallest angle {after:.3g} deg < remesh_min_angle = {limit:g}"
+        return None
+
     def _fold(self, X: np.ndarray, q: dict[str, float]) -> str | None:
         """Why the step to X (quality ``q``) folds the mesh (an edge whose triangles' normals turn by more than
         ``max_dihedral`` and more than in X^k: its vertices, its midpoint in X, the angle), or None."""
@@ -764,7 +791,7 @@ class WillmoreFlow:
         if hasattr(self.solver, "iteration_limit"):
             self.solver.iteration_limit = None if last else self._iteration_limit() or self._first_step_limit()
         if hasattr(self.solver, "guard_allowed"):  # a grown step that needs the guard is retried at the last size
-            self.solver.guard_allowed = not (self.k > 0 and 0 < self._last_tau < tau)
+            self.solver.guard_allowed = not self._grown(tau)
         X, Y, moved = self.X, self.Y, {}
         try:
             res = self.solver.solve(z0, p, self.lam_g)
@@ -772,6 +799,8 @@ class WillmoreFlow:
             return X, Y, None, f"solver error: {str(exc).strip().splitlines()[-1]}", moved
         X, Y = self.problem.unpack_z(res.z, self.X)
         reason = self._reject_reason(res, f0, X)
+        if reason is None and self._grown(tau):
+            reason = self._crushes(X, (f0 - res.f) / abs(f0) if f0 else 0.0)
         if reason is None and self.settings.redistribute:
             e_step = self.discrete_energy(X, Y)
             Xr = geometry.redistribute_curve(self.mesh.with_vertices(X))
