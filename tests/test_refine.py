@@ -8,6 +8,7 @@ around the sharp edges only; the largest turn smaller, tau_tilde following h^2 f
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -16,8 +17,9 @@ import pytest
 
 from willmore_nlp import WillmoreFlow, geometry
 from willmore_nlp import remesh as rm
+from willmore_nlp.boundary import Boundary
 from willmore_nlp.errors import UserInputError
-from willmore_nlp.flow import LOCAL_REFINE_ANGLE, LOCAL_RINGS, REFINE_FACTOR
+from willmore_nlp.flow import LOCAL_REFINE_ANGLE, LOCAL_RINGS, REFINE_FACTOR, _movable_turns
 from willmore_nlp.mesh import Mesh, shapes
 from willmore_nlp.mesh.io import save_mesh
 from willmore_nlp.mesh.topology import edge_triangles
@@ -94,6 +96,39 @@ def test_a_local_refinement_remeshes_only_the_region_of_the_sharp_edges() -> Non
     assert local.tau_tilde == pytest.approx(tt / REFINE_FACTOR**2, rel=1e-12)
 
 
+def test_a_clamped_surface_is_refined_locally_around_its_free_sharp_edges() -> None:
+    """The half-fine ellipsoid clamped on a side of its fine half (x > 0.7, z < 0; 15 fixed vertices), refine_dihedral
+    = 25: step 1 sharpens edges past it and the region of the edges sharper than 0.6 x 25 deg that have a free
+    vertex's triangle, grown by two rings, is remeshed; its free vertices only: the fixed vertices are kept bit for
+    bit and are exactly the refined mesh's fixed ones, the new vertices are free, the largest turn of the patch
+    falls, tau_tilde halves, and the flow steps on."""
+    mesh = _half_fine_ellipsoid()
+    V = mesh.vertices
+    bd = Boundary(~((V[:, 0] > 0.7) & (V[:, 2] < 0)))
+    tt = mesh.h**2 / 100
+    opts = {"boundary": bd, "refine_dihedral": 25, "steps_from_h": "both"}
+    plain = WillmoreFlow(mesh, mesh.h, tt, **{**opts, "refine_dihedral": 180})
+    stepped = plain.step()
+    flow = WillmoreFlow(mesh, mesh.h, tt, **opts)
+    with pytest.warns(UserWarning, match=r"step 1: the mesh was refined \(near its sharp edges, 91 -> \d+ vertices"):
+        local = flow.step()
+    assert local.remeshed.split("+")[-1] == "refine" and (~bd.free).sum() == 15
+    X, F, free = stepped.vertices, stepped.simplices, plain.boundary.free
+    turn, ends = _movable_turns(X, F, free)
+    region = np.zeros(len(X), bool)
+    region[ends[turn > LOCAL_REFINE_ANGLE * 25]] = True
+    for _ in range(LOCAL_RINGS):
+        region[F[region[F].any(axis=1)]] = True
+    assert (region & ~free).any()  # the region reaches the clamp, whose vertices stay
+    assert np.array_equal(_kept_rows(X, local.vertices), ~(region & free))
+    fixed = ~flow.boundary.free
+    assert np.array_equal(local.vertices[fixed], X[~free]) and np.array_equal(X[~free], V[~bd.free])
+    assert _movable_turns(local.vertices, local.simplices, ~fixed)[0].max() < turn.max()
+    assert local.tau_tilde == pytest.approx(tt / REFINE_FACTOR**2, rel=1e-12)
+    nxt = flow.step()
+    assert np.array_equal(nxt.vertices[~flow.boundary.free], V[~bd.free])
+
+
 def test_a_locally_refined_mesh_is_remeshed_locally(monkeypatch: pytest.MonkeyPatch) -> None:
     """After a local refinement the mesh is graded: a threshold remeshing (here remesh_min_angle = 44, above the
     refined state's smallest angle) remeshes the triangles below it and two rings around them (a part of the mesh),
@@ -162,12 +197,19 @@ def test_the_refinement_options_are_checked() -> None:
             WillmoreFlow(mesh, mesh.h, mesh.h**2 / 100, **bad)
 
 
-def test_a_run_that_refined_resumes_bit_for_bit(tmp_path: Path, straight_and_resumed) -> None:
+@pytest.mark.parametrize("clamped", [False, True])
+def test_a_run_that_refined_resumes_bit_for_bit(tmp_path: Path, straight_and_resumed, clamped: bool) -> None:
     """A user's file with refine_dihedral = 15: 3 steps straight, or 1 step (refined) then --resume to 3, give the
-    same states, Y, vertex counts and tau_tilde; the run directory records the action "refine"."""
-    save_mesh(_ellipsoid(), tmp_path / "ell.obj")
-    a, b = straight_and_resumed([str(tmp_path / "ell.obj"), "--set", "refine_dihedral=15"], 3, 1, tmp_path)
-    assert "refine" in str(a.history[1]["remesh_action"]).split("+")
+    same states, Y, vertex counts and tau_tilde; the run directory records the action "refine" and its scope. Clamped:
+    the genus-2 blending (1,037 v) with refine_dihedral = 32, refined locally at step 2, 4 steps or 2 + 2."""
+    if clamped:
+        args, total, first, at = ["genus2_blending", "--set", "refine_dihedral=32"], 4, 2, 2
+    else:
+        save_mesh(_ellipsoid(), tmp_path / "ell.obj")
+        args, total, first, at = [str(tmp_path / "ell.obj"), "--set", "refine_dihedral=15"], 3, 1, 1
+    a, b = straight_and_resumed(args, total, first, tmp_path)
+    assert "refine" in str(a.history[at]["remesh_action"]).split("+")
+    assert json.loads((tmp_path / "part" / "config.json").read_text())["refine_scope"] == "local"
     assert [float(h["tau_tilde"]) for h in a.history] == [float(h["tau_tilde"]) for h in b.history]
     for ya, yb, sa, sb in zip(a.Y, b.Y, a.states, b.states, strict=True):
         assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(sa.simplices, sb.simplices)

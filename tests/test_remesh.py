@@ -109,6 +109,33 @@ def test_clamped_remesh_never_moves_the_fixed_part(variant: str) -> None:
     assert np.array_equal(X[~r.free], r.vertices[~r.free])
 
 
+@pytest.mark.parametrize("variant", ["conormal", "ring"])
+def test_remeshing_a_part_of_a_clamped_patch_keeps_the_rest_free(variant: str) -> None:
+    """A remeshing of a part of the patch (a local refinement's region on a clamped surface): every vertex outside
+    it is kept bit for bit, the free ones stay free and the fixed ones fixed (also those in the region), the new
+    vertices are free and finer; Gamma and the ring are the same point sets."""
+    pb, _ = registry.build("surface_blending", variant=variant)
+    bd = pb.flow_options["boundary"]
+    V, F = np.array(pb.mesh.vertices), np.array(pb.mesh.simplices)
+    region = V[:, 0] < np.median(V[bd.free, 0])
+    moved = region & bd.free
+    assert 0 < moved.sum() < bd.free.sum() and (region & ~bd.free).any()
+    r = rm.isotropic_remesh(V, F, 0.7 * pb.mesh.h, moved)
+    nb = rm.carry_boundary(bd, r)
+    kept = r.vertex_map >= 0
+    assert np.array_equal(kept, ~moved) and np.array_equal(r.vertices[r.vertex_map[kept]], V[kept])
+    assert np.array_equal(nb.free[r.vertex_map[kept]], bd.free[kept])
+    new = np.ones(len(r.vertices), bool)
+    new[r.vertex_map[kept]] = False
+    assert nb.free[new].all() and new.sum() > moved.sum()
+    assert nb.free.sum() == bd.free.sum() - moved.sum() + new.sum()
+    d0, d1 = boundary_data(pb.mesh, bd), boundary_data(Mesh(r.vertices, r.simplices), nb)
+    assert np.array_equal(r.vertices[d1.gamma], V[d0.gamma])
+    ring0 = {tuple(sorted(map(tuple, V[t]))) for t in F[d0.ring]}
+    ring1 = {tuple(sorted(map(tuple, r.vertices[t]))) for t in r.simplices[d1.ring]}
+    assert ring0 == ring1
+
+
 def test_flow_remeshes_and_continues() -> None:
     """A remeshing triggered after step 1 (threshold above the torus' angles; no light repair) rebuilds the step NLP;
     the run continues with converged steps and the energies before/after are recorded."""
@@ -192,7 +219,7 @@ def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> N
     del cfg["effective_flow_options"]["tangential_control"]
     assert cfg["effective_flow_options"].pop("large_solver") == "newton-krylov"  # (a refinement's steps)
     del cfg["effective_flow_options"]["large_vertices"]
-    assert cfg.pop("refine_local") is True
+    assert cfg.pop("refine_scope") == "local"
     (old / "config.json").write_text(json.dumps(cfg))
     assert stored_control(cfg) == {"tangential_control": "off", "tangential_control_weight": 0.3,
                                    "conformal_gauge": False, "steps_from_h": "none", "solver": "ipopt",
@@ -456,6 +483,11 @@ def test_a_remesh_target_sets_the_resolution_of_any_input(tmp_path) -> None:
     for options in (near, off):
         assert pb.make_flow(**options).mesh.n_vertices == 642
     assert stored_control({"input_repair": ""})["input_repair"] is False
+    # refinements: the recorded scope; before it, the closed surfaces' record, global on clamped ones
+    for cfg, clamped, local in (({"refine_scope": "local"}, True, True), ({"refine_scope": "global"}, False, False),
+                                ({"refine_local": True}, False, True), ({"refine_local": True}, True, False),
+                                ({}, False, False)):
+        assert stored_control({**cfg, "input_repair": ""}, clamped)["refine_local"] is local
     assert "input_repair" not in stored_control({"input_repair": "remesh"})
 
 

@@ -328,6 +328,17 @@ def _sharpens(V: np.ndarray, F: np.ndarray, V1: np.ndarray, F1: np.ndarray, limi
     return top > limit and top > float(geometry.dihedral_angles(V, F).max())
 
 
+def _movable_turns(V: np.ndarray, F: np.ndarray, free: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(E,) angles in degrees between the normals of the two triangles of the edges of (V, F) in R^3 that a remeshing
+    of the ``free`` vertices can change (a triangle with a free vertex; every edge when ``free`` is None), and their
+    (E, 2) end vertices: a clamped part's own creases are not the patch's to resolve."""
+    pairs, ends = edge_triangles(F)
+    if free is not None:
+        keep = free[F[pairs]].reshape(len(pairs), -1).any(axis=1)
+        pairs, ends = pairs[keep], ends[keep]
+    return geometry.dihedral_angles(V, F, pairs), ends
+
+
 def _warn_folds(mesh: Mesh, limit: float) -> None:
     """Warn when the initial surface ``mesh`` (in R^3) has edges whose triangles' normals turn by more than ``limit``
     degrees (``max_dihedral``): folds or creases that steps may keep or soften but not sharpen."""
@@ -890,8 +901,8 @@ class WillmoreFlow:
                                          self._graded() if graded is None else graded)
 
     def _local(self) -> bool:
-        """Whether refinements are local (``refine_local``, on closed surfaces)."""
-        return self.settings.refine_local and self.boundary is None
+        """Whether refinements are local (``refine_local``)."""
+        return self.settings.refine_local
 
     def _graded(self) -> bool:
         """Whether the mesh was refined locally: its resolution then varies on purpose, so the threshold remeshing is
@@ -984,14 +995,14 @@ class WillmoreFlow:
         if refine:  # kept when it resolves the sharpest edge better than the state it refines
             local = None
             if self._local():  # the region of the edges sharper than LOCAL_REFINE_ANGLE refine_dihedral
-                pairs, ends = edge_triangles(F1)
-                turn = geometry.dihedral_angles(X1, F1, pairs)
+                turn, ends = _movable_turns(X1, F1, None if boundary is None else boundary.free)
                 local = self._local_patch(X1, F1, ends[turn > LOCAL_REFINE_ANGLE * self.settings.refine_dihedral],
                                           REFINE_FACTOR)
             else:  # (the global refinement compares with the stepped state)
-                turn = geometry.dihedral_angles(X, F)
+                turn = _movable_turns(X, F, free)[0]
             refined = self._isotropic_remesh(X1, F1, boundary, retarget=True, target=target, local=local)
-            if refined is not None and geometry.dihedral_angles(*refined[:2]).max() < turn.max():
+            if refined is not None and _movable_turns(
+                    refined[0], refined[1], None if refined[2] is None else refined[2].free)[0].max() < turn.max():
                 X1, F1, boundary = refined
                 actions.append("refine")
         if not actions:
@@ -1076,23 +1087,25 @@ class WillmoreFlow:
         edge) followed by flips, or None when it failed (a warning) or did not keep the smallest patch angle and
         improve it or the edge ratio (``retarget``, a resolution the user asks for: when it is below the repair
         thresholds without improving on (X, F)). ``smooth``: :func:`willmore_nlp.remesh.isotropic_remesh`;
-        ``quality``: the patch quality of (X, F) when the caller has it; ``local`` (a closed surface): (target, region)
-        of :meth:`_local_patch`, remeshed alone with its rim fixed."""
+        ``quality``: the patch quality of (X, F) when the caller has it; ``local``: (target, region)
+        of :meth:`_local_patch`, remeshed alone with its rim fixed (on a clamped surface its free vertices alone)."""
         from willmore_nlp import remesh as rm
 
         free = None if boundary is None else boundary.free
-        if local is not None:
-            target, region = local
+        moved = free
+        if local is not None:  # the region alone (of a clamped surface: its free vertices)
+            target, moved = local[0], local[1] if free is None else local[1] & free
         try:
-            r = rm.isotropic_remesh(X, F, target or self._remesh_target(X, F, free),
-                                    free if local is None else region, smooth=smooth)
+            r = rm.isotropic_remesh(X, F, target or self._remesh_target(X, F, free), moved, smooth=smooth)
         except rm.RemeshError as exc:
             warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=4)
             return None
-        F2, _ = rm.delaunay_flips(r.vertices, r.simplices, r.free if boundary is not None else None)
+        boundary = None if boundary is None else rm.carry_boundary(boundary, r)
+        free2 = None if boundary is None else boundary.free
+        F2, _ = rm.delaunay_flips(r.vertices, r.simplices, free2)
         graded = self._graded() or local is not None
         qa = self._patch_quality(X, F, free, graded) if quality is None else quality
-        qb = self._patch_quality(r.vertices, F2, r.free if boundary is not None else None, graded)
+        qb = self._patch_quality(r.vertices, F2, free2, graded)
         # only a remeshing that keeps the smallest angle and improves it or the edge ratio (with the
         # light repair on, any result was taken: 0.6 deg on a coarse genus-2 flow, mesh_quality.md)
         kept = (not self._below_thresholds(qb) or _improves(qa, qb)) if retarget else (
@@ -1101,7 +1114,7 @@ class WillmoreFlow:
             kept = not _sharpens(X, F, r.vertices, F2, self.settings.refine_dihedral)
         if not kept:
             return None
-        return r.vertices, F2, None if boundary is None else rm.carry_boundary(boundary, r)
+        return r.vertices, F2, boundary
 
     def _repair_input(self, mesh: Mesh, boundary: Any) -> tuple[Mesh, Any]:
         """``input_repair``: the initial mesh and boundary, repaired when the patch is below the repair thresholds

@@ -335,7 +335,10 @@ def carry_boundary(boundary: object, r: Remeshed) -> object:
             arr[r.vertex_map[old]] = np.asarray(conormal, float)[old]
             conormal = arr
     ring = None if boundary.ring is None else r.face_map[np.asarray(boundary.ring, dtype=np.int64)]
-    return Boundary(r.free.copy(), boundary.variant, conormal, ring)
+    free = r.free.copy()  # the new vertices, and the kept ones that were free (a remeshing of a part of the patch)
+    kept = np.flatnonzero(r.vertex_map >= 0)
+    free[r.vertex_map[kept]] = np.asarray(boundary.free, bool)[kept]
+    return Boundary(free, boundary.variant, conormal, ring)
 
 
 def one_rings(F: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:

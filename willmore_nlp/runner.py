@@ -310,7 +310,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     cfg["environment"] = thread_environment()
     cfg["tangential_control"] = {"method": flow.tangential_control.method, "weight": flow.tangential_control.weight}
     cfg["input_repair"] = flow.input_repair
-    cfg["refine_local"] = flow.settings.refine_local
+    cfg["refine_scope"] = "local" if flow.settings.refine_local else "global"
     cfg["flow_steps"] = {"tau": flow.tau, "tau_tilde": flow.tau_tilde, "h": flow.mesh.h}  # of the mesh flowed
     with SignalGuard(ignore_late_signals) as guard:
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
@@ -325,7 +325,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
             writer.close()
 
 
-def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
+def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]:
     """The tangential control, conformal gauge, steps_from_h, solvers, refinement and input repair a run directory's
     flow ran with, as flow options (a resumed run keeps them even when the library's defaults changed):
     ``config.json``'s ``tangential_control`` entry, or, for runs written before it existed (when the default was "off"
@@ -334,7 +334,9 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
     existed: their tau and tau_tilde were the input's); its ``solver``, ``first_step_solver`` and ``fallback_solver``
     ("ipopt", "" and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28)
     and ``large_solver`` and ``large_vertices`` ("" and 0 for runs written before they existed, 2026-11-29); its
-    ``refine_local`` record (false for runs written before it existed, 2026-11-29: their refinements were global); and
+    ``refine_scope`` record as ``refine_local`` (for runs written before it existed: their ``refine_local`` record on
+    a closed surface and false on a ``clamped`` one, whose refinements were global before the scope record; false
+    without either record, 2026-11-29: their refinements were global); and
     ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their initial
     state is the input as given, and the repair would give the flow another connectivity) and for runs whose repair did
     nothing (an empty record: the input as given, also when a later rule would remesh it, as a ``remesh_target`` does
@@ -348,7 +350,9 @@ def stored_control(cfg: dict[str, Any]) -> dict[str, Any]:
            "conformal_gauge": given.get("conformal_gauge", False), "steps_from_h": given.get("steps_from_h", "none"),
            "solver": given.get("solver", "ipopt"), "first_step_solver": given.get("first_step_solver", ""),
            "fallback_solver": given.get("fallback_solver", ""), "large_solver": given.get("large_solver", ""),
-           "large_vertices": given.get("large_vertices", 0), "refine_local": cfg.get("refine_local", False)}
+           "large_vertices": given.get("large_vertices", 0),
+           "refine_local": (cfg["refine_scope"] == "local" if "refine_scope" in cfg
+                            else bool(cfg.get("refine_local", False)) and not clamped)}
     return out if cfg.get("input_repair") else {**out, "input_repair": False}
 
 
@@ -418,7 +422,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
         if cfg.get(k) != getattr(pb, k):
             raise RunError(f"{where}: cannot resume: {k} = {cfg.get(k)!r} but the problem now gives "
                            f"{getattr(pb, k)!r}")
-    flow = pb.make_flow(**{**spec.flow_options, **stored_control(cfg)})
+    flow = pb.make_flow(**{**spec.flow_options,
+                           **stored_control(cfg, pb.flow_options.get("boundary") is not None)})
     with SignalGuard(ignore_late_signals) as guard:
         writer, _, ck, notes = RunWriter.resume(d)
         try:

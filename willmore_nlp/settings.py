@@ -270,7 +270,7 @@ class FlowSettings(Settings):
     refine_dihedral : float
         While ``remesh`` is on (surfaces in R^3): after a step that sharpens an edge past this angle between the
         normals of its two triangles (degrees; default 75; 180: off), the region around such edges
-        (``refine_local``; open surfaces: the whole mesh, toward its edge divided by sqrt 2, about twice the
+        (``refine_local``; false: the whole mesh, toward its edge divided by sqrt 2, about twice the
         vertices) is remeshed finer (the history action "refine", a warning), kept when its
         sharpest edge turns by less than the stepped state's, with ``tau_tilde`` following h^2 when
         ``steps_from_h`` names it. Such edges are where the mesh stops resolving the surface (a bar between two
@@ -280,13 +280,14 @@ class FlowSettings(Settings):
     refine_max_vertices : int
         No refinement (``refine_dihedral``) past this many vertices (default 50,000).
     refine_local : bool
-        Closed surfaces (default true): a refinement remeshes only the region of the edges sharper than 0.6
-        ``refine_dihedral`` and two rings of triangles around them (its rim fixed), toward the edge of the triangles
-        at those edges divided by sqrt 2, and ``tau_tilde`` (when it follows h) is halved; a state whose repairs
-        sharpen an edge past ``refine_dihedral`` is refined too. Once the mesh is graded so, a threshold remeshing
-        remeshes only the triangles below ``remesh_min_angle`` and two rings around them, toward the edge of those
-        triangles, and ``remesh_max_edge_ratio`` applies within each triangle. False: the whole mesh, as on open
-        surfaces (docs/guide/mesh_quality.md, "Local refinement").
+        Default true: a refinement remeshes only the region of the edges sharper than 0.6 ``refine_dihedral`` that
+        have a triangle with a free vertex (on a clamped surface: the clamped part's own creases are not the patch's
+        to resolve) and two rings of triangles around them (its rim fixed; on a clamped surface its free vertices
+        only), toward the edge of the triangles at those edges divided by sqrt 2, and ``tau_tilde`` (when it follows
+        h) is halved; a state whose repairs sharpen an edge past ``refine_dihedral`` is refined too. Once the mesh is
+        graded so, a threshold remeshing remeshes only the triangles below ``remesh_min_angle`` and two rings around
+        them, toward the edge of those triangles, and ``remesh_max_edge_ratio`` applies within each triangle. False:
+        the whole mesh (the patch of a clamped surface) (docs/guide/mesh_quality.md, "Local refinement").
     energy_rtol : float
         Relative slack of the energy check: a step passes when W <= W(X^k) (1 + energy_rtol) + 1e-14.
     allow_components : bool
