@@ -106,6 +106,23 @@ def _bowtie(d: Path) -> list[str]:
     return [str(d / "bowtie.obj")]
 
 
+def _moebius(d: Path) -> list[str]:
+    """A Moebius strip: 12 x 2 quads of the band, split into triangles, the last column glued with a half twist."""
+    nu, nv = 12, 3
+    u, w = np.meshgrid(np.linspace(0, 2 * np.pi, nu, endpoint=False), np.linspace(-0.3, 0.3, nv), indexing="ij")
+    V = np.stack([(1 + w * np.cos(u / 2)) * np.cos(u), (1 + w * np.cos(u / 2)) * np.sin(u), w * np.sin(u / 2)], -1)
+    F = []
+    for i in range(nu):
+        for j in range(nv - 1):
+            i2 = (i + 1) % nu
+            j2, j3 = (j, j + 1) if i2 else (nv - 1 - j, nv - 2 - j)  # the half twist
+            a, b, c, e = i * nv + j, i * nv + j + 1, i2 * nv + j2, i2 * nv + j3
+            F += [(a, c, b), (b, c, e)]
+    (d / "band.obj").write_text("".join(f"v {x} {y} {z}\n" for x, y, z in V.reshape(-1, 3))
+                                + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F))
+    return [str(d / "band.obj")]
+
+
 def _toml(text: str, name: str = "cfg.toml") -> Callable[[Path], list[str]]:
     def make(d: Path) -> list[str]:
         (d / "c.txt").write_text(_circle_txt(12))
@@ -172,7 +189,10 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
                                       "allow_components=true"]),
     # -- OBJ / OFF / PLY ----------------------------------------------------------------------
     ("obj-flipped-triangle", _write("s.obj", _ico_obj(flip=5)),
-     ["s.obj", "inconsistently oriented surface: triangles", "(line 18)"]),
+     ["s.obj", "inconsistently oriented surface: triangles", "(line 18)", "the surface is orientable",
+      "trimesh.repair.fix_winding"]),
+    ("obj-moebius-strip", _moebius, ["band.obj", "non-orientable surface (like a Moebius strip)",
+                                     "needs an orientable surface"]),
     ("obj-non-manifold-edge", _write("s.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 0 -1 0.5\n"
                                      "f 1 2 3\nf 2 1 4\nf 1 2 5\n"),
      ["s.obj", "non-manifold surface: edge [0, 1] lies on 3 triangles"]),

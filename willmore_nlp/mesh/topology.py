@@ -131,6 +131,16 @@ def boundary_facets(S: np.ndarray) -> np.ndarray:
     return F[once]
 
 
+def _orientable(S: np.ndarray, n_vertices: int) -> bool:
+    """Whether the edge-manifold triangles S ((K, 3) int) admit a consistent orientation (trimesh's winding repair
+    on a copy succeeds)."""
+    import trimesh
+
+    t = trimesh.Trimesh(np.zeros((n_vertices, 3)), np.array(S), process=False)
+    trimesh.repair.fix_winding(t)
+    return bool(t.is_winding_consistent)
+
+
 def check_manifold(mesh: Mesh) -> None:
     """Raise :class:`MeshError` unless ``mesh`` is a consistently oriented manifold.
 
@@ -168,9 +178,16 @@ def check_manifold(mesh: Mesh) -> None:
     if np.any(dcounts > 1):
         e = directed[np.argmax(dcounts > 1)]
         tris = owner[np.flatnonzero((e == F).all(axis=1))]
+        if _orientable(S, mesh.n_vertices):
+            raise MeshError(
+                f"{src}: inconsistently oriented surface: triangles {tris.tolist()} both traverse "
+                f"edge {e.tolist()} in the same direction (the surface is orientable: orient its triangles "
+                f"consistently, e.g. trimesh.repair.fix_winding)"
+            )
         raise MeshError(
-            f"{src}: inconsistently oriented surface: triangles {tris.tolist()} both traverse "
-            f"edge {e.tolist()} in the same direction"
+            f"{src}: non-orientable surface (like a Moebius strip): no orientation of its triangles is "
+            f"consistent (triangles {tris.tolist()} both traverse edge {e.tolist()} in the same direction); "
+            f"the flow needs an orientable surface"
         )
     # vertex manifoldness: the triangles around a vertex form one fan
     N = mesh.n_vertices
