@@ -224,7 +224,8 @@ def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> N
     assert stored_control(cfg) == {"tangential_control": "off", "tangential_control_weight": 0.3,
                                    "conformal_gauge": False, "steps_from_h": "none", "solver": "ipopt",
                                    "first_step_solver": "", "fallback_solver": "", "large_solver": "",
-                                   "large_vertices": 0, "refine_local": False, "input_repair": False}
+                                   "large_vertices": 0, "remesh_repair": 2, "refine_local": False,
+                                   "input_repair": False}
     r = subprocess.run([*CLI, "run", "--resume", str(old), "--steps", "4", "--quiet"], capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr

@@ -334,6 +334,7 @@ def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]
     existed: their tau and tau_tilde were the input's); its ``solver``, ``first_step_solver`` and ``fallback_solver``
     ("ipopt", "" and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28)
     and ``large_solver`` and ``large_vertices`` ("" and 0 for runs written before they existed, 2026-11-29); its
+    ``remesh_repair`` (2 unless the run was given another: the ``file`` problem's genus >= 2 surfaces got 4 later); its
     ``refine_scope`` record as ``refine_local`` (for runs written before it existed: their ``refine_local`` record on
     a closed surface and false on a ``clamped`` one, whose refinements were global before the scope record; false
     without either record, 2026-11-29: their refinements were global); and
@@ -351,6 +352,7 @@ def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]
            "solver": given.get("solver", "ipopt"), "first_step_solver": given.get("first_step_solver", ""),
            "fallback_solver": given.get("fallback_solver", ""), "large_solver": given.get("large_solver", ""),
            "large_vertices": given.get("large_vertices", 0),
+           "remesh_repair": given.get("remesh_repair", given.get("remesh_relax", 2)),
            "refine_local": (cfg["refine_scope"] == "local" if "refine_scope" in cfg
                             else bool(cfg.get("refine_local", False)) and not clamped)}
     return out if cfg.get("input_repair") else {**out, "input_repair": False}

@@ -471,7 +471,8 @@ class FlowSettings(Settings):
         the shape changes by O(h^3) per move (the cubic terms). Keeps the mesh from degrading between the repairs
         (docs/guide/mesh_quality.md). Each pass moves a vertex at most a fifth of its shortest edge: on a genus-2
         flow near rest a vertex that every step slid 0.2 h outran 2 passes until threshold remeshings followed (13 in
-        210 steps); 4 ran 300 steps there without one (not the default: from the input the effect is mixed).
+        210 steps); 4 ran 300 steps there without one (the ``file`` problem's default for genus >= 2; not the flow's:
+        on tori the effect is mixed).
     rest_tau_tilde : float
         Closed surfaces with mesh control (not with ``relax``, outer constraints or a boundary): smallest
         tau_tilde at rest, as a fraction of the initial one (default 0.01; 1: off). A closed surface at rest
