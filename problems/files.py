@@ -73,9 +73,10 @@ REPAIR_PASSES_GENUS2 = 4
 defaults (docs/guide/mesh_quality.md, "Local refinement"): near rest a user's noisy genus-2 file ran 300 steps without
 a remeshing (W within 43.797-43.856, 8e-7 relative per step) where 2 passes were outrun by a vertex that every step
 slid 0.2 h, and threshold remeshings lifted W by up to 0.75 % every few steps (13 in 210); from the inputs the genus-2
-file took 3 remeshings in 150 steps instead of 11 (W(t) within 1 % of the 2-pass run, either side) and the coarse
-double torus 4 in 60 instead of 7, 10 retries instead of 14. Not for tori: a noisy 640-v torus rested better with 4,
-an 800-v stretched one crept up instead, and a deliberately coarse 72-v torus folded at step 3."""
+file took 3 remeshings in 150 steps instead of 11 and the coarse double torus 4 in 60 instead of 7, 10 retries
+instead of 14, W(t) within 2 % of the 2-pass runs at the same t, either side (remeshings lift W by jumps). Not for
+tori: a noisy 640-v torus rested better with 4, an 800-v stretched one crept up instead, and a deliberately coarse
+72-v torus folded at step 3."""
 
 
 @register("file")
