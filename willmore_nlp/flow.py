@@ -355,6 +355,11 @@ def _improves(before: dict[str, float], after: dict[str, float]) -> bool:
     return after["min_angle"] > before["min_angle"] or after["edge_ratio"] < before["edge_ratio"]
 
 
+def _free_of(boundary: Any) -> np.ndarray | None:
+    """(N,) free-vertex mask of a clamp ``boundary``, or None without one."""
+    return None if boundary is None else boundary.free
+
+
 def _explicit(boundary: Any) -> bool:
     """A clamp with explicit co-normal or ring data (which a remeshing cannot carry to new vertices)."""
     return boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
@@ -448,7 +453,7 @@ class WillmoreFlow:
         self._variational = all("variational" in solver_capabilities(n)  # the semi-implicit baseline is not
                                 for n in self._solver_names())
         method = resolve_method(s.tangential_control, mesh, s.mesh_control, self._variational,
-                                None if boundary is None else boundary.free)
+                                _free_of(boundary))
         self._control = TangentialControl(method, s.tangential_control_weight, s.tangential_control_time)
         self.codegen_info: dict[str, Any] = {"enabled": False}
         codegen = s.codegen
@@ -575,7 +580,7 @@ class WillmoreFlow:
     @property
     def free(self) -> np.ndarray | None:
         """(N,) free-vertex mask of the current connectivity (None without clamped boundary)."""
-        return None if self.setup.boundary is None else self.setup.boundary.free
+        return _free_of(self.setup.boundary)
 
     # -- helpers -----------------------------------------------------------------------
     def constraint_violation(self, X: np.ndarray) -> float:
@@ -995,19 +1000,18 @@ class WillmoreFlow:
         if refine:  # kept when it resolves the sharpest edge better than the state it refines
             local = None
             if self._local():  # the region of the edges sharper than LOCAL_REFINE_ANGLE refine_dihedral
-                turn, ends = _movable_turns(X1, F1, None if boundary is None else boundary.free)
+                turn, ends = _movable_turns(X1, F1, _free_of(boundary))
                 local = self._local_patch(X1, F1, ends[turn > LOCAL_REFINE_ANGLE * self.settings.refine_dihedral],
                                           REFINE_FACTOR)
             else:  # (the global refinement compares with the stepped state)
                 turn = _movable_turns(X, F, free)[0]
             refined = self._isotropic_remesh(X1, F1, boundary, retarget=True, target=target, local=local)
-            if refined is not None and _movable_turns(
-                    refined[0], refined[1], None if refined[2] is None else refined[2].free)[0].max() < turn.max():
+            if refined is not None and _movable_turns(*refined[:2], _free_of(refined[2]))[0].max() < turn.max():
                 X1, F1, boundary = refined
                 actions.append("refine")
         if not actions:
             return "", {}
-        q1 = self._patch_quality(X1, F1, None if boundary is None else boundary.free)
+        q1 = self._patch_quality(X1, F1, _free_of(boundary))
         if not light and "refine" not in actions and not _improves(q0, q1):
             return "", {}  # no improvement: keep the flow's own mesh rather than churn
         if _sharpens(X, F, X1, F1, self.settings.max_dihedral):
@@ -1091,7 +1095,7 @@ class WillmoreFlow:
         of :meth:`_local_patch`, remeshed alone with its rim fixed (on a clamped surface its free vertices alone)."""
         from willmore_nlp import remesh as rm
 
-        free = None if boundary is None else boundary.free
+        free = _free_of(boundary)
         moved = free
         if local is not None:  # the region alone (of a clamped surface: its free vertices)
             target, moved = local[0], local[1] if free is None else local[1] & free
@@ -1101,7 +1105,7 @@ class WillmoreFlow:
             warnings.warn(f"step {self.k}: isotropic remeshing skipped ({exc})", stacklevel=4)
             return None
         boundary = None if boundary is None else rm.carry_boundary(boundary, r)
-        free2 = None if boundary is None else boundary.free
+        free2 = _free_of(boundary)
         F2, _ = rm.delaunay_flips(r.vertices, r.simplices, free2)
         graded = self._graded() or local is not None
         qa = self._patch_quality(X, F, free, graded) if quality is None else quality
@@ -1126,7 +1130,7 @@ class WillmoreFlow:
 
         if _explicit(boundary):
             return mesh, boundary
-        free = None if boundary is None else boundary.free
+        free = _free_of(boundary)
         X, F = mesh.vertices, mesh.simplices
         q0 = self._patch_quality(X, F, free)
         target = self.settings.remesh_target
@@ -1143,7 +1147,7 @@ class WillmoreFlow:
             if remeshed is not None:
                 X1, F1, b1 = remeshed
                 actions.append("remesh")
-        q1 = self._patch_quality(X1, F1, None if b1 is None else b1.free)
+        q1 = self._patch_quality(X1, F1, _free_of(b1))
         if not actions or not _improves(q0, q1):
             return mesh, boundary
         new = Mesh(X1, F1, mesh.source)
@@ -1167,7 +1171,7 @@ class WillmoreFlow:
                           "the repair thresholds: it is flowed as given", stacklevel=4)
             return mesh, boundary
         X1, F1, b1 = remeshed
-        q1 = self._patch_quality(X1, F1, None if b1 is None else b1.free)
+        q1 = self._patch_quality(X1, F1, _free_of(b1))
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "remesh"
         warnings.warn(f"{mesh.source}: remeshed toward remesh_target = {target:g} before the first step: "
