@@ -1,6 +1,7 @@
 """``rest_tau_tilde``: a closed surface at rest stops shrinking under the scheme's O(tau_tilde) drift."""
 
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ from willmore_nlp import WillmoreFlow
 from willmore_nlp.analysis import sphere_step_radius
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh import shapes
+from willmore_nlp.runner import stored_control
 
 
 def _radius(X: np.ndarray) -> float:
@@ -16,18 +18,21 @@ def _radius(X: np.ndarray) -> float:
 
 
 def test_rest_halves_tau_tilde_and_the_drift_follows_the_sphere_equation() -> None:
-    """A 162-vertex sphere (at rest from the start) with tau_tilde = h^2/25 and tau = h, 16 steps: tau_tilde
-    halves after every 3 steps at rest (recorded in the rows, Y = Y[X] for it) down to the floor; each step's
-    shrinkage R_k - R_{k+1} is the same multiple of the time-discrete, space-continuous prediction
-    (analysis.sphere_step_radius from R_k with that step's tau_tilde) to 1% before and after every halving,
-    so the drift falls by the factor of tau_tilde: R ends above 0.7 where tau_tilde fixed predicts < 0.5."""
+    """A 162-vertex sphere (at rest from the start) with tau_tilde = h^2/25 and tau = h, 16 steps, the drift's
+    dilation kept (``rest_dilation = false``, so that the drift shows): tau_tilde halves after every 3 steps at
+    rest (recorded in the rows, Y = Y[X] for it) down to the floor; each step's shrinkage R_k - R_{k+1} is the
+    same multiple of the time-discrete, space-continuous prediction (analysis.sphere_step_radius from R_k with
+    that step's tau_tilde) to 1% before and after every halving, so the drift falls by the factor of tau_tilde:
+    R ends above 0.7 where tau_tilde fixed predicts < 0.5."""
     mesh = shapes.icosphere(2)
     tt0 = 0.04 * mesh.h**2
-    flow = WillmoreFlow(mesh, mesh.h, tt0, rest_tau_tilde=1 / 16)
+    flow = WillmoreFlow(mesh, mesh.h, tt0, rest_tau_tilde=1 / 16, rest_dilation=False)
     out = flow.run(steps=16)
     tts = [tt0] + [r.tau_tilde for r in out]
-    assert [r.rest_steps for r in out[:6]] == [0, 0, 1, 2, 0, 1]  # steps 1-2 relax the icosphere's mesh
-    assert tts[4] == tt0 and tts[5] == tt0 / 2 and tts[14] == tts[16] == tt0 / 16 and min(tts) == tt0 / 16
+    # steps 1-2 relax the icosphere's mesh (W changes by more than rest_tol) but their motion is the drift
+    assert [r.rest_steps for r in out[:6]] == [1, 2, 0, 1, 2, 0]
+    assert all(r.stats["drift_share"] > 0.99 and "dilation_undone" not in r.stats for r in out)
+    assert tts[2] == tt0 and tts[3] == tt0 / 2 and tts[12] == tts[16] == tt0 / 16 and min(tts) == tt0 / 16
     assert all(b in (a, a / 2) for a, b in itertools.pairwise(tts))
     Rs = [_radius(mesh.vertices)] + [_radius(r.vertices) for r in out]
     ratio = [(Rs[k] - Rs[k + 1]) / (Rs[k] - sphere_step_radius(Rs[k], r.tau, tts[k])) for k, r in enumerate(out)]
@@ -40,6 +45,33 @@ def test_rest_halves_tau_tilde_and_the_drift_follows_the_sphere_equation() -> No
     for r in out:
         fixed = sphere_step_radius(fixed, r.tau, tt0)
     assert Rs[-1] > 0.7 and fixed < 0.5
+
+
+def test_the_drift_is_told_by_its_motion_and_its_dilation_undone() -> None:
+    """The same sphere with the defaults (``rest_dilation``) and ``rest_tol = 0``, so that only the motion can say
+    rest: every step's normal motion lies in the span of the conformal fields (share > 0.99, against DRIFT_SHARE
+    = 0.5), tau_tilde halves as above, and the undone dilation of each step is the sphere equation's shrinkage
+    (the closed form from R_k with that step's tau_tilde) times the discrete drift's factor of the test above
+    (1.0-1.15): R stays within 3e-4 of 1 over the 16 steps where the drift alone takes it to 0.84. A flow far from
+    rest (the 1:1:2 ellipsoid's first step, share < 0.1) is not touched: bit for bit the step without the rule."""
+    mesh = shapes.icosphere(2)
+    tt0 = 0.04 * mesh.h**2
+    flow = WillmoreFlow(mesh, mesh.h, tt0, rest_tau_tilde=1 / 16, rest_tol=0.0)
+    R0 = _radius(mesh.vertices)
+    out, Rs = [], [R0]
+    for _ in range(16):
+        tt = flow.tau_tilde
+        out.append(flow.step())
+        c = out[-1].stats["dilation_undone"]
+        drift = sphere_step_radius(Rs[-1], out[-1].tau, tt) / Rs[-1] - 1
+        assert out[-1].stats["drift_share"] > 0.99 and 1.0 < c / drift < 1.15
+        Rs.append(_radius(flow.X))
+    assert [r.tau_tilde for r in out][1:3] == [tt0, tt0 / 2] and out[-1].tau_tilde == tt0 / 16
+    assert max(abs(R - R0) for R in Rs) < 3e-4 and all(r.retries == 0 for r in out)
+    egg = shapes.icosphere(2).with_vertices(shapes.icosphere(2).vertices * [1, 1, 2])
+    a, b = (WillmoreFlow(egg, 0.1, 0.04 * egg.h**2, rest_dilation=on).step() for on in (True, False))
+    assert a.stats["drift_share"] < 0.1 and "dilation_undone" not in a.stats
+    assert np.array_equal(a.vertices, b.vertices)
 
 
 def test_rest_rule_resumes_bit_identically() -> None:
@@ -68,6 +100,15 @@ def test_rest_rule_only_for_closed_surfaces_with_mesh_control(options: dict) -> 
     assert {r.tau_tilde for r in flow.run(steps=5)} == {0.04 * mesh.h**2}
 
 
+@pytest.mark.parametrize("options", [{"lam": 0.1}, {"c0": 0.5}, {"anisotropy": "gamma1"}])
+def test_the_drift_rule_only_where_the_energy_is_moebius_invariant(options: dict) -> None:
+    """With an area term, a spontaneous curvature or an anisotropy the conformal fields are not the energy's zero
+    modes (the dilation or the rotations are the flow's own motion there): no drift share, nothing undone."""
+    mesh = shapes.icosphere(1)
+    flow = WillmoreFlow(mesh, mesh.h, 0.04 * mesh.h**2, **options)
+    assert flow._rest and not any({"drift_share", "dilation_undone"} & set(r.stats) for r in flow.run(steps=2))
+
+
 @pytest.mark.parametrize("bad", [0.0, -1.0, 2.0, "half"])
 def test_rest_tau_tilde_must_be_a_fraction(bad) -> None:
     mesh = shapes.icosphere(1)
@@ -78,9 +119,13 @@ def test_rest_tau_tilde_must_be_a_fraction(bad) -> None:
 def test_resume_continues_the_lowered_tau_tilde(tmp_path, straight_and_resumed) -> None:
     """willmore-nlp run --resume from a state two steps into a rest window (history columns tau_tilde and
     rest_steps) halves tau_tilde at the same step and gives the states of an uninterrupted run bit for bit."""
-    a, b = straight_and_resumed(["sphere", "--set", "subdivisions=2", "--set", "tau_tilde=0.006"], 6, 4, tmp_path)
+    a, b = straight_and_resumed(["sphere", "--set", "subdivisions=2", "--set", "tau_tilde=0.006"], 6, 5, tmp_path)
     tts = [float(h["tau_tilde"]) for h in a.history]
-    assert int(b.history[4]["rest_steps"]) == 2 and tts[5] == tts[4] / 2  # halved by the resumed run's first step
+    assert int(b.history[5]["rest_steps"]) == 2 and tts[6] == tts[5] / 2  # halved by the resumed run's first step
+    assert all(float(h["dilation_undone"]) < 0 for h in b.history[1:])  # (the drift's dilation, undone)
+    cfg = json.loads((tmp_path / "part" / "config.json").read_text())
+    assert cfg["rest_dilation"] is True and stored_control(cfg)["rest_dilation"] is True
+    assert stored_control({"effective_flow_options": {}, "input_repair": ""})["rest_dilation"] is False  # (older runs)
     assert [float(h["tau_tilde"]) for h in b.history] == tts
     for ya, yb, sa, sb in zip(a.Y, b.Y, a.states, b.states, strict=True):
         assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(ya, yb)

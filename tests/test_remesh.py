@@ -199,13 +199,14 @@ def test_resume_export_and_load_across_a_remesh(tmp_path, input_repair: bool) ->
 def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> None:
     """config.json records the resolved control ("auto" -> "meanratio", weight 1 on a sphere); a run directory
     written before that record existed (when the default was "off") resumes with the control off: 2 + 2 steps of it
-    equal 4 uninterrupted steps with ``tangential_control=off`` bit for bit."""
+    equal 4 uninterrupted steps with ``tangential_control=off`` bit for bit (both without ``rest_dilation``, which
+    such a run did not have either)."""
     from willmore_nlp.runner import stored_control
 
     sphere = ["sphere", "--set", "subdivisions=2", "--set", "tau=0.05", "--quiet"]
     off, auto, old = tmp_path / "off", tmp_path / "auto", tmp_path / "old"
-    for out, steps, extra in ((off, "4", ["--set", "tangential_control=off"]), (auto, "2", []),
-                              (old, "2", ["--set", "tangential_control=off"])):
+    before = ["--set", "tangential_control=off", "--set", "rest_dilation=false"]
+    for out, steps, extra in ((off, "4", before), (auto, "2", []), (old, "2", before)):
         r = subprocess.run([*CLI, "run", *sphere, *extra, "--steps", steps, "--out", str(out)], capture_output=True,
                            text=True, timeout=600)
         assert r.returncode == 0, r.stderr
@@ -220,12 +221,13 @@ def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> N
     assert cfg["effective_flow_options"].pop("large_solver") == "newton-krylov"  # (a refinement's steps)
     del cfg["effective_flow_options"]["large_vertices"]
     assert cfg.pop("refine_scope") == "local"
+    del cfg["rest_dilation"], cfg["flow_options"]["rest_dilation"], cfg["effective_flow_options"]["rest_dilation"]
     (old / "config.json").write_text(json.dumps(cfg))
     assert stored_control(cfg) == {"tangential_control": "off", "tangential_control_weight": 0.3,
                                    "conformal_gauge": False, "steps_from_h": "none", "solver": "ipopt",
                                    "first_step_solver": "", "fallback_solver": "", "large_solver": "",
                                    "large_vertices": 0, "remesh_repair": 2, "refine_local": False,
-                                   "input_repair": False}
+                                   "rest_dilation": False, "input_repair": False}
     r = subprocess.run([*CLI, "run", "--resume", str(old), "--steps", "4", "--quiet"], capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr

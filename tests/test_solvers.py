@@ -133,7 +133,7 @@ def test_semi_implicit_baseline_on_spheres() -> None:
         m = shapes.icosphere(s)
         assert np.sum(gauss_curvature(m.vertices, m.simplices) * lumped_mass(m.vertices, m.simplices)) == \
             pytest.approx(4 * np.pi, rel=1e-12)  # Gauss-Bonnet
-        f = WillmoreFlow(m, 0.01, m.h**2, solver="semi-implicit")
+        f = WillmoreFlow(m, 0.01, m.h**2, solver="semi-implicit", rest_dilation=False)  # (the scheme's own drift)
         f.run(steps=10)
         hs.append(m.h)
         drift.append(abs(np.linalg.norm(f.X, axis=1).mean() - 1.0))

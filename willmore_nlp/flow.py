@@ -124,6 +124,13 @@ BUDGET_WINDOW = 20
 RELAX_WINDOW = 3
 """The relax test looks at the Willmore energy over this many last steps (:meth:`WillmoreFlow.step`)."""
 
+DRIFT_SHARE = 0.5
+"""A step whose normal motion lies this much (squared lumped L^2 norm) in the span of the ten conformal fields,
+the Willmore energy's zero modes, is the scheme's drift rather than the flow's motion (the smooth flow's is
+orthogonal to them): it counts as at rest (``rest_tau_tilde``) and its dilation is undone (``rest_dilation``).
+Measured (docs/guide/mesh_quality.md): 0.001-0.11 in steps that round a trimesh box, cylinder or 1:1:2 ellipsoid,
+0.31 and 0.78 as the ellipsoid's own motion dies out, 0.95-0.9999 at rest before tau_tilde is lowered."""
+
 TARGET_CHANGE = 0.1
 """A ``remesh_target`` more than this fraction away from the input's equilateral edge remeshes the input before the
 first step (``input_repair``), whatever its quality: refining (or coarsening) a mesh is asked that way, as the
@@ -265,7 +272,8 @@ class StepResult:
         r.update({f"q_{k}": v for k, v in self.quality.items()})
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "t_wall_control", "n_eval_hess",
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
-                  "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard"):
+                  "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard",
+                  "drift_share", "dilation_undone"):
             # (the last six: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
             # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS)
             if k in self.stats:
@@ -490,6 +498,9 @@ class WillmoreFlow:
                       and s.rest_tau_tilde < 1)
         self._rest_steps = 0
         self._rest_w = self._relax_window[0][0]
+        # the drift told by the motion (DRIFT_SHARE): where the energy is Moebius invariant, so that the ten conformal
+        # fields are its zero modes (not with lam A, c0 or an anisotropy: lengths, directions)
+        self._drift_rule = self._rest and lam == 0 and s.c0 == 0 and s.anisotropy is None
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.
@@ -833,6 +844,13 @@ class WillmoreFlow:
             Xg = geometry.special_conformal_map(X, -b, centre, scale)
             moved["conformal_gauge_shift"] = float(np.abs(Xg - X).max())
             X = Xg
+        if reason is None and self._drift_rule:
+            c, share, centre, _ = geometry.conformal_fit(self.mesh.with_vertices(self.X), X)
+            moved["drift_share"] = share
+            if share >= DRIFT_SHARE and self.settings.rest_dilation:
+                # the drift's dilation, undone: the smooth flow's motion is L^2-orthogonal to the dilation
+                X = centre + (X - centre) / (1 + c[6])
+                moved["dilation_undone"] = float(c[6])
         if reason is None:
             try:
                 Y = self._solve_y(X, tau, Y)
@@ -858,7 +876,8 @@ class WillmoreFlow:
         action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
         mstats["t_wall_control"] = time.perf_counter() - t_control
         result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
-        if self._rest and self._rest_tau_tilde(tries, tau, result.willmore, result.measure):
+        drift = moved.get("drift_share", 0.0) >= DRIFT_SHARE
+        if self._rest and self._rest_tau_tilde(tries, tau, result.willmore, result.measure, drift):
             # Y, the discrete energy and tau_tilde of the state are those of the halved tau_tilde
             result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
         result.rest_steps = self._rest_steps
@@ -1284,21 +1303,25 @@ class WillmoreFlow:
         self._tau_adapt = tau if attempt or self._hold else 2 * tau
         self._last_tau = tau
 
-    def _rest_tau_tilde(self, retries: int, tau: float, w: float, area: float) -> bool:
-        """Count the accepted state (Willmore energy ``w``, area ``area``) toward rest and halve tau_tilde
-        (``rest_tau_tilde``) after ``RELAX_WINDOW`` consecutive steps at rest; True when it halved.
+    def _rest_tau_tilde(self, retries: int, tau: float, w: float, area: float, drift: bool) -> bool:
+        """Count the accepted state (Willmore energy ``w``, area ``area``; ``drift``: its step's motion was the
+        drift, ``DRIFT_SHARE``) toward rest and halve tau_tilde (``rest_tau_tilde``) after ``RELAX_WINDOW``
+        consecutive steps at rest; True when it halved.
 
-        A step is at rest when it was taken at its first attempt with tau >= the nominal tau and the Willmore
-        energy (scale invariant) of the accepted, repaired state differs from the previous one by less than
-        ``rest_tol`` relative per unit of the surface's own time scale L^4 (L^2 = area / 4 pi), i.e. by less
-        than ``rest_tol tau / L^4`` in the step (per step alone, a torus flowing slowly at tau = 1e-3 counted
-        as at rest). At rest the scheme still moves a closed surface: its O(tau_tilde) drift shrinks
-        it (a sphere: dR/dt = -16 tau_tilde / R^5, a collapse at t = R^6 / (96 tau_tilde)), which the
-        smaller tau_tilde slows down by the same factor. Y[X] is solved again for the new tau_tilde.
+        A step is at rest when it was taken at its first attempt with tau >= the nominal tau and either its
+        motion was the drift or the Willmore energy (scale invariant) of the accepted, repaired state differs
+        from the previous one by less than ``rest_tol`` relative per unit of the surface's own time scale L^4
+        (L^2 = area / 4 pi), i.e. by less than ``rest_tol tau / L^4`` in the step (per step alone, a torus
+        flowing slowly at tau = 1e-3 counted as at rest). At rest the scheme still moves a closed surface: its
+        O(tau_tilde) drift shrinks it (a sphere: dR/dt = -16 tau_tilde / R^5, a collapse at t = R^6 / (96
+        tau_tilde)), which the smaller tau_tilde slows down by the same factor (and ``rest_dilation`` undoes).
+        The energy test alone missed the drift of a coarse sphere (a refined trimesh cylinder, R = 0.77, h^2/100,
+        tau = h: the drift's own distortion of the mesh changed W by 5e-5 per step, above ``rest_tol``, for 24
+        steps while the volume fell to 42 %). Y[X] is solved again for the new tau_tilde.
         """
         L4 = (area / (4 * np.pi)) ** 2
         still = (retries == 0 and tau >= self.tau
-                 and abs(w - self._rest_w) <= self.settings.rest_tol * tau / L4 * abs(w))
+                 and (drift or abs(w - self._rest_w) <= self.settings.rest_tol * tau / L4 * abs(w)))
         self._rest_w = w
         self._rest_steps = self._rest_steps + 1 if still else 0
         floor = self.settings.rest_tau_tilde * self.tau_tilde_initial

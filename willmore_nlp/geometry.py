@@ -72,19 +72,27 @@ def stereographic_reprojection(X: np.ndarray, centre: np.ndarray, rho: float, po
     return (Y @ Q[:, 1:4]) / (1 - Y @ p)[:, None]
 
 
-def conformal_motion(mesh0: Mesh, X1: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Special conformal part of the motion of a closed surface from ``mesh0`` (vertices X0, (N, 3)) to the
-    positions X1 ((N, 3)) of the same vertices.
+def conformal_fit(mesh0: Mesh, X1: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, float]:
+    """Fit of the normal motion of a closed surface from ``mesh0`` (vertices X0, (N, 3)) to the positions X1
+    ((N, 3)) of the same vertices by the ten conformal fields of R^3.
 
     The normal displacement <X1 - X0, n> is fitted in the lumped L^2 inner product of X0 by the normal
-    components of the ten conformal fields of R^3: translations, rotations, the dilation and the three
-    special conformal fields V_j(y) = 2 y_j y - |y|^2 e_j with y = (x - centre) / scale (centre the
-    vertex mean, scale = sqrt(area / 4 pi)). These are the zero modes of the Willmore energy of a closed
-    surface (it is Moebius invariant), so the L^2 gradient flow of the smooth energy has no component along
-    them; a discrete flow can drift along the Moebius orbit of its limit (reports/mesh_quality_study.md,
-    genus 2). Returns ``(b, centre, scale)``: the (3,) coefficients of the special conformal fields (the
-    least-norm fit, ignoring combinations of the ten fields whose normal components are below 1e-2 of the
-    largest), so that :func:`special_conformal_map` with ``-b`` undoes that part of the motion to first order.
+    components of the translations, rotations, the dilation and the three special conformal fields
+    V_j(y) = 2 y_j y - |y|^2 e_j, with y = (x - centre) / scale (centre the vertex mean, scale =
+    sqrt(area / 4 pi)). These are the zero modes of the Willmore energy of a closed surface (it is Moebius
+    invariant), so the L^2 gradient flow of the smooth energy has no component along them.
+
+    Returns
+    -------
+    coefficients : (10,) array
+        Of the fields in the order translations (3), rotations (3), dilation (1), special conformal (3), for
+        the normal displacement divided by ``scale``: the least-norm fit, ignoring combinations of the fields
+        whose normal components are below 1e-2 of the largest. The dilation's coefficient c is the relative
+        dilation of the motion: X1 - X0 has the normal part of c (X0 - centre).
+    share : float
+        Part of the squared L^2 norm of the normal displacement that the fit explains (0 to 1; 0 for no motion).
+    centre : (3,) array
+    scale : float
     """
     X0 = mesh0.vertices
     n = vertex_normals(mesh0)
@@ -104,6 +112,20 @@ def conformal_motion(mesh0: Mesh, X1: np.ndarray) -> tuple[np.ndarray, np.ndarra
     # conformal coefficients also pick up part of a similarity (3e-4 from one of size 1e-3): meant for surfaces
     # without one, e.g. of genus 2 (the double torus: 1e-6)
     c = np.linalg.lstsq(B * w[:, None], d * w, rcond=1e-2)[0]
+    total = float(np.sum(m * d**2))
+    share = float(np.sum(m * (B @ c) ** 2)) / total if total > 0 else 0.0
+    return c, min(share, 1.0), centre, scale
+
+
+def conformal_motion(mesh0: Mesh, X1: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Special conformal part of the motion of a closed surface from ``mesh0`` (vertices X0, (N, 3)) to the
+    positions X1 ((N, 3)) of the same vertices (:func:`conformal_fit`).
+
+    A discrete flow can drift along the Moebius orbit of its limit (reports/mesh_quality_study.md, genus 2).
+    Returns ``(b, centre, scale)``: the (3,) coefficients of the special conformal fields, so that
+    :func:`special_conformal_map` with ``-b`` undoes that part of the motion to first order.
+    """
+    c, _, centre, scale = conformal_fit(mesh0, X1)
     return c[7:], centre, scale
 
 

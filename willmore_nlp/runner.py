@@ -311,6 +311,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     cfg["tangential_control"] = {"method": flow.tangential_control.method, "weight": flow.tangential_control.weight}
     cfg["input_repair"] = flow.input_repair
     cfg["refine_scope"] = "local" if flow.settings.refine_local else "global"
+    cfg["rest_dilation"] = flow.settings.rest_dilation
     cfg["flow_steps"] = {"tau": flow.tau, "tau_tilde": flow.tau_tilde, "h": flow.mesh.h}  # of the mesh flowed
     with SignalGuard(ignore_late_signals) as guard:
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
@@ -326,8 +327,8 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
 
 
 def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]:
-    """The tangential control, conformal gauge, steps_from_h, solvers, refinement and input repair a run directory's
-    flow ran with, as flow options (a resumed run keeps them even when the library's defaults changed):
+    """The tangential control, conformal gauge, steps_from_h, solvers, refinement, rest rule and input repair a run
+    directory's flow ran with, as flow options (a resumed run keeps them even when the library's defaults changed):
     ``config.json``'s ``tangential_control`` entry, or, for runs written before it existed (when the default was "off"
     at weight 0.3), the options they gave; the ``conformal_gauge`` of its effective options (false for ``file`` tori
     written before the problem turned it on, 2026-11-27) and its ``steps_from_h`` ("none" for runs written before it
@@ -337,7 +338,8 @@ def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]
     ``remesh_repair`` (2 unless the run was given another: the ``file`` problem's genus >= 2 surfaces got 4 later); its
     ``refine_scope`` record as ``refine_local`` (for runs written before it existed: their ``refine_local`` record on
     a closed surface and false on a ``clamped`` one, whose refinements were global before the scope record; false
-    without either record, 2026-11-29: their refinements were global); and
+    without either record, 2026-11-29: their refinements were global); its ``rest_dilation`` record (false for runs
+    written before it existed, 2026-11-29: their drift was kept); and
     ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their initial
     state is the input as given, and the repair would give the flow another connectivity) and for runs whose repair did
     nothing (an empty record: the input as given, also when a later rule would remesh it, as a ``remesh_target`` does
@@ -354,7 +356,8 @@ def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]
            "large_vertices": given.get("large_vertices", 0),
            "remesh_repair": given.get("remesh_repair", given.get("remesh_relax", 2)),
            "refine_local": (cfg["refine_scope"] == "local" if "refine_scope" in cfg
-                            else bool(cfg.get("refine_local", False)) and not clamped)}
+                            else bool(cfg.get("refine_local", False)) and not clamped),
+           "rest_dilation": bool(cfg.get("rest_dilation", False))}
     return out if cfg.get("input_repair") else {**out, "input_repair": False}
 
 
