@@ -498,9 +498,11 @@ class WillmoreFlow:
                       and s.rest_tau_tilde < 1)
         self._rest_steps = 0
         self._rest_w = self._relax_window[0][0]
-        # the drift told by the motion (DRIFT_SHARE): where the energy is Moebius invariant, so that the ten conformal
-        # fields are its zero modes (not with lam A, c0 or an anisotropy: lengths, directions)
-        self._drift_rule = self._rest and lam == 0 and s.c0 == 0 and s.anisotropy is None
+        # the drift told by the motion (DRIFT_SHARE): closed surfaces with mesh control and no outer constraint (also
+        # in relax mode, whose growing steps drift the most), where the energy is Moebius invariant, so that the ten
+        # conformal fields are its zero modes (not with lam A, c0 or an anisotropy: lengths, directions)
+        self._drift_rule = (self.remesh and boundary is None and mesh.is_closed and not self.problem.nh
+                            and lam == 0 and s.c0 == 0 and s.anisotropy is None)
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.

@@ -493,7 +493,8 @@ class FlowSettings(Settings):
         lumped L^2 norm) lies in the span of the ten conformal fields, the zero modes of the Willmore energy
         (:func:`willmore_nlp.geometry.conformal_fit`), along which the smooth flow never moves.
     rest_dilation : bool
-        Where that drift test applies (default True): a step whose motion is the drift has its dilation undone, X
+        Closed surfaces with mesh control and no outer constraint, also in relax mode, with a Moebius-invariant
+        energy as above (default True): a step whose motion is the drift has its dilation undone, X
         scaled about the centre by 1 / (1 + c), c the relative dilation of the fit, before Y[X] is solved. The
         smooth flow's motion is L^2-orthogonal to the dilation (the Willmore energy is scale invariant); the
         scheme's O(tau_tilde) drift is almost all dilation (99.9 % on a sphere) and, even with tau_tilde lowered to
