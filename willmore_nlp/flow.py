@@ -274,8 +274,9 @@ class StepResult:
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
                   "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard",
                   "drift_share", "dilation_undone"):
-            # (the last six: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
-            # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS)
+            # (n_cg to n_guard: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
+            # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS; the last two: the
+            # drift rule's, DRIFT_SHARE)
             if k in self.stats:
                 r[k] = self.stats[k]
         return r
