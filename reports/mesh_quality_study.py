@@ -234,7 +234,8 @@ def lawson_start(out: Path = shapes.LAWSON_GENUS2_DATA) -> None:
 
     dt = shapes.double_torus(h=0.22)
     flow = WillmoreFlow(dt, dt.h, 0.01 * dt.h**2, adaptive=True, max_retries=12, tangential_weight=100.0,
-                        tangential_control="off")  # how the stored surface was made (before the control's default)
+                        tangential_control="off", rest_dilation=False)  # how the stored surface was made (before
+    # the control's and the rest rule's defaults)
     best: tuple[float, np.ndarray, np.ndarray] = (np.inf, dt.vertices, dt.simplices)
     for _ in range(25):
         r = flow.step()
@@ -263,7 +264,7 @@ def lawson_start(out: Path = shapes.LAWSON_GENUS2_DATA) -> None:
     print(f"  state of residual {res:.4f} (W {geometry.willmore_energy(Mesh(V, F)):.4f}), pole {np.round(pole, 3)}: "
           f"{start.n_vertices} v, W {geometry.willmore_energy(start):.4f}", flush=True)
     flow = WillmoreFlow(start, start.h, 0.01 * start.h**2, adaptive=True, max_retries=12, tangential_weight=100.0,
-                        conformal_gauge=True, tangential_control="off")
+                        conformal_gauge=True, tangential_control="off", rest_dilation=False)
     flow.run(steps=5)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out, vertices=flow.X, simplices=flow.mesh.simplices)
@@ -293,8 +294,8 @@ def run_case(name: str, mesh: Mesh, tau: float, tt: float, *, steps: int | None 
     ``switch = (t_s, tau_2)``: step with tau up to t_s, then with tau_2 up to t_end. ``keep_final``: also store
     the final mesh (``final_vertices``, ``final_simplices``) for the shape comparisons of :func:`beta_table`.
     """
-    # the cached tables predate tangential_control = auto (the surface default since then)
-    flow = WillmoreFlow(mesh, tau, tt, **{"tangential_control": "off", **options})
+    # the cached tables predate tangential_control = auto (the surface default since then) and rest_dilation
+    flow = WillmoreFlow(mesh, tau, tt, **{"tangential_control": "off", "rest_dilation": False, **options})
     rows: list[dict[str, Any]] = [flow.state().row()]
     last: list[Any] = []
     failed = ""
@@ -567,7 +568,7 @@ def first_step_probe(betas: tuple[float, ...] = (1.0, 3.0, 10.0, 30.0, 100.0)) -
             cells = []
             for frac in (1, 4, 16, 64):
                 flow = WillmoreFlow(mesh, h / frac, 0.01 * h * h, tangential_weight=b, max_retries=0,
-                                    first_step_budget=0, tangential_control="off")
+                                    first_step_budget=0, tangential_control="off", rest_dilation=False)
                 try:
                     r = flow.run(steps=1)[0]
                     cells.append(f"h/{frac}: {r.iterations} it, W {r.willmore:.3f}, {r.quality['min_angle']:.3g} deg")

@@ -60,7 +60,8 @@ def run_flow(mesh: Mesh, max_steps: int, stop_in_band: bool, tau_factor: float =
     w_eq = sphere_reference(mesh)
     t0 = time.perf_counter()
     # the cached tables predate tangential_control = auto (the surface default since then)
-    flow = WillmoreFlow(mesh, tau_factor * mesh.h, 0.01 * mesh.h**2, **{"tangential_control": "off", **options})
+    flow = WillmoreFlow(mesh, tau_factor * mesh.h, 0.01 * mesh.h**2,
+                        **{"tangential_control": "off", "rest_dilation": False, **options})  # (the cached table's)
     build = time.perf_counter() - t0
     s0 = flow.state()
     rows: list[dict[str, Any]] = []

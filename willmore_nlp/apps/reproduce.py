@@ -441,12 +441,13 @@ def fig67_overrides(power: int) -> dict[str, str]:
 
     tau = h runs with adaptive steps (``adaptive = true``, steps <= h): at fixed tau = h the first attempt of
     every step failed (steps 1-3 taken at h/2, h/8, h/8 after 1, 3, 3 retries, 39, 50 and 202 s). The cached runs
-    were made before the in-step tangential control became a surface default (``tangential_control = "auto"``);
-    ``tangential_control = "off"`` keeps a rerun equal to them.
+    were made before the in-step tangential control became a surface default (``tangential_control = "auto"``)
+    and before ``rest_dilation``; ``tangential_control = "off"`` and ``rest_dilation = false`` keep a rerun equal to
+    them.
     """
     h = shapes.torus(1.0, 0.5, *FIG67_GRID).h
     return {"n_major": str(FIG67_GRID[0]), "n_minor": str(FIG67_GRID[1]), "tau": repr(h**power),
-            "solver": FIG67_SOLVER, "t_end": repr(FIG67_T), "tangential_control": "off",
+            "solver": FIG67_SOLVER, "t_end": repr(FIG67_T), "tangential_control": "off", "rest_dilation": "false",
             **({"adaptive": "true"} if power == 1 else {})}
 
 
@@ -634,13 +635,15 @@ def fig6_7(fig_dir: Path) -> str:
         "defaults, not "
         "the paper's scheme: the mesh control (`mesh_control = auto`: flips, the light repair and, below 15 deg, "
         "isotropic remeshing) and the torus problem's `tangential_weight = 10`, without the in-step tangential control "
-        "(`tangential_control = off`: the runs predate its surface default) (docs/guide/mesh_quality.md, \"The "
+        "(`tangential_control = off`: the runs predate its surface default) and without the undoing of the drift's "
+        "dilation at rest (`rest_dilation = false`, likewise) (docs/guide/mesh_quality.md, \"The "
         "torus at the paper's h\"); step solver `newton-krylov` (1.3-3.4 times faster per step than IPOPT over "
         f"the first four steps at tau = h^2). tau = h^4 = {h**4:.2g} takes {s0['steps']} steps "
         f"({s0['wall'] / 3600:.1f} h of steps on this shared 2-core machine, interrupted and resumed: the run "
         "directory keeps every finished step and a resume continues bit for bit). Runs: `willmore-nlp run torus "
         "--set n_major=96 --set n_minor=48 --set tau=TAU "
-        f"--set solver=newton-krylov --set tangential_control=off --t-end {FIG67_T}` (`--set adaptive=true` for "
+        f"--set solver=newton-krylov --set tangential_control=off --set rest_dilation=false --t-end {FIG67_T}` "
+        "(`--set adaptive=true` for "
         "tau = h); cached in `reports/studies/fig67/` (delete to rerun).", "",
         "W_ref is the Willmore energy of the same mesh moved onto the Clifford torus of the fitted tube radius "
         f"(`analysis.clifford_reference`); the Clifford torus on the {n} x {m} grid has W = {w_grid:.3f} "
