@@ -493,17 +493,17 @@ class WillmoreFlow:
         self.lam_g: np.ndarray | None = None
         self._relax_start(geometry.willmore_energy(self.mesh, self.energy_nodes))
         self._X_prev = self.X
-        # rest_tau_tilde: the scheme's drift of closed surfaces at rest (see _rest_tau_tilde)
+        # the scheme's drift of closed surfaces with mesh control and no outer constraint (a scale to drift along)
+        drifts = self.remesh and boundary is None and mesh.is_closed and not self.problem.nh
+        # rest_tau_tilde: at rest (see _rest_tau_tilde)
         self.tau_tilde_initial = self.tau_tilde
-        self._rest = (self.remesh and boundary is None and mesh.is_closed and not s.relax and not self.problem.nh
-                      and s.rest_tau_tilde < 1)
+        self._rest = drifts and not s.relax and s.rest_tau_tilde < 1
         self._rest_steps = 0
         self._rest_w = self._relax_window[0][0]
-        # the drift told by the motion (DRIFT_SHARE): closed surfaces with mesh control and no outer constraint (also
-        # in relax mode, whose growing steps drift the most), where the energy is Moebius invariant, so that the ten
-        # conformal fields are its zero modes (not with lam A, c0 or an anisotropy: lengths, directions)
-        self._drift_rule = (self.remesh and boundary is None and mesh.is_closed and not self.problem.nh
-                            and lam == 0 and s.c0 == 0 and s.anisotropy is None)
+        # the drift told by the motion (DRIFT_SHARE), also in relax mode (whose growing steps drift the most), where the
+        # energy is Moebius invariant, so that the ten conformal fields are its zero modes (not with lam A, c0 or an
+        # anisotropy: lengths, directions)
+        self._drift_rule = drifts and lam == 0 and s.c0 == 0 and s.anisotropy is None
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.
@@ -842,13 +842,15 @@ class WillmoreFlow:
                 X = self._restore(X)
             except (RuntimeError, np.linalg.LinAlgError) as exc:
                 reason = str(exc)
+        fitted = self.settings.conformal_gauge or self._drift_rule  # (the motion fitted from the state, once)
+        start = self.mesh.with_vertices(self.X) if fitted else self.mesh
         if reason is None and self.settings.conformal_gauge:
-            b, centre, scale = geometry.conformal_motion(self.mesh.with_vertices(self.X), X)
+            b, centre, scale = geometry.conformal_motion(start, X)
             Xg = geometry.special_conformal_map(X, -b, centre, scale)
             moved["conformal_gauge_shift"] = float(np.abs(Xg - X).max())
             X = Xg
         if reason is None and self._drift_rule:
-            c, share, centre, _ = geometry.conformal_fit(self.mesh.with_vertices(self.X), X)
+            c, share, centre, _ = geometry.conformal_fit(start, X)
             moved["drift_share"] = share
             if share >= DRIFT_SHARE and self.settings.rest_dilation:
                 # the drift's dilation, undone: the smooth flow's motion is L^2-orthogonal to the dilation
