@@ -152,7 +152,8 @@ def surface_blending(r_bottom: float = 1.0, r_top: float = 0.8, gap: float = 1.2
     collapses triangles by step 10. With the library defaults (mesh control on) and the paper's tangential
     weight 1, kept here, both variants come to rest: the relative change of W per step stays below 1e-8
     from step 256 (conormal) and 302 (ring) of 400, no retry, 3.1 IPOPT iterations per step; a weight of
-    100 leaves 7.8e-7 per step after 400 steps (docs/guide/mesh_quality.md, "Restorations and blends at rest").
+    100 leaves 7.8e-7 per step after 400 steps
+    (docs/guide/mesh_quality_measurements.md, "Restorations and blends at rest").
     """
     n_fixed = 3
     nz = 2 * n_fixed + n_gap
@@ -202,8 +203,8 @@ def torus_hole(n_major: int = 32, n_minor: int = 16, hole: float = 0.55, fill: s
 
     ``tangential_weight`` (default 10; 1 is the paper's scheme) charges the tangential part of the step's
     distance term that many times (the normal motion, and so the flow as h -> 0, is unchanged). Measured
-    (100 steps, library defaults; docs/guide/mesh_quality.md, "Restorations and blends at rest"): with 1 the
-    step at tau = h slides the 15 free vertices toward degenerate triangles (budget cut or edge ratio
+    (100 steps, library defaults; docs/guide/mesh_quality_measurements.md, "Restorations and blends at rest"): with 1
+    the step at tau = h slides the 15 free vertices toward degenerate triangles (budget cut or edge ratio
     3e3; accepted at h/2 or h/4, 4-7 deg before the repair), the light repair slides them back, and the
     accepted step size alternating between h/2 and h/4 leaves a 2-cycle (noisy fill: relative change of W
     1.5e-3 per step, 153 retries; flat: 6.8e-3, 260 retries); with 10 every step is taken at tau = h
@@ -244,7 +245,7 @@ def genus2_blending(h: float = 0.2, hole: float = 0.6, fill: str = "noisy", amp:
     the noisy default (40 free vertices, adaptive steps): with 1 the attempts at larger steps fail, tau stays
     at h/32-h/16 and the patch energy jumps by up to 1.9 % per step over 15 steps (between 2.563 and 2.644);
     with 100 the steps converge at tau = h in 5-6 iterations and the relative energy change falls below 1e-8
-    at step 51 (reports/REPRODUCTION.md, Fig. 10; docs/guide/mesh_quality.md, "Genus 2").
+    at step 51 (reports/REPRODUCTION.md, Fig. 10; docs/guide/mesh_quality_measurements.md, "Genus 2").
     """
     from scipy.optimize import brentq
 

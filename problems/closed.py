@@ -71,7 +71,7 @@ def torus(R: float = 1.0, r: float = 0.5, n_major: int = 24, n_minor: int = 12, 
 
     ``tangential_weight`` (default 10; 1 is the paper's scheme) charges the tangential part of the step's
     distance: the scheme's tangential freedom lets a mesh-scale mode (the highest azimuthal wavenumber) grow
-    near the Clifford torus and the flow then drifts below sqrt 2 (docs/guide/mesh_quality.md, "The torus
+    near the Clifford torus and the flow then drifts below sqrt 2 (docs/guide/mesh_quality_measurements.md, "The torus
     with tangential_weight 10": on 48x24 to t = 0.5 R/r 1.396 against 1.316 with weight 1).
     """
     mesh = shapes.torus(R, r, n_major, n_minor)

@@ -118,10 +118,10 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     problem's other defaults: a 48x24 grid torus 8 retries and 160 s to t = 0.064 with weight 1, 5 retries and
     112 s to t = 0.23 with 10 (R/r 1.402 at t = 1.0); a noisy stretched trimesh torus 10 retries, 73 s, t = 0.11
     against 9, 72 s, t = 0.56; the 839-vertex double torus 12 retries, 122 s, t = 0.098 against 7, 73 s, t = 0.45
-    (docs/guide/mesh_quality.md, "Which tangential_weight"). It also gets ``conformal_gauge = true``: over 150 steps
-    weight 10 alone let four tori slide along their Moebius orbit (R/r 0.6-1.39 instead of sqrt 2), with the gauge
-    they end at R/r 1.420-1.425, t = 1.2-2.1, no failed step (mesh_quality.md, "To 150 steps"); a volume or area
-    constraint turns the problem's gauge off (:meth:`~willmore_nlp.registry.Problem.effective_options`).
+    (docs/guide/mesh_quality_measurements.md, "Which tangential_weight"). It also gets ``conformal_gauge = true``: over
+    150 steps weight 10 alone let four tori slide along their Moebius orbit (R/r 0.6-1.39 instead of sqrt 2), with the
+    gauge they end at R/r 1.420-1.425, t = 1.2-2.1, no failed step (mesh_quality_measurements.md, "To 150 steps"); a
+    volume or area constraint turns the problem's gauge off (:meth:`~willmore_nlp.registry.Problem.effective_options`).
     ``--set tangential_weight=1 --set conformal_gauge=false`` is the paper's scheme. A closed surface of genus >= 2
     gets ``remesh_repair`` = :data:`REPAIR_PASSES_GENUS2` (4).
 

@@ -23,7 +23,7 @@ v = 0.50 cup's first step (4 retries) and 100 is still falling by 2e-4 per step 
 CUP_CONTROL_WEIGHT = 1.0
 """Default ``tangential_control_weight`` from the cup (the in-step mean-ratio control; the option's own default was
 0.3 then and is 1 since the control became the surface default). Measured at 642 vertices, v = 0.55, to t = 0.3
-(docs/guide/mesh_quality.md, "Rest means rest"): with 0.3
+(docs/guide/mesh_quality_measurements.md, "Rest means rest"): with 0.3
 the accepted states never settle (w / 8 pi 1.9971, the last 10 states spread over 2.8e-2; the light repair lifts W
 by 1-4 % per step); with 1 (target in quarter steps) w / 8 pi = 1.93605, the last 10 states within 4.6e-4, 2
 retries; with 3: 1.94647 within 7.5e-4, 4 retries."""

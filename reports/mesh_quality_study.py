@@ -538,7 +538,7 @@ def cases(scale: float) -> dict[str, Any]:
 
 def diagnose(steps: int = 10) -> None:
     """Print the min angle after 1 and ``steps`` steps of the paper's scheme on the torus 24x12 for several
-    tau, tau_tilde and in-step tangential terms (the diagnosis table of docs/guide/mesh_quality.md)."""
+    tau, tau_tilde and in-step tangential terms (the diagnosis table of docs/guide/mesh_quality_measurements.md)."""
     mesh = shapes.torus(1.0, 0.5, 24, 12)
     h = mesh.h
     runs = [(1e-4, 0.01, {}), (1e-3, 0.25, {}), (1e-3, 0.01, {}), (1e-3, 0.001, {}), (1e-2, 0.01, {}),
@@ -561,7 +561,7 @@ def diagnose(steps: int = 10) -> None:
 def first_step_probe(betas: tuple[float, ...] = (1.0, 3.0, 10.0, 30.0, 100.0)) -> None:
     """Print whether the first step of the smoothed box and the noisy capsule converges and passes the mesh checks
     at tau = h, h/4, h/16, h/64 for several tangential weights (one attempt each, no iteration budget): where a
-    weight > 1 hurts (docs/guide/mesh_quality.md, "Which tangential_weight")."""
+    weight > 1 hurts (docs/guide/mesh_quality_measurements.md, "Which tangential_weight")."""
     for mesh in (smoothed_box(), noisy_capsule()):
         h = mesh.h
         for b in betas:
@@ -713,7 +713,8 @@ def lawson_table(cached: dict[str, dict[str, Any]]) -> list[str]:
                              / (4 * np.pi)))
 
     out = ["", "Flows from `shapes.lawson_genus2` (a Moebius image of Lawson's surface in which the mesh resolves "
-           "the curvature; see docs/guide/mesh_quality.md, Genus 2). residual: `analysis.minimal_s3_fit`, the L^2 "
+           "the curvature; see docs/guide/mesh_quality_measurements.md, Genus 2). "
+           "residual: `analysis.minimal_s3_fit`, the L^2 "
            "distance of H from the mean curvature of a stereographic image of a minimal surface in S^3 (0 for "
            "Lawson's surface and its Moebius images; 0.0055 for the Clifford torus on the 48 x 24 grid); rho / L: the "
            "fitted radius of the sphere over the surface's size L = sqrt(area / 4 pi) (it moves when the surface "

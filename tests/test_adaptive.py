@@ -71,8 +71,8 @@ def test_a_grown_step_may_not_crush_the_mesh_for_little_gain(monkeypatch) -> Non
     """An adaptive doubling (an attempt above the last accepted step size) that lowers the step objective by less
     than GROWN_FALL and takes the patch's smallest angle below ``remesh_min_angle`` from a state above it is refused
     and retried at the last size (on a genus-2 flow near rest one such step, accepted, was followed by a remeshing and a
-    refinement that lifted W by 2.2 %, docs/guide/mesh_quality.md); a step that gains more, a state already below the
-    threshold, a step not grown and a flow without the mesh control are left alone."""
+    refinement that lifted W by 2.2 %, docs/guide/mesh_quality_measurements.md); a step that gains more, a state
+    already below the threshold, a step not grown and a flow without the mesh control are left alone."""
     from willmore_nlp import flow as flow_module
     from willmore_nlp import geometry
     from willmore_nlp.mesh import shapes

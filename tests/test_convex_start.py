@@ -167,10 +167,10 @@ def test_the_first_look_before_the_first_attempt_jumps_only_far_below(tmp_path, 
 
 
 def test_a_first_step_taken_at_tau_over_2_is_unchanged(tmp_path) -> None:
-    """The smoothed box of docs/guide/mesh_quality.md's tables (trimesh box subdivided 3 times and Laplacian-smoothed
-    5 times, 386 v; IPOPT): its first attempt fails, the one at tau / 2 converges although tau_c = tau / 10,860 (the
-    largest ratio measured where that happens, which ``CONVEX_FAR`` stays above): the first look finds tau_c, no jump
-    follows, and the states with and without ``convex_start`` are equal bit for bit."""
+    """The smoothed box of docs/guide/mesh_quality_measurements.md's tables (trimesh box subdivided 3 times and
+    Laplacian-smoothed 5 times, 386 v; IPOPT): its first attempt fails, the one at tau / 2 converges although tau_c =
+    tau / 10,860 (the largest ratio measured where that happens, which ``CONVEX_FAR`` stays above): the first look finds
+    tau_c, no jump follows, and the states with and without ``convex_start`` are equal bit for bit."""
     from willmore_nlp.flow import CONVEX_FAR, CONVEX_JUMP
 
     b = trimesh.creation.box().subdivide().subdivide().subdivide()

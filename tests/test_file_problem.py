@@ -336,7 +336,7 @@ def test_a_coarse_torus_is_refined_by_its_tube_radius(tmp_path) -> None:
     newton-krylov's (``large_solver``; IPOPT's as given). The 18 x 9 grid as given (``input_repair=false``) folds at
     once (the smallest angle 26.8 -> 5.3 deg in its first step at tau = h; measured: a step fails at t = 1.33 on a
     fold); refined (891 v) its first steps keep every triangle above 25 deg, the energy decreasing (measured over 40
-    steps: no failed step, the smallest angle >= 25.4 deg; docs/guide/mesh_quality.md)."""
+    steps: no failed step, the smallest angle >= 25.4 deg; docs/guide/mesh_quality_measurements.md)."""
     from willmore_nlp.analysis import fit_order
     from willmore_nlp.geometry import min_angles
     from willmore_nlp.mesh import shapes

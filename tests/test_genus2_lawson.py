@@ -1,5 +1,5 @@
 """Genus 2 toward Lawson's surface: the minimal-S^3 fit, the Moebius maps and the conformal gauge, and a few steps
-of the stored start ``shapes.lawson_genus2`` (docs/guide/mesh_quality.md, "Genus 2")."""
+of the stored start ``shapes.lawson_genus2`` (docs/guide/mesh_quality_measurements.md, "Genus 2")."""
 
 from __future__ import annotations
 
@@ -93,8 +93,8 @@ def test_lawson_start_steps_with_the_gauge() -> None:
 def test_conformal_motion_on_a_torus_of_revolution_sees_the_cyclide_directions() -> None:
     """On the Clifford torus (48x24) the special conformal fields V_x, V_y (which make cyclides) are found exactly
     from a planted map; V_z's normal component is that of a translation along the axis (r^2 - R^2) sin(theta)
-    (the rest is tangential), a near-null direction of the fit that it leaves alone (docs/guide/mesh_quality.md,
-    "The 48x24 torus with the conformal gauge")."""
+    (the rest is tangential), a near-null direction of the fit that it leaves alone
+    (docs/guide/mesh_quality_measurements.md, "The 48x24 torus with the conformal gauge")."""
     t = shapes.torus(np.sqrt(2), 1.0, 48, 24)
     centre, scale = t.vertices.mean(0), float(np.sqrt(geometry.measure(t) / (4 * np.pi)))
     for b in ([1e-3, 0.0, 0.0], [4e-4, -7e-4, 0.0]):

@@ -1,5 +1,5 @@
 """Rotational symmetry of torus flows: the mesh-scale instability of the paper's scheme near the Clifford torus and
-the in-step tangential weight that suppresses it (docs/guide/mesh_quality.md, 'What breaks the rotational
+the in-step tangential weight that suppresses it (docs/guide/mesh_quality_measurements.md, 'What breaks the rotational
 symmetry')."""
 
 from __future__ import annotations
@@ -131,10 +131,10 @@ def test_the_isotropic_remeshing_anticipates_the_fall_of_the_smallest_angle(monk
 
 def test_the_discrete_energy_of_the_clifford_torus_depends_on_its_mesh_by_more_than_half_a_percent() -> None:
     """The grid Clifford torus that issue 14's 0.5 % band is measured against is one mesh among many of the same
-    shape and size (mesh_quality.md, 'Why a 0.5 % band ...'): on the 48x24 grid (1,152 v) its smallest angle is
-    11.7 deg, below the 15-deg bound, and W = 39.016; on the 34x34 grid (1,156 v, 22.4 deg) 39.182; on an isotropic
-    remesh (about 1,140 v) with its vertices put back on the torus 39.24; on the stretched 64x18 grid (1,152 v)
-    38.724. The energy falls as the triangles stretch along the meridians (more divisions around the axis), by
+    shape and size (mesh_quality_measurements.md, 'Why a 0.5 % band ...'): on the 48x24 grid (1,152 v) its smallest
+    angle is 11.7 deg, below the 15-deg bound, and W = 39.016; on the 34x34 grid (1,156 v, 22.4 deg) 39.182; on an
+    isotropic remesh (about 1,140 v) with its vertices put back on the torus 39.24; on the stretched 64x18 grid
+    (1,152 v) 38.724. The energy falls as the triangles stretch along the meridians (more divisions around the axis), by
     more than 0.5 % between meshes of one size; each grid value also converges to 4 pi^2 under refinement (the
     consistency check of the comparison)."""
     R, r = np.sqrt(2) / 2, 0.5

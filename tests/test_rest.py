@@ -1,7 +1,7 @@
 """Rest means rest: the in-step tangential control ends the step/repair exchange of the surface mesh control.
 
-Measured (docs/guide/mesh_quality.md, "Rest means rest"): torus_hole with the paper's weight 1 and the light
-repair alone is a 2-cycle (the step slides the free vertices toward 4-7 degree triangles, the repair slides them
+Measured (docs/guide/mesh_quality_measurements.md, "Rest means rest"): torus_hole with the paper's weight 1 and the
+light repair alone is a 2-cycle (the step slides the free vertices toward 4-7 degree triangles, the repair slides them
 back, 1.5e-3 relative energy change per step, a retry every step). With ``tangential_control = "meanratio"``
 (its target taken in quarter steps, ``tangential.SUBSTEPS``) the step charges that slide itself; at weight 3
 the accepted states converge geometrically to a fixed point (to round-off), with no retry.

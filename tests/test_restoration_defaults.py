@@ -1,7 +1,7 @@
 """Per-problem tangential_weight defaults of the restorations and blends (issue 14) and a short torus_hole run.
 
-Measured (docs/guide/mesh_quality.md, "Restorations and blends at rest"): torus_hole with the paper's weight 1
-cycles between a step that slides its 15 free vertices toward 4-7 degree triangles and the light repair that
+Measured (docs/guide/mesh_quality_measurements.md, "Restorations and blends at rest"): torus_hole with the paper's
+weight 1 cycles between a step that slides its 15 free vertices toward 4-7 degree triangles and the light repair that
 slides them back; with 10 every step is taken at tau = h and the patch comes to rest.
 """
 

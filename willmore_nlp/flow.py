@@ -90,7 +90,7 @@ FOLD_REASON = "mesh folds"
 GROWN_FALL = 0.01
 """A grown step that lowers the step objective by less than this fraction may not take the mesh below
 ``remesh_min_angle`` (:meth:`WillmoreFlow._crushes`): on a genus-2 flow the threshold remeshings lifted W by 0.1-0.7 %,
-the remeshing and refinement after one such step by 2.2 % (docs/guide/mesh_quality.md, "Grown steps")."""
+the remeshing and refinement after one such step by 2.2 % (docs/guide/mesh_quality_measurements.md, "Grown steps")."""
 
 GROWN_REASON = "grown step crushes the mesh"
 """How the reason of a grown attempt refused for the mesh's sake begins (:meth:`WillmoreFlow._crushes`)."""

@@ -331,7 +331,7 @@ class FlowSettings(Settings):
         (boundary) nodes never move. The discrete energy may rise by at most ``beta_c sum_i m_i |S_i|^2 / (2
         tau)`` in a step (the energy check uses the full W).
     tangential_control_weight : float
-        beta_c > 0 of the mean-ratio control (default 1, measured: docs/guide/mesh_quality.md, "Rest
+        beta_c > 0 of the mean-ratio control (default 1, measured: docs/guide/mesh_quality_measurements.md, "Rest
         means rest"): the tangential motion is about beta_c / (1 + beta_c) of S plus 1 / (1 + beta_c)
         of what the energy asks for.
     tangential_control_time : float
@@ -507,7 +507,8 @@ class FlowSettings(Settings):
         The Willmore energy of a closed surface is Moebius invariant, so the smooth flow has no component
         along these fields and the flow as h -> 0 is unchanged; the discrete flow of a surface of genus >= 1
         whose limit has a nontrivial Moebius orbit (Lawson's genus-2 surface) otherwise drifts along that
-        orbit toward images whose curvature the mesh does not resolve (docs/guide/mesh_quality.md, Genus 2).
+        orbit toward images whose curvature the mesh does not resolve
+        (docs/guide/mesh_quality_measurements.md, Genus 2).
     """
 
     solver: str = option("ipopt", Kind("a solver name", lambda v: isinstance(v, str), parse=str))

@@ -36,8 +36,8 @@ it was measured to help and "off" elsewhere (:func:`resolve_method`)."""
 
 DEFAULT_CONTROL_WEIGHT = 1.0
 """Default beta of the mean-ratio control (``tangential_control_weight``). Measured against 0.3 and 3 on the
-mesh-quality study's surfaces (docs/guide/mesh_quality.md, "Rest means rest"): 1 was at least as good as the
-repair alone in every case (the 642-v vesicle cup rests with 1 and not with 0.3; 3 slows the blends' rest)."""
+mesh-quality study's surfaces (docs/guide/mesh_quality_measurements.md, "Rest means rest"): 1 was at least as good as
+the repair alone in every case (the 642-v vesicle cup rests with 1 and not with 0.3; 3 slows the blends' rest)."""
 
 
 def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool,

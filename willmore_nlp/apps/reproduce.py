@@ -636,7 +636,7 @@ def fig6_7(fig_dir: Path) -> str:
         "the paper's scheme: the mesh control (`mesh_control = auto`: flips, the light repair and, below 15 deg, "
         "isotropic remeshing) and the torus problem's `tangential_weight = 10`, without the in-step tangential control "
         "(`tangential_control = off`: the runs predate its surface default) and without the undoing of the drift's "
-        "dilation at rest (`rest_dilation = false`, likewise) (docs/guide/mesh_quality.md, \"The "
+        "dilation at rest (`rest_dilation = false`, likewise) (docs/guide/mesh_quality_measurements.md, \"The "
         "torus at the paper's h\"); step solver `newton-krylov` (1.3-3.4 times faster per step than IPOPT over "
         f"the first four steps at tau = h^2). tau = h^4 = {h**4:.2g} takes {s0['steps']} steps "
         f"({s0['wall'] / 3600:.1f} h of steps on this shared 2-core machine, interrupted and resumed: the run "
@@ -669,7 +669,8 @@ def fig6_7(fig_dir: Path) -> str:
         f"angle of any stepped state here, before its repair, is {before:.1f} deg (the repairs and the one isotropic "
         "remeshing keep every accepted state above 15 deg). The paper's scheme alone (`mesh_control = off`, "
         "tangential weight 1) is not in this section: started at this h with tau = h^2, its triangles flatten "
-        "and its steps shrink by retries before t = 0.05, where it was stopped (docs/guide/mesh_quality.md, \"The "
+        "and its steps shrink by retries before t = 0.05, where it was stopped "
+        "(docs/guide/mesh_quality_measurements.md, \"The "
         "torus at the paper's h\").", "",
         f"![Fig. 6](figures/{img})", "", f"![Fig. 6 shapes](figures/{img_s})", "",
         f"![Fig. 7](figures/{img_7})", "",
@@ -981,7 +982,8 @@ def fig9_10(fig_dir: Path) -> str:
         "control where `tangential_control = auto` turns it on, the blends and the flat fills, not the noisy fills, "
         "whose spikes have no tangent plane; **not** the paper's scheme, and each problem's "
         "`tangential_weight`: 1 for `surface_blending`, 10 for `torus_hole`, whose weight-1 flow does not come to "
-        "rest: docs/guide/mesh_quality.md, \"Restorations and blends at rest\"), the blends 400 steps and the "
+        "rest: docs/guide/mesh_quality_measurements.md, \"Restorations and blends at rest\"), "
+        "the blends 400 steps and the "
         "restorations 100 steps at tau = h; 'undisturbed' is the torus_hole patch before the fill (`amp = 0`), "
         "flowed the same way: its final surface is the discrete equilibrium the restorations should reach (the "
         "torus R/r = 2 itself is not a Willmore surface, so the patch leaves it by a fraction of h); torus "

@@ -276,7 +276,7 @@ def lawson_genus2(h: float | None = None) -> Mesh:
     The stored surface (1,288 v, mean edge 0.20, |k1 + k2| h <= 0.53; :data:`LAWSON_GENUS2_DATA`) is returned
     as it is (``h`` None) or remeshed isotropically to edge length ``h`` with projection onto it
     (:func:`willmore_nlp.remesh.isotropic_remesh`). How it was made (``reports/mesh_quality_study.py
-    --lawson-start``, docs/guide/mesh_quality.md "Genus 2"): the flow of :func:`double_torus` approaches
+    --lawson-start``, docs/guide/mesh_quality_measurements.md "Genus 2"): the flow of :func:`double_torus` approaches
     a stereographic image of a minimal surface in S^3 (:func:`willmore_nlp.analysis.minimal_s3_fit`:
     residual 0.68 -> 0.11) whose bar across the hole is thinner than the mesh's edges; that state was lifted
     to S^3 with the fitted centre and radius and projected back from the point of S^3 farthest from it
