@@ -6,6 +6,7 @@ import math
 import warnings
 
 from willmore_nlp.boundary import VARIANTS, Boundary
+from willmore_nlp.flow import REPAIR_PASSES_HANDLES
 from willmore_nlp.geometry import enclosed_volume
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import load_mesh
@@ -68,16 +69,6 @@ washer in 186 s. Times beside another run."""
 COARSE_TUBE_TARGET = 3.0
 """A coarse closed surface of genus >= 1 (:data:`COARSE_TUBE`) is remeshed toward the mean edge r / this."""
 
-REPAIR_PASSES_GENUS2 = 4
-"""``remesh_repair`` of a closed surface of genus >= 2 (the flow's default: 2). Measured with this problem's other
-defaults (docs/guide/mesh_quality.md, "Local refinement"): near rest a user's noisy genus-2 file ran 300 steps without
-a remeshing (W within 43.797-43.856, 8e-7 relative per step) where 2 passes were outrun by a vertex that every step
-slid 0.2 h, and threshold remeshings lifted W by up to 0.75 % every few steps (13 in 210); from the inputs the genus-2
-file took 3 remeshings in 150 steps instead of 11 and the coarse double torus 4 in 60 instead of 7, 10 retries
-instead of 14, W(t) within 2 % of the 2-pass runs at the same t, either side (remeshings lift W by jumps). Not for
-tori: a noisy 640-v torus rested better with 4, an 800-v stretched one crept up instead, and a deliberately coarse
-72-v torus folded at step 3."""
-
 
 @register("file")
 def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None = None,
@@ -122,8 +113,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     150 steps weight 10 alone let four tori slide along their Moebius orbit (R/r 0.6-1.39 instead of sqrt 2), with the
     gauge they end at R/r 1.420-1.425, t = 1.2-2.1, no failed step (mesh_quality_measurements.md, "To 150 steps"); a
     volume or area constraint turns the problem's gauge off (:meth:`~willmore_nlp.registry.Problem.effective_options`).
-    ``--set tangential_weight=1 --set conformal_gauge=false`` is the paper's scheme. A closed surface of genus >= 2
-    gets ``remesh_repair`` = :data:`REPAIR_PASSES_GENUS2` (4).
+    ``--set tangential_weight=1 --set conformal_gauge=false`` is the paper's scheme. A closed surface of genus >= 1
+    gets ``remesh_repair`` = :data:`~willmore_nlp.flow.REPAIR_PASSES_HANDLES` (4; the flow's default is 2).
 
     A closed surface of genus 0 smaller than :data:`COARSE_SIZE` (3) edges (its size sqrt(area / 4 pi); fewer than
     262 triangles) gets ``remesh_target`` a quarter of that size, with a warning: the scheme's shrinkage of order
@@ -155,9 +146,7 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
         raise ProblemError(f"the mesh has a boundary ({len(mesh.boundary_facets)} boundary facets): set "
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     elif chi is not None and chi <= 0:
-        options.update(tangential_weight=10.0, conformal_gauge=True)
-        if chi <= -2:  # genus >= 2: the light repair's 4 passes (REPAIR_PASSES_GENUS2)
-            options["remesh_repair"] = REPAIR_PASSES_GENUS2
+        options.update(tangential_weight=10.0, conformal_gauge=True, remesh_repair=REPAIR_PASSES_HANDLES)
     if chi is not None and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several: the flow's error)
         _refine_if_coarse(mesh, chi, options, path)
     if mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:

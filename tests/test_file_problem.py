@@ -96,10 +96,11 @@ def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tm
     assert out[None][0] < out[1.0][0] and out[None][1] < out[1.0][1] and out[None][2] > out[1.0][2]
 
 
-def test_closed_file_surface_of_genus_two_gets_four_repair_passes(tmp_path) -> None:
-    """A genus-2 surface read from a file gets ``remesh_repair = 4`` (beside the torus weight and the gauge), a torus
-    and a sphere the flow's 2; a ``--set remesh_repair`` wins; a run directory records it, and one written before the
-    problem set it (no such option) resumes with 2 (``stored_control``)."""
+def test_closed_file_surfaces_with_handles_get_four_repair_passes(tmp_path) -> None:
+    """A genus-2 surface and a torus read from a file get ``remesh_repair = 4`` (beside the torus weight and the
+    gauge), a sphere the flow's 2; a ``--set remesh_repair`` wins; a run directory records it, and one written before
+    the problem set it (no such option) resumes with 2 (``stored_control``)."""
+    from willmore_nlp.flow import REPAIR_PASSES_HANDLES
     from willmore_nlp.mesh import shapes
     from willmore_nlp.mesh.io import save_mesh
     from willmore_nlp.runner import stored_control
@@ -107,13 +108,12 @@ def test_closed_file_surface_of_genus_two_gets_four_repair_passes(tmp_path) -> N
     save_mesh(shapes.double_torus(h=0.3), tmp_path / "g2.obj")
     save_mesh(shapes.torus(1.0, 0.5, 16, 8), tmp_path / "torus.obj")
     save_mesh(shapes.icosphere(1), tmp_path / "sphere.obj")
-    pb, _ = registry.build("file", path=str(tmp_path / "g2.obj"))
-    assert pb.flow_options["remesh_repair"] == registry.problem_module("files").REPAIR_PASSES_GENUS2 == 4
-    assert pb.flow_options["conformal_gauge"] is True and pb.make_flow().settings.remesh_repair == 4
-    assert pb.make_flow(remesh_repair=2).settings.remesh_repair == 2
-    for other in ("torus", "sphere"):
-        opts = registry.build("file", path=str(tmp_path / f"{other}.obj"))[0].flow_options
-        assert "remesh_repair" not in opts
+    for name in ("g2", "torus"):
+        pb, _ = registry.build("file", path=str(tmp_path / f"{name}.obj"))
+        assert pb.flow_options["remesh_repair"] == REPAIR_PASSES_HANDLES == 4
+        assert pb.flow_options["conformal_gauge"] is True and pb.make_flow().settings.remesh_repair == 4
+        assert pb.make_flow(remesh_repair=2).settings.remesh_repair == 2
+    assert "remesh_repair" not in registry.build("file", path=str(tmp_path / "sphere.obj"))[0].flow_options
     assert stored_control({"effective_flow_options": {"remesh_repair": 4}, "input_repair": ""})["remesh_repair"] == 4
     assert stored_control({"effective_flow_options": {}, "input_repair": ""})["remesh_repair"] == 2
     assert stored_control({"effective_flow_options": {"remesh_relax": 3}, "input_repair": ""})["remesh_repair"] == 3

@@ -331,11 +331,13 @@ def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]
     directory's flow ran with, as flow options (a resumed run keeps them even when the library's defaults changed):
     ``config.json``'s ``tangential_control`` entry, or, for runs written before it existed (when the default was "off"
     at weight 0.3), the options they gave; the ``conformal_gauge`` of its effective options (false for ``file`` tori
-    written before the problem turned it on, 2026-11-27) and its ``steps_from_h`` ("none" for runs written before it
+    written before the problem turned it on, 2026-11-27, and ``torus`` runs written before 2026-11-29) and its
+    ``steps_from_h`` ("none" for runs written before it
     existed: their tau and tau_tilde were the input's); its ``solver``, ``first_step_solver`` and ``fallback_solver``
     ("ipopt", "" and "" for runs written before the ``file`` problem chose newton-krylov for large surfaces, 2026-11-28)
     and ``large_solver`` and ``large_vertices`` ("" and 0 for runs written before they existed, 2026-11-29); its
-    ``remesh_repair`` (2 unless the run was given another: the ``file`` problem's genus >= 2 surfaces got 4 later); its
+    ``remesh_repair`` (2 unless the run was given another: the ``file`` problem's genus >= 2 surfaces got 4 later, its
+    tori and the ``torus`` problem later still, 2026-11-29); its
     ``refine_scope`` record as ``refine_local`` (for runs written before it existed: their ``refine_local`` record on
     a closed surface and false on a ``clamped`` one, whose refinements were global before the scope record; false
     without either record, 2026-11-29: their refinements were global); its ``rest_dilation`` record (false for runs

@@ -442,12 +442,14 @@ def fig67_overrides(power: int) -> dict[str, str]:
     tau = h runs with adaptive steps (``adaptive = true``, steps <= h): at fixed tau = h the first attempt of
     every step failed (steps 1-3 taken at h/2, h/8, h/8 after 1, 3, 3 retries, 39, 50 and 202 s). The cached runs
     were made before the in-step tangential control became a surface default (``tangential_control = "auto"``)
-    and before ``rest_dilation``; ``tangential_control = "off"`` and ``rest_dilation = false`` keep a rerun equal to
-    them.
+    and before ``rest_dilation`` and the torus problem's ``conformal_gauge`` and 4 repair passes;
+    ``tangential_control = "off"``, ``rest_dilation = false``, ``conformal_gauge = false`` and ``remesh_repair = 2``
+    keep a rerun equal to them.
     """
     h = shapes.torus(1.0, 0.5, *FIG67_GRID).h
     return {"n_major": str(FIG67_GRID[0]), "n_minor": str(FIG67_GRID[1]), "tau": repr(h**power),
             "solver": FIG67_SOLVER, "t_end": repr(FIG67_T), "tangential_control": "off", "rest_dilation": "false",
+            "conformal_gauge": "false", "remesh_repair": "2",
             **({"adaptive": "true"} if power == 1 else {})}
 
 

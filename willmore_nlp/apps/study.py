@@ -154,6 +154,11 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
             for t in taus]
 
 
+PATH_OPTIONS = {"tangential_weight", "remesh_repair", "conformal_gauge"}
+"""Flow options of a problem that change the path of its flow (the tangential motion, the mesh repair, the Moebius
+gauge), not the energy that :func:`evolver_rows`' reference minimises."""
+
+
 def evolver_rows(cases: list[Case], iterations: int) -> list[dict[str, Any]]:
     """Surface Evolver reference energies of the initial surfaces of a study (one per parameter set).
 
@@ -176,8 +181,7 @@ def evolver_rows(cases: list[Case], iterations: int) -> list[dict[str, Any]]:
         mesh = pb.mesh
         if find_evolver() is None:
             row["skipped"] = "Surface Evolver (evolver-nox) is not installed"
-        elif mesh.d != 2 or not mesh.is_closed or set(pb.flow_options) - {"tangential_weight"}:
-            # a tangential weight changes the path of a flow, not the energy the reference minimises
+        elif mesh.d != 2 or not mesh.is_closed or set(pb.flow_options) - PATH_OPTIONS:
             row["skipped"] = "the reference is for closed surfaces without boundary conditions or anisotropy"
         else:
             try:
