@@ -151,11 +151,11 @@ REPAIR_PASSES_HANDLES = 4
 """``remesh_repair`` that the ``torus`` and ``file`` problems give closed surfaces of genus >= 1 (the flow's
 default: 2). The 48x24 torus to t = 1 with the conformal gauge (tau = 1e-3, 2026-11-29): the lowest W 0.31 % below
 the grid's Clifford torus with 4 passes, 0.68 % with 2 (the issue's band: 0.5 %), no retry, smallest angle >= 15.5
-deg stepped either way; a trimesh torus file (991 v, 40 steps): 0.28 % below its mesh on the fitted Clifford torus
-against 1.09 %; near rest a genus-2 file ran 300 steps without a remeshing where 2 passes were outrun by a vertex
-that every step slid 0.2 h. Against: an 800-v stretched noisy torus crept up at rest (1.4e-6 per step, 40 of its
-last 50 steps against 21), and a deliberately coarse 72-v torus folded at step 3 (the ``file`` problem refines such
-tori first) (docs/guide/mesh_quality.md, "Tori and genus 2: four repair passes")."""
+deg stepped either way; a trimesh torus file (991 v): 0.28 % below its mesh on the fitted Clifford torus at t = 0.28
+against 0.66 % (1.09 % by t = 0.44); near rest a genus-2 file ran 300 steps without a remeshing where 2 passes
+were outrun by a vertex that every step slid 0.2 h. Against: an 800-v stretched noisy torus crept up at rest
+(1.4e-6 per step, 40 of its last 50 steps against 21), and a deliberately coarse 72-v torus folded at step 3 (the
+``file`` problem refines such tori first) (docs/guide/mesh_quality.md, "Tori and genus 2: four repair passes")."""
 
 REPAIR_ROUNDS = 5
 """The light repair (``remesh_repair``) repeats its passes up to this many times while the mesh is below the
