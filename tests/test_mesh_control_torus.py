@@ -155,10 +155,11 @@ def test_the_discrete_energy_of_the_clifford_torus_depends_on_its_mesh_by_more_t
 
 
 def test_the_torus_problem_runs_with_the_gauge_and_four_repair_passes_and_the_fig67_runs_without() -> None:
-    """The ``torus`` problem's flow has ``conformal_gauge`` (only without an area term, which makes the Moebius
-    motions the flow's own) and ``remesh_repair = REPAIR_PASSES_HANDLES``; ``--set`` wins; the Figs. 6-7 runs pin
-    the options their cached runs were made with (docs/guide/mesh_quality.md, "Tori and genus 2: four repair
-    passes": on 48x24 to t = 1 the lowest W is 0.31 % below the grid's Clifford torus with them, 0.68 % without)."""
+    """The ``torus`` problem's flow has ``conformal_gauge`` (not with an area term, a spontaneous curvature, an
+    anisotropy or a constraint, which make the Moebius motions the flow's own) and ``remesh_repair =
+    REPAIR_PASSES_HANDLES``; ``--set`` wins; the Figs. 6-7 runs pin the options their cached runs were made with
+    (docs/guide/mesh_quality.md, "Tori and genus 2: four repair passes": on 48x24 to t = 1 the lowest W is 0.31 %
+    below the grid's Clifford torus with them, 0.68 % without)."""
     from willmore_nlp import registry
     from willmore_nlp.apps.reproduce import fig67_overrides
     from willmore_nlp.config import resolve
@@ -172,6 +173,11 @@ def test_the_torus_problem_runs_with_the_gauge_and_four_repair_passes_and_the_fi
     assert (s.conformal_gauge, s.remesh_repair) == (False, 2)
     s = registry.build("torus", lam=0.5)[0].make_flow().settings
     assert (s.conformal_gauge, s.remesh_repair) == (False, REPAIR_PASSES_HANDLES)
+    # the gauge gives way wherever the energy is not Moebius invariant, unless asked for
+    for over in ({"c0": 0.5}, {"anisotropy": "gamma1"}, {"volume": "initial"}):
+        assert "conformal_gauge" not in pb.effective_options(over), over
+    assert pb.effective_options({"c0": 0.5, "conformal_gauge": True})["conformal_gauge"] is True
+    assert pb.effective_options({"c0": 0.0})["conformal_gauge"] is True
     for power in (1, 2):
         spec = resolve("torus", fig67_overrides(power))
         s = spec.problem.make_flow(**spec.flow_options).settings

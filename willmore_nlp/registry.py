@@ -71,22 +71,26 @@ class Problem:
 
     def effective_options(self, overrides: dict[str, Any]) -> dict[str, Any]:
         """The flow options of :meth:`make_flow`: the problem's, replaced by ``overrides``. A ``conformal_gauge`` of
-        the problem's own (the ``file`` problem's closed surfaces of genus >= 1) gives way to a volume or area
-        constraint among the overrides: the gauge is for unconstrained flows, and only asking for both at once is
-        an error. A surface of at least :data:`LARGE_SURFACE` vertices whose problem names no solver gets
-        newton-krylov with the IPOPT fallback, a smaller one ``large_solver = "newton-krylov"`` from that size (a
-        refinement's steps). A ``first_step_solver``, ``fallback_solver`` or ``large_solver`` of the problem's own
-        (the ``file`` problem's surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp`` runs
-        every step with sqp. A ``remesh_target`` of the problem's own (the ``file`` problem's coarse inputs) gives way
-        to ``input_repair = false`` among the overrides: ``--set input_repair=false`` flows the input as given, its
-        later remeshings toward their default target."""
+        the problem's own (the ``torus`` problem's, the ``file`` problem's closed surfaces of genus >= 1) gives way
+        to a volume or area constraint, an area term ``lam``, a spontaneous curvature ``c0`` or an anisotropy: the
+        gauge undoes Moebius motions, which only the unconstrained isotropic Willmore energy leaves free (with the
+        others they are the flow's own); only asking for the gauge and a constraint at once is an error. A surface
+        of at least :data:`LARGE_SURFACE` vertices whose problem names no solver gets newton-krylov with the IPOPT
+        fallback, a smaller one ``large_solver = "newton-krylov"`` from that size (a refinement's steps). A
+        ``first_step_solver``, ``fallback_solver`` or ``large_solver`` of the problem's own (the ``file`` problem's
+        surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp`` runs every step with sqp. A
+        ``remesh_target`` of the problem's own (the ``file`` problem's coarse inputs) gives way to ``input_repair =
+        false`` among the overrides: ``--set input_repair=false`` flows the input as given, its later remeshings
+        toward their default target."""
         options = dict(self.flow_options)
         if self.mesh.d == 2 and "solver" not in options and "large_solver" not in options:
             options.update(dict(solver="newton-krylov", fallback_solver="ipopt")
                            if self.mesh.n_vertices >= LARGE_SURFACE
                            else dict(large_solver="newton-krylov", large_vertices=LARGE_SURFACE))
-        if (overrides.get("volume") is not None or overrides.get("area") is not None) \
-                and "conformal_gauge" not in overrides:
+        merged = {"lam": self.lam, **options, **overrides}
+        moebius = (merged.get("volume") is None and merged.get("area") is None and merged["lam"] == 0
+                   and merged.get("c0", 0.0) == 0 and merged.get("anisotropy") is None)
+        if not moebius and "conformal_gauge" not in overrides:
             options.pop("conformal_gauge", None)
         for key in ("first_step_solver", "fallback_solver", "large_solver"):
             if "solver" in overrides and key not in overrides:
