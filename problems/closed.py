@@ -73,9 +73,9 @@ def torus(R: float = 1.0, r: float = 0.5, n_major: int = 24, n_minor: int = 12, 
     ``tangential_weight`` (default 10; 1 is the paper's scheme) charges the tangential part of the step's distance:
     the scheme's tangential freedom lets a mesh-scale mode (the highest azimuthal wavenumber) grow near the Clifford
     torus and the flow then drifts below sqrt 2 (docs/guide/mesh_quality_measurements.md, "The torus with
-    tangential_weight 10": on 48x24 to t = 0.5 R/r 1.396 against 1.316 with weight 1). It gets ``conformal_gauge =
-    true`` (not with an area term ``lam``, :meth:`~willmore_nlp.registry.Problem.effective_options`) (without it the
-    48x24 torus leaves the tori of revolution: its 8 sector circles spread to R/r 1.11-1.77 by t = 1) and
+    tangential_weight 10": on 48x24 to t = 0.5 R/r 1.396 against 1.316 with weight 1). It gets
+    ``conformal_gauge = true`` (not with an area term ``lam``, :meth:`~willmore_nlp.registry.Problem.effective_options`;
+    without it the 48x24 torus leaves the tori of revolution: its 8 sector circles spread to R/r 1.11-1.77 by t = 1) and
     ``remesh_repair`` = :data:`~willmore_nlp.flow.REPAIR_PASSES_HANDLES` (4): to t = 1 on 48x24 the lowest W is then
     0.31 % below the grid's Clifford torus (0.68 % with 2 passes), R/r by circle fit 1.402-1.421 from t = 0.1, every
     state >= 15.5 deg, no retry (docs/guide/mesh_quality.md, "Tori and genus 2: four repair passes"). ``--set
@@ -83,7 +83,8 @@ def torus(R: float = 1.0, r: float = 0.5, n_major: int = 24, n_minor: int = 12, 
     """
     mesh = shapes.torus(R, r, n_major, n_minor)
     tau_, tt_ = _steps(mesh.h, tau, tau_tilde, 0.01)
+    # (the gauge is dropped where the energy is not Moebius invariant: Problem.effective_options)
     options = {"tangential_weight": float(tangential_weight), "remesh_repair": REPAIR_PASSES_HANDLES,
-               "conformal_gauge": True}  # (dropped with an area term lam: Problem.effective_options)
+               "conformal_gauge": True}
     return Problem(mesh, tau_, tt_, lam, t_end=t_end, flow_options=options,
                    description="torus toward the Clifford torus")

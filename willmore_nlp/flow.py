@@ -20,7 +20,7 @@ from willmore_nlp.mesh.topology import edge_triangles
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
-from willmore_nlp.settings import FlowSettings, check_run_value
+from willmore_nlp.settings import FlowSettings, check_run_value, moebius_invariant
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
 from willmore_nlp.tangential import TangentialControl, resolve_method
 
@@ -513,7 +513,7 @@ class WillmoreFlow:
         # the drift told by the motion (DRIFT_SHARE), also in relax mode (whose growing steps drift the most), where the
         # energy is Moebius invariant, so that the ten conformal fields are its zero modes (not with lam A, c0 or an
         # anisotropy: lengths, directions)
-        self._drift_rule = drifts and lam == 0 and s.c0 == 0 and s.anisotropy is None
+        self._drift_rule = drifts and moebius_invariant(lam, s.c0, s.anisotropy)  # (drifts: no outer constraint)
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
-from willmore_nlp.settings import RUN_KINDS, auto, is_number, parse_bool
+from willmore_nlp.settings import RUN_KINDS, auto, is_number, moebius_invariant, parse_bool
 
 if TYPE_CHECKING:
     from willmore_nlp.flow import WillmoreFlow
@@ -88,8 +88,8 @@ class Problem:
                            if self.mesh.n_vertices >= LARGE_SURFACE
                            else dict(large_solver="newton-krylov", large_vertices=LARGE_SURFACE))
         merged = {"lam": self.lam, **options, **overrides}
-        moebius = (merged.get("volume") is None and merged.get("area") is None and merged["lam"] == 0
-                   and merged.get("c0", 0.0) == 0 and merged.get("anisotropy") is None)
+        moebius = moebius_invariant(merged["lam"], merged.get("c0", 0.0), merged.get("anisotropy"),
+                                    merged.get("volume"), merged.get("area"))
         if not moebius and "conformal_gauge" not in overrides:
             options.pop("conformal_gauge", None)
         for key in ("first_step_solver", "fallback_solver", "large_solver"):

@@ -216,6 +216,13 @@ def check_run_value(name: str, value: Any) -> Any:
     return RUN_KINDS[name].convert(value)
 
 
+def moebius_invariant(lam: float, c0: float, anisotropy: Any, volume: Any = None, area: Any = None) -> bool:
+    """Whether the step's energy of a closed surface is the Willmore energy alone, invariant under the Moebius group
+    (no length/area weight ``lam``, spontaneous curvature ``c0``, anisotropy or volume/area constraint), so that the
+    ten conformal fields are its zero modes: where the conformal gauge and the drift rule may act."""
+    return lam == 0 and c0 == 0 and anisotropy is None and volume is None and area is None
+
+
 @dataclass(frozen=True)
 class FlowSettings(Settings):
     """The options of :class:`~willmore_nlp.flow.WillmoreFlow` (keywords, config keys, ``--set KEY=VALUE``).
