@@ -6,11 +6,12 @@ import math
 import warnings
 
 from willmore_nlp.boundary import VARIANTS, Boundary
-from willmore_nlp.flow import REPAIR_PASSES_HANDLES
-from willmore_nlp.geometry import enclosed_volume
+from willmore_nlp.flow import REPAIR_PASSES_HANDLES, check_scale
+from willmore_nlp.geometry import enclosed_volume, length_scale
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import load_mesh
 from willmore_nlp.mesh.topology import components, euler_characteristic
+from willmore_nlp.mesh.validate import simplex_volumes
 from willmore_nlp.registry import Problem, ProblemError, register
 from willmore_nlp.remesh import equilateral_edge
 from willmore_nlp.settings import FlowSettings
@@ -70,15 +71,24 @@ COARSE_TUBE_TARGET = 3.0
 """A coarse closed surface of genus >= 1 (:data:`COARSE_TUBE`) is remeshed toward the mean edge r / this."""
 
 
-@register("file")
+@register("file", before={"length": 1.0})  # (tau = h in the file's units until 2026-11-29)
 def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None = None,
-              lam: float = 0.0, steps: int = 10, clamp: str = "") -> Problem:
-    """A curve or surface read from ``path`` (open ones with clamp=conormal|ring); tau = h, tau_tilde h^2/4 or h^2/100.
+              lam: float = 0.0, steps: int = 10, clamp: str = "", length: float = 0.0) -> Problem:
+    """A curve or surface from ``path`` (open ones: clamp=conormal|ring); tau = h L^3, tau_tilde h^2/4 or h^2/100.
+
+    The step tau = h L^3 is the paper's tau = h in the mesh's own length L (``length``; 0, the default:
+    :func:`~willmore_nlp.geometry.length_scale`, the radius of the sphere or disk of the surface's area, of the circle
+    of a closed curve's length, half an open curve's length; per component), so that a mesh flows through the same
+    shapes in any unit: Willmore flow takes X -> s X to t -> s^4 t, and tau = h would be s^3 times too large or small
+    for a mesh written in other units (measured, 642-v ellipsoid 1:1:2, 20 steps: scaled by 100 it hardly moved, W 30.63
+    -> 30.63 where the unit one became a sphere, 24.97; scaled by 0.01 its first step was taken at 6e-8 of its tau after
+    2 retries; with tau = h L^3 the three flows agree step for step, W to 1e-9). ``length = 1`` is tau = h in the file's
+    units, this problem's default before 2026-11-29 (night), at which the measurements quoted below were taken.
 
     Surfaces get the surface defaults of the other surface problems: tau_tilde = h^2 / 100 (the
     scheme shrinks spheres at rate 16 tau_tilde / R^5, see README) and the mesh control of
     :class:`~willmore_nlp.WillmoreFlow` (``remesh = "auto"``, the flow's default for surfaces; set
-    ``remesh=off`` or ``mesh_control=off`` for the paper's scheme), and ``adaptive = true``: tau = h is
+    ``remesh=off`` or ``mesh_control=off`` for the paper's scheme), and ``adaptive = true``: tau = h L^3 is
     the largest step, and a step that fails at it continues from the step size that worked (a trimesh
     torus of R/r = 2.5, weight 1, loses a quarter of its energy by t = 0.02; fixed tau = h then fails at step 2,
     whose retries stop at h/16), and ``max_retries = 8``: a raw input can need its first step far below h
@@ -125,7 +135,7 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     with the same warning: the nodes of a tube that coarse drift until the mesh folds (an 18 x 9 grid torus failed at
     step 9; refined to 891 v it ran 40 steps without one).
 
-    The surface step sizes this problem chooses (tau = h, tau_tilde = h^2 / 100; not those given) are those of
+    The surface step sizes this problem chooses (tau = h L^3, tau_tilde = h^2 / 100; not those given) are those of
     the mesh the flow runs on: when ``input_repair`` remeshes the input they follow its mean edge
     (``steps_from_h``; a 128-vertex washer repaired to 1,401 vertices with ``remesh_target = 0.08`` had run with
     tau = 4.8 h and tau_tilde = 0.23 h^2 of its own mesh, and its first step failed 7 times, 462 s).
@@ -158,7 +168,12 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
         options["steps_from_h"] = "both" if len(chosen) == 2 else (chosen[0] if chosen else "none")
     h = mesh.h
     tt_factor = 0.25 if mesh.d == 1 else 0.01
-    return Problem(mesh, h if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
+    if not 0 <= length < math.inf:
+        raise ProblemError(f"problem 'file': length must be a positive number (0: the mesh's own), got {length!r}")
+    check_scale(mesh, warn=False)  # (before L^3 overflows; the flow warns for a tiny one)
+    size = length or length_scale(float(simplex_volumes(mesh.vertices, mesh.simplices).sum()) / components(mesh)[0],
+                                  mesh.d, mesh.is_closed)  # (per component; areas only: a sliver is an error later)
+    return Problem(mesh, h * size**3 if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
                    lam, steps=steps, flow_options=options, description=f"mesh from {path}")
 
 

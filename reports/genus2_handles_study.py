@@ -62,7 +62,7 @@ def run(h: float, steps: int, workdir: Path) -> dict:
     mesh = shapes.double_torus(h=h)
     path = workdir / f"double_torus_h{h:g}.obj"
     trimesh.Trimesh(mesh.vertices, mesh.simplices, process=False).export(path)
-    pb, _ = registry.build("file", path=str(path))
+    pb, _ = registry.build("file", path=str(path), length=1.0)  # (tau = h, as the cached table was made)
     # each resolution as it is (no refinement), with the light repair's 2 passes the table was made with
     flow = pb.make_flow(refine_dihedral=180, remesh_repair=2, rest_dilation=False)  # (the cached table's)
     rows: list[dict[str, float]] = []

@@ -372,7 +372,7 @@ def test_clamped_file_surface_cut_along_a_zigzag_keeps_its_mesh(tmp_path) -> Non
     cut = trimesh.Trimesh(s.vertices, s.faces[keep[s.faces].all(axis=1)])
     cut.remove_unreferenced_vertices()
     cut.export(tmp_path / "cap.obj")
-    pb, _ = registry.build("file", path=str(tmp_path / "cap.obj"), clamp="conormal")
+    pb, _ = registry.build("file", path=str(tmp_path / "cap.obj"), clamp="conormal", length=1.0)  # (tau = h)
     assert pb.flow_options["tangential_weight"] == 100.0 and pb.flow_options["adaptive"]
     out = {}
     for weight, control in ((1.0, "off"), (1.0, "auto"), (100.0, "auto")):

@@ -1,4 +1,7 @@
-"""``convex_start``: the first step of a noisy input below the step problem's convexity limit tau_c."""
+"""``convex_start``: the first step of a noisy input below the step problem's convexity limit tau_c.
+
+The cylinder's and the box's first steps were measured at tau = h (``length = 1``; the ``file`` problem's default
+tau = h L^3 is 0.35 h and 0.27 h on them)."""
 
 from pathlib import Path
 
@@ -96,7 +99,7 @@ def test_a_first_step_that_fails_at_tau_is_retried_below_tau_c(tmp_path) -> None
     tau / 65,536); the adaptive steps then hold it for two steps and double, each taken at its first attempt, W
     falling at every step. With
     ``convex_start = false`` the halvings take it at tau / 8 after 3 retries (measured), as before."""
-    pb, _ = registry.build("file", path=_cylinder(tmp_path))
+    pb, _ = registry.build("file", path=_cylinder(tmp_path), length=1.0)
     flow = pb.make_flow()
     tau = flow.tau
     tau_c = convexity_limit(flow.evaluator, flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, tau))
@@ -134,7 +137,7 @@ def test_the_first_look_before_the_first_attempt_jumps_only_far_below(tmp_path, 
     from willmore_nlp.solvers import reduced
     from willmore_nlp.solvers.reduced import CONVEXITY_FIRST_RESTARTS
 
-    pb, _ = registry.build("file", path=_cylinder(tmp_path))
+    pb, _ = registry.build("file", path=_cylinder(tmp_path), length=1.0)
     flow = pb.make_flow()
     z0, p = flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, flow.tau)
     tau_c = convexity_limit(flow.evaluator, z0, p, CONVEXITY_FIRST_RESTARTS)
@@ -176,7 +179,7 @@ def test_a_first_step_taken_at_tau_over_2_is_unchanged(tmp_path) -> None:
     b = trimesh.creation.box().subdivide().subdivide().subdivide()
     trimesh.smoothing.filter_laplacian(b, iterations=5)
     b.export(tmp_path / "box.obj")
-    pb, _ = registry.build("file", path=str(tmp_path / "box.obj"))
+    pb, _ = registry.build("file", path=str(tmp_path / "box.obj"), length=1.0)
     runs = [pb.make_flow(convex_start=flag) for flag in (True, False)]
     steps = [flow.step() for flow in runs]
     assert [r.retries for r in steps] == [1, 1] and steps[0].tau == runs[0].tau / 2
@@ -188,7 +191,7 @@ def test_a_first_step_taken_at_tau_over_2_is_unchanged(tmp_path) -> None:
 def test_a_run_that_started_below_tau_c_resumes_bit_for_bit(tmp_path, straight_and_resumed) -> None:
     """The cylinder's run of 5 steps straight and cut after 2 then resumed: the same states (the step-size control
     replays the first step's retry from history.csv)."""
-    full, part = straight_and_resumed([_cylinder(tmp_path)], 5, 2, tmp_path)
+    full, part = straight_and_resumed([_cylinder(tmp_path), "--set", "length=1"], 5, 2, tmp_path)
     assert int(full.history[1]["retries"]) == 2 and float(full.history[1]["tau"]) < float(full.history[0]["tau"]) / 1e4
     assert [h["tau"] for h in full.history] == [h["tau"] for h in part.history]
     for ya, yb, sa, sb in zip(full.Y, part.Y, full.states, part.states, strict=True):

@@ -42,8 +42,8 @@ def test_raw_capsule_takes_its_first_step_within_the_file_problems_retries(tmp_p
     ``max_retries = 8`` takes it at h/128 (measured: 7 retries, 16 iterations), and the adaptive steps then grow
     again (back at h by step 19 of a 20-step run). With the default ``input_repair`` the mesh is remeshed before the
     first step (flips and remeshing, 258 -> 241 v, 42.9 deg, the vertices on the input's triangles) and the first
-    step is taken at h without a retry."""
-    pb, _ = registry.build("file", path=_noisy_capsule(tmp_path))
+    step is taken at h without a retry. (Measured at tau = h: ``length = 1``.)"""
+    pb, _ = registry.build("file", path=_noisy_capsule(tmp_path), length=1.0)
     assert pb.flow_options["max_retries"] == 8
     with pytest.raises(FlowError, match="failed after 4 retries"):
         pb.make_flow(max_retries=4, input_repair=False).step()
@@ -68,13 +68,14 @@ def test_closed_file_surface_of_genus_one_gets_the_torus_weight_and_the_gauge(tm
     sphere keeps the paper's 1 and no gauge; the gauge yields to a volume constraint):
     its first step at tau = h fights the scheme's tangential descent with weight 1 (IPOPT cut at the problem's
     30-iteration first-step budget at h, h/2, h/4 and h/8, taken at h/16: measured 4 retries, 120 rejected iterations
-    on this 16x8 grid torus; 400 with the flow's default budget of 100) and is taken at h/4 after 2 with weight 10."""
+    on this 16x8 grid torus; 400 with the flow's default budget of 100) and is taken at h/4 after 2 with weight 10.
+    (Measured at tau = h: ``length = 1``; the default tau = h L^3 is 1.85 h on this torus.)"""
     from willmore_nlp.mesh import shapes
     from willmore_nlp.mesh.io import save_mesh
 
     save_mesh(shapes.torus(1.0, 0.5, 16, 8), tmp_path / "torus.obj")
     save_mesh(shapes.icosphere(1), tmp_path / "sphere.obj")
-    pb, _ = registry.build("file", path=str(tmp_path / "torus.obj"))
+    pb, _ = registry.build("file", path=str(tmp_path / "torus.obj"), length=1.0)
     assert pb.flow_options["tangential_weight"] == 10.0 and pb.flow_options["conformal_gauge"] is True
     sphere_options = registry.build("file", path=str(tmp_path / "sphere.obj"))[0].flow_options
     assert "tangential_weight" not in sphere_options and "conformal_gauge" not in sphere_options
@@ -146,18 +147,19 @@ def test_a_file_torus_run_from_before_the_gauge_default_resumes_without_it(tmp_p
 
 
 def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None:
-    """tau = h and tau_tilde = h^2 / 100, chosen by the ``file`` problem, are those of the mesh the flow runs on
-    (``steps_from_h``): a 128-vertex trimesh washer (square section, 4.7 deg) remeshed by ``input_repair`` toward
-    ``remesh_target = 0.12`` flows with its own h (the measured case, target 0.08, 1,401 v, had run with tau = 4.8 h
-    and tau_tilde = 0.23 h^2 and failed its first step 7 times); a tau given by the user is kept while tau_tilde
-    follows; the floor min_tau is 0.01 h^4 of the repaired mesh; ``WillmoreFlow`` itself keeps what it is given. A
-    CLI run records the step sizes it flows with, resumes bit for bit, and a run written before the option existed
-    resumes with the input's step sizes."""
+    """tau = h L^3 and tau_tilde = h^2 / 100, chosen by the ``file`` problem, are those of the mesh the flow runs on
+    (``steps_from_h``; L, the input's length, stays): a 128-vertex trimesh washer (square section, 4.7 deg) remeshed by
+    ``input_repair`` toward ``remesh_target = 0.12`` flows with its own h (the measured case, target 0.08, 1,401 v, had
+    run with tau = 4.8 h and tau_tilde = 0.23 h^2 and failed its first step 7 times); a tau given by the user is kept
+    while tau_tilde follows; the floor min_tau is 0.01 h^4 of the repaired mesh; ``WillmoreFlow`` itself keeps what it
+    is given. A CLI run records the step sizes it flows with, resumes bit for bit, and a run written before the option
+    existed resumes with the input's step sizes."""
     import json
     import subprocess
     import sys
 
     from willmore_nlp import WillmoreFlow
+    from willmore_nlp.geometry import length_scale, measure
     from willmore_nlp.mesh import Mesh
     from willmore_nlp.rundir import load_run
     from willmore_nlp.runner import stored_control
@@ -166,14 +168,14 @@ def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None
     washer.export(tmp_path / "washer.obj")
     path = str(tmp_path / "washer.obj")
     pb, _ = registry.build("file", path=path)
-    h0 = pb.mesh.h
-    assert pb.tau == h0 and pb.flow_options["steps_from_h"] == "both"
+    h0, L = pb.mesh.h, length_scale(measure(pb.mesh), 2, True)
+    assert pb.tau == pytest.approx(h0 * L**3, rel=1e-12) and pb.flow_options["steps_from_h"] == "both"
     with pytest.warns(UserWarning, match=r"follow the repaired mesh's \(h 0.3825 -> 0.1"):
         flow = pb.make_flow(remesh_target=0.12)
     h = flow.mesh.h
     assert flow.mesh.n_vertices > 3 * pb.mesh.n_vertices and h < 0.4 * h0
-    assert flow.tau == pytest.approx(h, rel=1e-12) and flow.tau_tilde == pytest.approx(h * h / 100, rel=1e-12)
-    assert flow.min_tau == pytest.approx(1e-2 * h**4, rel=1e-12) and flow.relax_max_tau == pytest.approx(100 * h)
+    assert flow.tau == pytest.approx(h * L**3, rel=1e-12) and flow.tau_tilde == pytest.approx(h * h / 100, rel=1e-12)
+    assert flow.min_tau == pytest.approx(1e-2 * h**4, rel=1e-12) and flow.relax_max_tau == pytest.approx(100 * flow.tau)
     given, _ = registry.build("file", path=path, tau=0.05)
     assert given.flow_options["steps_from_h"] == "tau_tilde"
     kept = given.make_flow(remesh_target=0.12)
@@ -183,7 +185,7 @@ def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None
     assert plain.mesh.n_vertices == flow.mesh.n_vertices and (plain.tau, plain.tau_tilde) == (pb.tau, pb.tau_tilde)
     assert stored_control({"effective_flow_options": {}, "input_repair": ""})["steps_from_h"] == "none"
 
-    # the CLI on a noisy capsule (repaired 258 -> 241 v, first steps at h): recorded, and resumed bit for bit
+    # the CLI on a noisy capsule (repaired 258 -> 241 v): recorded, and resumed bit for bit
     cli = [sys.executable, "-m", "willmore_nlp.cli", "run", _noisy_capsule(tmp_path), "--quiet"]
     ref, cut = tmp_path / "ref", tmp_path / "cut"
     for out, steps in ((ref, "2"), (cut, "1")):
@@ -192,9 +194,12 @@ def test_the_file_problems_step_sizes_follow_the_repaired_mesh(tmp_path) -> None
     cfg = json.loads((ref / "config.json").read_text())
     run = load_run(ref)
     h1 = Mesh(run.states[0].vertices, run.states[0].simplices).h  # the repaired initial state's mean edge
-    assert cfg["flow_steps"]["h"] == pytest.approx(h1, rel=1e-12) and cfg["flow_steps"]["tau"] == cfg["flow_steps"]["h"]
+    L = length_scale(measure(registry.build("file", path=_noisy_capsule(tmp_path))[0].mesh), 2, True)
+    assert cfg["flow_steps"]["h"] == pytest.approx(h1, rel=1e-12)
+    assert cfg["flow_steps"]["tau"] == pytest.approx(h1 * L**3, rel=1e-12)
     assert cfg["tau"] != cfg["flow_steps"]["tau"]  # the problem's (the input's h), kept for the resume check
-    assert [float(r["tau"]) for r in run.history[1:]] == [cfg["flow_steps"]["tau"]] * 2
+    first = run.history[1]  # (measured: one retry at this tau, 0.35 h)
+    assert float(first["tau"]) * 2 ** int(first["retries"]) == cfg["flow_steps"]["tau"]
     _resume_equals(cut, ref)
 
 
@@ -371,3 +376,67 @@ def test_a_coarse_torus_is_refined_by_its_tube_radius(tmp_path) -> None:
         energies.append(flow.step().energy)
         assert min_angles(flow.X, flow.mesh.simplices).min() > 25
     assert np.all(np.diff(energies) < 0)
+
+
+@pytest.mark.parametrize("kind", ["surface", "curve"])
+def test_a_mesh_file_flows_the_same_in_any_unit(tmp_path, kind) -> None:
+    """Willmore flow is scale covariant (X -> s X takes t -> s^4 t), and so are the ``file`` problem's steps: the same
+    ellipsoid (162 v, IPOPT) or ellipse (40 v) written in metres and in centimetres (s = 100) or decimetres (s = 10)
+    flows through the same shapes step for step, its times s^4 apart. tau = h L^3 (L the radius of the sphere of the
+    surface's area, of the circle of the curve's length) is h for a unit sphere. With tau = h in every unit (before
+    2026-11-29, night; measured on the 642-v ellipsoid 1:1:2, 20 steps with the defaults) the ellipsoid scaled by 100
+    had hardly moved (W 30.63 -> 30.63, where the unit one had become a sphere, 24.97), and the one scaled by 0.01
+    took its first step at 6e-8 of its tau after 2 retries."""
+    from willmore_nlp.geometry import length_scale, measure, willmore_energy
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.mesh.io import save_mesh
+
+    # L: 1 for the unit sphere, disk and circle and the segment [-1, 1]
+    assert [length_scale(a, d, c) for a, d, c in ((4 * np.pi, 2, True), (np.pi, 2, False), (2 * np.pi, 1, True),
+                                                   (2.0, 1, False))] == pytest.approx([1.0] * 4, rel=1e-15)
+    base = shapes.icosphere(2) if kind == "surface" else shapes.ellipse(40)
+    V = base.vertices * ([1.0, 1.0, 2.0] if kind == "surface" else [1.0, 1.0])
+    scales = (1.0, 100.0) if kind == "surface" else (1.0, 10.0)
+    ext = "obj" if kind == "surface" else "txt"
+    runs = []
+    for s in scales:
+        save_mesh(base.with_vertices(s * V), tmp_path / f"m{s:g}.{ext}")
+        pb, _ = registry.build("file", path=str(tmp_path / f"m{s:g}.{ext}"))
+        L = length_scale(measure(pb.mesh), pb.mesh.d, True)
+        assert pb.tau == pytest.approx(pb.mesh.h * L**3, rel=1e-12)
+        flow = pb.make_flow(solver="ipopt") if kind == "surface" else pb.make_flow()
+        runs.append((s, pb, flow.run(steps=3)))
+    (_, pb1, r1), (s, pbs, rs) = runs
+    assert pbs.tau / pb1.tau == pytest.approx(s**4, rel=1e-9)
+    for a, b in zip(r1, rs, strict=True):
+        assert b.t == pytest.approx(s**4 * a.t, rel=1e-9) and b.retries == a.retries
+        # (the Willmore energy of a surface is scale invariant, that of a curve scales as 1/s)
+        assert b.willmore * (s if kind == "curve" else 1.0) == pytest.approx(a.willmore, rel=1e-8)
+        np.testing.assert_allclose(b.vertices / s, a.vertices, rtol=0, atol=1e-7 * pb1.mesh.h)
+    assert abs(r1[-1].willmore / willmore_energy(pb1.mesh) - 1) > 0.03  # the flow moved: not a frozen start
+
+
+def test_a_run_written_before_the_length_parameter_resumes_with_tau_h(tmp_path) -> None:
+    """Run directories of the ``file`` problem written before ``length`` existed (their ``params`` list every
+    parameter of their time, without it) ran with tau = h: they resume with ``length = 1`` (the registry entry's
+    ``before``), bit for bit, where the default tau = h L^3 would refuse them (tau differs)."""
+    import json
+    import subprocess
+    import sys
+
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.mesh.io import save_mesh
+
+    base = shapes.icosphere(2)
+    save_mesh(base.with_vertices(base.vertices * [1.0, 1.0, 2.0]), tmp_path / "ell.obj")
+    assert registry.get("file").before == {"length": 1.0}
+    cli = [sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "ell.obj"), "--set", "length=1", "--quiet"]
+    ref, cut = tmp_path / "ref", tmp_path / "cut"
+    for out, steps in ((ref, "2"), (cut, "1")):
+        r = subprocess.run([*cli, "--steps", steps, "--out", str(out)], capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+    cfg = json.loads((cut / "config.json").read_text())
+    assert cfg["params"].pop("length") == 1.0 and cfg["tau"] == registry.build("file", path=str(tmp_path / "ell.obj"),
+                                                                                length=1.0)[0].mesh.h
+    (cut / "config.json").write_text(json.dumps(cfg))  # as written before the parameter
+    _resume_equals(cut, ref)

@@ -129,7 +129,7 @@ def test_the_error_line_names_the_cause_when_the_step_size_floor_ends_a_step(tmp
     save_mesh(mesh, tmp_path / "ell.obj")
     r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "ell.obj"), "--out",
                         str(tmp_path / "out"), "--steps", "1", "--quiet", "--set", "max_dihedral=12", "--set",
-                        f"min_tau={0.3 * mesh.h}"], capture_output=True, text=True, timeout=600)
+                        f"min_tau={0.3 * mesh.h}", "--set", "length=1"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 1 and "Traceback" not in r.stderr
     line = r.stderr.strip().splitlines()[-1]
     assert "failed after 3 attempts (last: tau=" in line and ": step size below min_tau = " in line

@@ -45,7 +45,8 @@ def test_a_run_that_ends_below_the_bound_says_the_mesh_is_too_coarse(tmp_path) -
     save_mesh(shapes.torus(1.0, 0.5, 12, 6), tmp_path / "t12.obj")
     out = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "t12.obj"), "--steps", "3",
-                        "--set", "input_repair=false", "--set", "remesh_repair=2", "--out", str(out), "--quiet"],
+                        "--set", "input_repair=false", "--set", "remesh_repair=2", "--set", "length=1",
+                        "--out", str(out), "--quiet"],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     run = load_run(out)

@@ -459,13 +459,13 @@ def test_input_repair_remeshes_a_poor_input_on_its_own_polyhedron() -> None:
 
 
 def test_a_remesh_target_sets_the_resolution_of_any_input(tmp_path) -> None:
-    """``remesh_target`` more than 10 % (``TARGET_CHANGE``) away from the input's equilateral edge remeshes even a
-    good input before the first step, as the end-of-run resolution warning advises (before, a good input kept its
-    resolution whatever the target: a 1,297-vertex genus-2 level set ran with its own 1,297 vertices): a 642-vertex
-    icosphere read by the ``file`` problem with half its edge as the target flows on about four times the vertices,
-    every new vertex on the input's triangles, with tau = h of the finer mesh; a target within 10 % of its edge and
-    ``input_repair = false`` leave it as given. A run directory whose repair did nothing resumes without it (its
-    record says so), one whose repair acted redoes it."""
+    """``remesh_target`` more than 10 % (``TARGET_CHANGE``) away from the input's equilateral edge remeshes even a good
+    input before the first step, as the end-of-run resolution warning advises (before, a good input kept its resolution
+    whatever the target: a 1,297-vertex genus-2 level set ran with its own 1,297 vertices): a 642-vertex icosphere read
+    by the ``file`` problem with half its edge as the target flows on about four times the vertices, every new vertex on
+    the input's triangles, with tau = h L^3 of the finer mesh (L the input's); a target within 10 % of its edge and
+    ``input_repair = false`` leave it as given. A run directory whose repair did nothing resumes without it (its record
+    says so), one whose repair acted redoes it."""
     from willmore_nlp.flow import TARGET_CHANGE
     from willmore_nlp.mesh.io import save_mesh
     from willmore_nlp.runner import stored_control
@@ -481,7 +481,8 @@ def test_a_remesh_target_sets_the_resolution_of_any_input(tmp_path) -> None:
     face, bary = rm.closest_on_mesh(m.vertices, pb.mesh.vertices, pb.mesh.simplices)
     on = np.einsum("ij,ijk->ik", bary, pb.mesh.vertices[pb.mesh.simplices[face]])
     assert np.abs(on - m.vertices).max() < 1e-12
-    assert flow.tau == pytest.approx(m.h, rel=1e-12) and m.h < 0.6 * pb.mesh.h
+    assert flow.tau == pytest.approx(m.h / pb.mesh.h * pb.tau, rel=1e-12) and m.h < 0.6 * pb.mesh.h
+    assert pb.tau == pytest.approx(pb.mesh.h * geometry.measure(pb.mesh) ** 1.5 / (4 * np.pi) ** 1.5, rel=1e-12)
     near, off = {"remesh_target": (1 + TARGET_CHANGE / 2) * edge}, {"remesh_target": edge / 2, "input_repair": False}
     for options in (near, off):
         assert pb.make_flow(**options).mesh.n_vertices == 642

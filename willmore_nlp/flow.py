@@ -292,14 +292,15 @@ class StepResult:
         return r
 
 
-def _check_scale(mesh: Mesh) -> None:
-    """Refuse an initial mesh too wide for the solvers' absolute tolerances (MeshError); warn when it is tiny."""
+def check_scale(mesh: Mesh, warn: bool = True) -> None:
+    """Refuse an initial mesh too wide for the solvers' absolute tolerances (MeshError); warn when it is tiny (with
+    ``warn``)."""
     size = float(np.ptp(mesh.vertices, axis=0).max())
     if size > MAX_MESH_SIZE:
         raise MeshError(f"{mesh.source}: the mesh is {size:.3g} wide, beyond {MAX_MESH_SIZE:g} where the solver's "
                         f"absolute tolerances fail; rescale it to a size about 1 (Willmore flow is scale invariant: "
                         f"X -> X/L takes t -> t/L^4)")
-    if size < SMALL_MESH_SIZE:
+    if warn and size < SMALL_MESH_SIZE:
         warnings.warn(f"{mesh.source}: the mesh is only {size:.3g} wide: IPOPT's absolute tolerance (tol) is then met "
                       f"by steps that barely move; rescale it to a size about 1 (X -> X/L takes t -> t/L^4)",
                       stacklevel=3)
@@ -440,7 +441,7 @@ class WillmoreFlow:
             from willmore_nlp.mesh.topology import check_connected
 
             check_connected(mesh, "set allow_components=true to flow them together")
-        _check_scale(mesh)
+        check_scale(mesh)
         self.mesh = mesh
         self.tau, self.tau_tilde, self.lam = tau, tau_tilde, lam
         t0 = time.perf_counter()
@@ -1334,7 +1335,7 @@ class WillmoreFlow:
         tau = h: the drift's own distortion of the mesh changed W by 5e-5 per step, above ``rest_tol``, for 24
         steps while the volume fell to 42 %). Y[X] is solved again for the new tau_tilde.
         """
-        L4 = (area / (4 * np.pi)) ** 2
+        L4 = geometry.length_scale(area, 2, True) ** 4
         still = (retries == 0 and tau >= self.tau
                  and (drift or abs(w - self._rest_w) <= self.settings.rest_tol * tau / L4 * abs(w)))
         self._rest_w = w

@@ -98,7 +98,7 @@ def conformal_fit(mesh0: Mesh, X1: np.ndarray) -> tuple[np.ndarray, float, np.nd
     n = vertex_normals(mesh0)
     m = lumped_mass(X0, mesh0.simplices)
     centre = X0.mean(axis=0)
-    scale = float(np.sqrt(measure(mesh0) / (4 * np.pi)))
+    scale = length_scale(measure(mesh0), 2, True)
     y = (X0 - centre) / scale
     yn = np.einsum("ij,ij->i", y, n)
     y2 = np.einsum("ij,ij->i", y, y)
@@ -190,6 +190,32 @@ def measure(mesh: Mesh, vertices: np.ndarray | None = None) -> float:
     V = mesh.vertices if vertices is None else vertices
     vol, _ = element_geometry(V, mesh.simplices)
     return float(vol.sum())
+
+
+def length_scale(size: float, d: int, closed: bool) -> float:
+    """The length L of a curve or surface of total length or area ``size``, for which Willmore flow's time scales as
+    L^4 (X -> s X takes t -> s^4 t, the energy of a surface being scale invariant and that of a curve scaling as 1/s).
+
+    The radius of the sphere (a closed surface, ``d = 2``) or the disk (an open one) of that area, of the circle (a
+    closed curve, ``d = 1``) of that length, or half the length of an open curve: 1 for the unit sphere, disk and
+    circle and for the segment [-1, 1].
+
+    Parameters
+    ----------
+    size : float
+        Total area (surfaces) or length (curves), :func:`measure`.
+    d : int
+        1 for curves, 2 for surfaces.
+    closed : bool
+        Whether the mesh has no boundary.
+
+    Returns
+    -------
+    float
+    """
+    if d == 2:
+        return float(np.sqrt(size / (4 * np.pi if closed else np.pi)))
+    return size / (2 * np.pi) if closed else size / 2
 
 
 def enclosed_volume(mesh: Mesh) -> float:

@@ -102,12 +102,15 @@ class Problem:
 
 @dataclass(frozen=True)
 class Entry:
-    """A registered factory with its name, module and one-line description."""
+    """A registered factory with its name, module and one-line description; ``before``: the values of parameters
+    added since, with which a configuration written before them (whose ``params`` list every parameter of its
+    time, :func:`build`) ran (:func:`~willmore_nlp.runner.spec_from_config`)."""
 
     name: str
     factory: Callable[..., Problem]
     module: str
     description: str
+    before: dict[str, Any] = field(default_factory=dict)
 
     def defaults(self) -> dict[str, Any]:
         """The factory's keyword parameters and their defaults."""
@@ -121,14 +124,16 @@ class Entry:
 _REGISTRY: dict[str, Entry] = {}
 
 
-def register(name: str) -> Callable[[Callable[..., Problem]], Callable[..., Problem]]:
-    """Decorator registering a problem factory under ``name`` (first docstring line = description)."""
+def register(name: str, before: dict[str, Any] | None = None) -> Callable[[Callable[..., Problem]],
+                                                                          Callable[..., Problem]]:
+    """Decorator registering a problem factory under ``name`` (first docstring line = description; ``before``:
+    :attr:`Entry.before`)."""
 
     def deco(factory: Callable[..., Problem]) -> Callable[..., Problem]:
         if name in _REGISTRY and _REGISTRY[name].factory is not factory:
             raise ProblemError(f"problem {name!r} is registered twice ({_REGISTRY[name].module}, {factory.__module__})")
         doc = (inspect.getdoc(factory) or "").strip().splitlines()
-        _REGISTRY[name] = Entry(name, factory, factory.__module__, doc[0] if doc else "")
+        _REGISTRY[name] = Entry(name, factory, factory.__module__, doc[0] if doc else "", dict(before or {}))
         return factory
 
     return deco

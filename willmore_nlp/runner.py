@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from willmore_nlp import registry
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
 from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS
 from willmore_nlp.flow import (
@@ -383,7 +384,9 @@ def spec_from_config(cfg: dict[str, Any], where: str, run_dir: Path | None = Non
     for k in ("problem", "params"):
         if k not in cfg:
             raise RunError(f"{where}: no {k!r} entry")
-    overrides = {**cfg["params"], **cfg.get("flow_options", {})}
+    entry = registry.load_all().get(str(cfg["problem"]))  # (an unknown name: resolve's error)
+    before = {} if entry is None else {k: v for k, v in entry.before.items() if k not in cfg["params"]}
+    overrides = {**before, **cfg["params"], **cfg.get("flow_options", {})}
     if run_dir is not None and cfg["problem"] == "file":
         overrides["path"] = str(Path(run_dir).resolve() / "mesh.npz")
     with _chdir(cfg.get("cwd")):
