@@ -6,7 +6,7 @@ import math
 import warnings
 
 from willmore_nlp.boundary import VARIANTS, Boundary
-from willmore_nlp.flow import REPAIR_PASSES_HANDLES, check_scale
+from willmore_nlp.flow import REPAIR_PASSES_HANDLES, SMALL_MESH_SIZE, check_scale
 from willmore_nlp.geometry import enclosed_volume, length_scale
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import load_mesh
@@ -83,7 +83,10 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     for a mesh written in other units (measured, 642-v ellipsoid 1:1:2, 20 steps: scaled by 100 it hardly moved, W 30.63
     -> 30.63 where the unit one became a sphere, 24.97; scaled by 0.01 its first step was taken at 6e-8 of its tau after
     2 retries; with tau = h L^3 the three flows agree step for step, W to 1e-9). ``length = 1`` is tau = h in the file's
-    units, this problem's default before 2026-11-29 (night), at which the measurements quoted below were taken.
+    units, this problem's default before 2026-11-29 (night), at which the measurements quoted below were taken. A
+surface narrower than :data:`~willmore_nlp.flow.SMALL_MESH_SIZE` gets ``solver = "newton-krylov"`` alone: IPOPT's
+absolute ``tol`` is met there by steps that do not move (a 162-v ellipsoid 4e-5 wide: 0 iterations), newton-krylov's
+tolerance is relative (the same steps as at unit size, W to 1e-9).
 
     Surfaces get the surface defaults of the other surface problems: tau_tilde = h^2 / 100 (the
     scheme shrinks spheres at rate 16 tau_tilde / R^5, see README) and the mesh control of
@@ -145,6 +148,7 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     if clamp and clamp not in VARIANTS:
         raise ProblemError(f"problem 'file': clamp must be one of {', '.join(VARIANTS)} (or empty), got {clamp!r}")
     mesh = load_mesh(path)
+    width = check_scale(mesh, warn=False)  # (a mesh too wide is refused before L^3 can overflow; the flow warns)
     options: dict[str, object] = ({"adaptive": True, "max_retries": 8, "first_step_budget": FIRST_STEP_BUDGET}
                                   if mesh.d == 2 else {})
     chi = euler_characteristic(mesh.simplices) if mesh.d == 2 else None
@@ -159,7 +163,9 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
         options.update(tangential_weight=10.0, conformal_gauge=True, remesh_repair=REPAIR_PASSES_HANDLES)
     if chi is not None and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several: the flow's error)
         _refine_if_coarse(mesh, chi, options, path)
-    if mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
+    if mesh.d == 2 and width < SMALL_MESH_SIZE:  # (IPOPT's absolute tol: steps that barely move; newton-krylov's is
+        options.update(solver="newton-krylov")  # relative: the same steps at any scale)
+    elif mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
         options.update(solver="newton-krylov", fallback_solver="ipopt")
     elif mesh.d == 2:  # (from the refined input's first step, or a refinement's next step, on)
         options.update(large_solver="newton-krylov", large_vertices=NEWTON_KRYLOV_FROM)
@@ -170,7 +176,6 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     tt_factor = 0.25 if mesh.d == 1 else 0.01
     if not 0 <= length < math.inf:
         raise ProblemError(f"problem 'file': length must be a positive number (0: the mesh's own), got {length!r}")
-    check_scale(mesh, warn=False)  # (before L^3 overflows; the flow warns for a tiny one)
     size = length or length_scale(float(simplex_volumes(mesh.vertices, mesh.simplices).sum()) / components(mesh)[0],
                                   mesh.d, mesh.is_closed)  # (per component; areas only: a sliver is an error later)
     return Problem(mesh, h * size**3 if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,

@@ -439,3 +439,39 @@ def test_a_run_written_before_the_length_parameter_resumes_with_tau_h(tmp_path) 
                                                                                 length=1.0)[0].mesh.h
     (cut / "config.json").write_text(json.dumps(cfg))  # as written before the parameter
     _resume_equals(cut, ref)
+
+
+def test_a_tiny_surface_file_flows_with_newton_krylov(tmp_path) -> None:
+    """A surface narrower than ``SMALL_MESH_SIZE`` (the 162-v ellipsoid in metres of a 10-micrometre shape, 4e-5
+    wide) gets newton-krylov alone, whose tolerance is relative, and no warning: its steps repeat the unit-size
+    ones (W to 1e-9, vertices to 1e-6 h). IPOPT's absolute ``tol`` is met there at the start point: it takes 0
+    iterations and the surface does not move (measured: W 29.87 after 6 such steps), so with it the flow warns."""
+    import warnings
+
+    from willmore_nlp.flow import SMALL_MESH_SIZE
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.mesh.io import save_mesh
+
+    base = shapes.icosphere(2)
+    V = base.vertices * [1.0, 1.0, 2.0]
+    runs = []
+    for s in (1.0, 1e-5):
+        save_mesh(base.with_vertices(s * V), tmp_path / f"e{s:g}.npz")
+        pb, _ = registry.build("file", path=str(tmp_path / f"e{s:g}.npz"))
+        runs.append((s, pb))
+    (_, unit), (s, tiny) = runs
+    assert float(np.ptp(tiny.mesh.vertices, axis=0).max()) < SMALL_MESH_SIZE
+    assert tiny.flow_options["solver"] == "newton-krylov" and "fallback_solver" not in tiny.flow_options
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        flow = tiny.make_flow()
+    ref = unit.make_flow(solver="newton-krylov", large_solver="")
+    for _ in range(3):
+        a, b = ref.step(), flow.step()
+        assert b.retries == a.retries == 0 and b.willmore == pytest.approx(a.willmore, rel=1e-9)
+        np.testing.assert_allclose(b.vertices / s, a.vertices, rtol=0, atol=1e-6 * unit.mesh.h)
+    with pytest.warns(UserWarning, match="absolute tolerance"):
+        ipopt = tiny.make_flow(solver="ipopt")
+    w0 = ipopt.discrete_energy(ipopt.X)
+    first = ipopt.step()
+    assert first.iterations == 0 and first.energy == pytest.approx(w0, rel=1e-12)

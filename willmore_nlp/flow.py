@@ -292,9 +292,10 @@ class StepResult:
         return r
 
 
-def check_scale(mesh: Mesh, warn: bool = True) -> None:
+def check_scale(mesh: Mesh, warn: bool = True) -> float:
     """Refuse an initial mesh too wide for the solvers' absolute tolerances (MeshError); warn when it is tiny (with
-    ``warn``)."""
+    ``warn``: a solver other than newton-krylov may run). Returns its width (the largest extent of its bounding box).
+    """
     size = float(np.ptp(mesh.vertices, axis=0).max())
     if size > MAX_MESH_SIZE:
         raise MeshError(f"{mesh.source}: the mesh is {size:.3g} wide, beyond {MAX_MESH_SIZE:g} where the solver's "
@@ -302,8 +303,9 @@ def check_scale(mesh: Mesh, warn: bool = True) -> None:
                         f"X -> X/L takes t -> t/L^4)")
     if warn and size < SMALL_MESH_SIZE:
         warnings.warn(f"{mesh.source}: the mesh is only {size:.3g} wide: IPOPT's absolute tolerance (tol) is then met "
-                      f"by steps that barely move; rescale it to a size about 1 (X -> X/L takes t -> t/L^4)",
-                      stacklevel=3)
+                      f"by steps that barely move; rescale it to a size about 1 (X -> X/L takes t -> t/L^4) or set "
+                      f"solver=newton-krylov (its tolerance is relative)", stacklevel=3)
+    return size
 
 
 def _check_quality(mesh: Mesh, min_angle: float, max_edge_ratio: float, repaired: str) -> None:
@@ -441,7 +443,7 @@ class WillmoreFlow:
             from willmore_nlp.mesh.topology import check_connected
 
             check_connected(mesh, "set allow_components=true to flow them together")
-        check_scale(mesh)
+        check_scale(mesh, warn=self._solver_names() != {"newton-krylov"})
         self.mesh = mesh
         self.tau, self.tau_tilde, self.lam = tau, tau_tilde, lam
         t0 = time.perf_counter()
