@@ -449,6 +449,7 @@ def test_a_tiny_surface_file_flows_with_newton_krylov(tmp_path) -> None:
     import warnings
 
     from willmore_nlp.flow import SMALL_MESH_SIZE
+    from willmore_nlp.geometry import enclosed_volume, measure
     from willmore_nlp.mesh import shapes
     from willmore_nlp.mesh.io import save_mesh
 
@@ -470,6 +471,15 @@ def test_a_tiny_surface_file_flows_with_newton_krylov(tmp_path) -> None:
         a, b = ref.step(), flow.step()
         assert b.retries == a.retries == 0 and b.willmore == pytest.approx(a.willmore, rel=1e-9)
         np.testing.assert_allclose(b.vertices / s, a.vertices, rtol=0, atol=1e-6 * unit.mesh.h)
+    # with volume and area constraints (before, newton-krylov pulled onto them to 1e-13 absolute: every attempt of
+    # step 1 ended 1.3e-6 off the volume at this size and was rejected)
+    kw = {"volume": "initial", "area": "initial"}
+    ref, flow = unit.make_flow(solver="newton-krylov", large_solver="", **kw), tiny.make_flow(**kw)
+    for _ in range(2):
+        a, b = ref.step(), flow.step()
+        assert b.retries == a.retries and b.willmore == pytest.approx(a.willmore, rel=1e-9)
+        assert abs(b.volume / enclosed_volume(tiny.mesh) - 1) < 1e-10
+        assert abs(b.measure / measure(tiny.mesh) - 1) < 1e-10
     with pytest.warns(UserWarning, match="absolute tolerance"):
         ipopt = tiny.make_flow(solver="ipopt")
     w0 = ipopt.discrete_energy(ipopt.X)

@@ -150,9 +150,9 @@ class ReducedSolver:
         if not self.P.nh:
             return pt
         P = self.P
-        htol = 1e-13 * max(1.0, *(abs(P.params.scalar(p, t)) for t in P.targets))
+        htol = 1e-13 * np.abs([P.params.scalar(p, t) for t in P.targets])  # (relative, each: the flow's test)
         for _ in range(30):
-            if np.abs(pt.h).max() <= htol:
+            if np.all(np.abs(pt.h) <= htol):
                 return pt
             pt = self._at(pt.x - pt.C.T @ np.linalg.solve(pt.C @ pt.C.T, pt.h), p, Y0)
             self._count("n_restoration")
