@@ -41,7 +41,9 @@ def test_installed_packages_are_every_package_of_the_source() -> None:
     """pyproject.toml lists the packages (the mapping of problems/ needs an explicit list): none may be missing."""
     tool = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
     source = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "willmore_nlp").rglob("__init__.py")}
-    assert set(tool["packages"]) == source | {"willmore_nlp._problems"}
+    data = {k for k in tool["package-data"] if k not in source}  # data folders (no __init__.py), listed as packages
+    assert all((ROOT / Path(*k.split("."))).is_dir() for k in data) and "willmore_nlp.mesh.data" in data
+    assert set(tool["packages"]) == source | {"willmore_nlp._problems"} | data
     assert tool["package-dir"] == {"willmore_nlp._problems": "problems"}
     assert (ROOT / "problems" / "__init__.py").is_file()
 
