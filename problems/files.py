@@ -84,9 +84,9 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     -> 30.63 where the unit one became a sphere, 24.97; scaled by 0.01 its first step was taken at 6e-8 of its tau after
     2 retries; with tau = h L^3 the three flows agree step for step, W to 1e-9). ``length = 1`` is tau = h in the file's
     units, this problem's default before 2026-11-29 (night), at which the measurements quoted below were taken. A
-surface narrower than :data:`~willmore_nlp.flow.SMALL_MESH_SIZE` gets ``solver = "newton-krylov"`` alone: IPOPT's
-absolute ``tol`` is met there by steps that do not move (a 162-v ellipsoid 4e-5 wide: 0 iterations), newton-krylov's
-tolerance is relative (the same steps as at unit size, W to 1e-9).
+    surface narrower than :data:`~willmore_nlp.flow.SMALL_MESH_SIZE` gets ``solver = "newton-krylov"`` alone: IPOPT's
+    absolute ``tol`` is met there by steps that do not move (a 162-v ellipsoid 4e-5 wide: 0 iterations),
+    newton-krylov's tolerance is relative (the same steps as at unit size, W to 1e-9).
 
     Surfaces get the surface defaults of the other surface problems: tau_tilde = h^2 / 100 (the
     scheme shrinks spheres at rate 16 tau_tilde / R^5, see README) and the mesh control of
@@ -147,8 +147,11 @@ tolerance is relative (the same steps as at unit size, W to 1e-9).
         raise ProblemError("problem 'file' needs path=... (a mesh file)")
     if clamp and clamp not in VARIANTS:
         raise ProblemError(f"problem 'file': clamp must be one of {', '.join(VARIANTS)} (or empty), got {clamp!r}")
+    if not 0 <= length < math.inf:
+        raise ProblemError(f"problem 'file': length must be a positive number (0: the mesh's own), got {length!r}")
     mesh = load_mesh(path)
     width = check_scale(mesh, warn=False)  # (a mesh too wide is refused before L^3 can overflow; the flow warns)
+    parts = components(mesh)[0]
     options: dict[str, object] = ({"adaptive": True, "max_retries": 8, "first_step_budget": FIRST_STEP_BUDGET}
                                   if mesh.d == 2 else {})
     chi = euler_characteristic(mesh.simplices) if mesh.d == 2 else None
@@ -161,7 +164,7 @@ tolerance is relative (the same steps as at unit size, W to 1e-9).
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
     elif chi is not None and chi <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True, remesh_repair=REPAIR_PASSES_HANDLES)
-    if chi is not None and mesh.m == 3 and not clamp and components(mesh)[0] == 1:  # (several: the flow's error)
+    if chi is not None and mesh.m == 3 and not clamp and parts == 1:  # (several: the flow's error)
         _refine_if_coarse(mesh, chi, options, path)
     if mesh.d == 2 and width < SMALL_MESH_SIZE:  # (IPOPT's absolute tol: steps that barely move; newton-krylov's is
         options.update(solver="newton-krylov")  # relative: the same steps at any scale)
@@ -174,10 +177,8 @@ tolerance is relative (the same steps as at unit size, W to 1e-9).
         options["steps_from_h"] = "both" if len(chosen) == 2 else (chosen[0] if chosen else "none")
     h = mesh.h
     tt_factor = 0.25 if mesh.d == 1 else 0.01
-    if not 0 <= length < math.inf:
-        raise ProblemError(f"problem 'file': length must be a positive number (0: the mesh's own), got {length!r}")
-    size = length or length_scale(float(simplex_volumes(mesh.vertices, mesh.simplices).sum()) / components(mesh)[0],
-                                  mesh.d, mesh.is_closed)  # (per component; areas only: a sliver is an error later)
+    size = length or length_scale(float(simplex_volumes(mesh.vertices, mesh.simplices).sum()) / parts, mesh.d,
+                                  mesh.is_closed)  # (per component; areas only: a sliver is an error later)
     return Problem(mesh, h * size**3 if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
                    lam, steps=steps, flow_options=options, description=f"mesh from {path}")
 
@@ -188,7 +189,7 @@ def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: st
     h = equilateral_edge(mesh.vertices, mesh.simplices)  # (areas only: a sliver is an error later)
     area = math.sqrt(3) / 4 * h * h * len(mesh.simplices)
     if chi == 2:
-        size, limit, target = math.sqrt(area / (4 * math.pi)), COARSE_SIZE, COARSE_TARGET
+        size, limit, target = length_scale(area, 2, True), COARSE_SIZE, COARSE_TARGET
         what, why = "sqrt(area / 4 pi)", "the scheme's shrinkage of order tau_tilde collapses surfaces that coarse"
     else:
         size, limit, target = 2 * abs(enclosed_volume(mesh)) / area, COARSE_TUBE, COARSE_TUBE_TARGET
