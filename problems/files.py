@@ -84,9 +84,10 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     -> 30.63 where the unit one became a sphere, 24.97; scaled by 0.01 its first step was taken at 6e-8 of its tau after
     2 retries; with tau = h L^3 the three flows agree step for step, W to 1e-9). ``length = 1`` is tau = h in the file's
     units, this problem's default before 2026-11-29 (night), at which the measurements quoted below were taken. A
-    surface narrower than :data:`~willmore_nlp.flow.SMALL_MESH_SIZE` gets ``solver = "newton-krylov"`` alone: IPOPT's
-    absolute ``tol`` is met there by steps that do not move (a 162-v ellipsoid 4e-5 wide: 0 iterations),
-    newton-krylov's tolerance is relative (the same steps as at unit size, W to 1e-9).
+    curve or surface narrower than :data:`~willmore_nlp.flow.SMALL_MESH_SIZE` gets ``solver = "newton-krylov"`` alone:
+    IPOPT's absolute ``tol`` is met there by steps that do not move (a 162-v ellipsoid 4e-5 wide: 0 iterations),
+    newton-krylov's tolerance is relative (the same steps as at unit size, W to 1e-9; a 40-gon ellipse 4e-5 wide,
+    closed or clamped: W to 1e-11).
 
     Surfaces get the surface defaults of the other surface problems: tau_tilde = h^2 / 100 (the
     scheme shrinks spheres at rate 16 tau_tilde / R^5, see README) and the mesh control of
@@ -166,8 +167,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
         options.update(tangential_weight=10.0, conformal_gauge=True, remesh_repair=REPAIR_PASSES_HANDLES)
     if chi is not None and mesh.m == 3 and not clamp and parts == 1:  # (several: the flow's error)
         _refine_if_coarse(mesh, chi, options, path)
-    if mesh.d == 2 and width < SMALL_MESH_SIZE:  # (IPOPT's absolute tol: steps that barely move; newton-krylov's is
-        options.update(solver="newton-krylov")  # relative: the same steps at any scale)
+    if width < SMALL_MESH_SIZE:  # (IPOPT's absolute tol: steps that barely move; newton-krylov's is relative: the
+        options.update(solver="newton-krylov")  # same steps at any scale)
     elif mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
         options.update(solver="newton-krylov", fallback_solver="ipopt")
     elif mesh.d == 2:  # (from the refined input's first step, or a refinement's next step, on)

@@ -178,3 +178,32 @@ def test_problem_parameters_read_like_options() -> None:
     assert pb.flow_options["redistribute"] is False
     with pytest.raises(UserInputError, match=r"n must be an integer, got '6\.5'"):
         registry.check_params("bunny", {"n": "6.5"})
+
+
+def test_api_misuse_is_one_clear_error_and_numpy_scalars_are_numbers() -> None:
+    """Found by trying the API as a new user (2026-11-30): ``run(t_end=nan)`` stepped forever (t_end - t is nan, which
+    no stopping test meets), ``run(t_end=-1)`` / ``run(steps=-1)`` returned nothing silently and ``steps=2.5`` ran 3
+    steps, an array in place of a Mesh failed five frames deep with an AttributeError, complex vertices lost their
+    imaginary parts with only numpy's warning, and ``tau=np.float32(0.01)`` was refused as not a number."""
+    import numpy as np
+
+    from willmore_nlp.mesh import Mesh, MeshError
+
+    polygon = shapes.regular_polygon(16)
+    flow = WillmoreFlow(polygon, np.float32(0.01), np.float64(1e-3))
+    assert flow.tau == pytest.approx(0.01)
+    for kwargs, text in [({"t_end": float("nan")}, "t_end must be a finite time >= 0, got nan"),
+                         ({"t_end": float("inf")}, "t_end must be"), ({"t_end": -1.0}, "t_end must be"),
+                         ({"steps": -1}, "steps must be an integer >= 0, got -1"), ({"steps": 2.5}, "got 2.5"),
+                         ({}, "run needs t_end or steps")]:
+        with pytest.raises(UserInputError, match=re.escape(text)):
+            flow.run(**kwargs)
+    assert flow.k == 0
+    assert len(flow.run(steps=np.int64(2))) == 2 and len(flow.run(steps=0)) == 0
+    assert len(flow.run(t_end=np.float32(0.03))) == 1 and flow.t == pytest.approx(0.03)
+    with pytest.raises(UserInputError, match="mesh must be a willmore_nlp.mesh.Mesh .*got ndarray"):
+        WillmoreFlow(np.zeros((16, 2)), 0.01, 1e-3)
+    with pytest.raises(MeshError, match="vertices are complex numbers"):
+        Mesh(polygon.vertices + 5j * polygon.vertices, polygon.simplices)
+    with pytest.raises(UserInputError, match="tau must be a number > 0"):
+        WillmoreFlow(polygon, np.bool_(True), 1e-3)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import warnings
 from collections.abc import Callable, Collection
@@ -20,7 +21,7 @@ from willmore_nlp.mesh.topology import edge_triangles
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
-from willmore_nlp.settings import FlowSettings, check_run_value, moebius_invariant
+from willmore_nlp.settings import FlowSettings, check_run_value, is_number, moebius_invariant
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
 from willmore_nlp.tangential import TangentialControl, resolve_method
 
@@ -436,6 +437,9 @@ class WillmoreFlow:
 
     def __init__(self, mesh: Mesh, tau: float, tau_tilde: float, *, lam: float = 0.0, boundary: Any = None,
                  settings: FlowSettings | None = None, **options: Any) -> None:
+        if not isinstance(mesh, Mesh):
+            raise UserInputError(f"mesh must be a willmore_nlp.mesh.Mesh (Mesh(vertices, simplices) or "
+                                 f"willmore_nlp.mesh.io.load_mesh(path)), got {type(mesh).__name__}")
         flow_options, self._options = FlowSettings.split(options)
         s = self.settings = dataclasses.replace(settings or FlowSettings(), **flow_options)  # validates them
         tau, tau_tilde, lam = (check_run_value(k, v) for k, v in (("tau", tau), ("tau_tilde", tau_tilde), ("lam", lam)))
@@ -1473,7 +1477,12 @@ class WillmoreFlow:
         Returns the accepted steps.
         """
         if t_end is None and steps is None:
-            raise ValueError("run needs t_end or steps")
+            raise UserInputError("run needs t_end or steps")
+        if t_end is not None and not (is_number(t_end) and 0 <= t_end < math.inf):
+            raise UserInputError(f"run: t_end must be a finite time >= 0, got {t_end!r}")
+        if steps is not None and not (is_number(steps) and math.isfinite(steps) and float(steps).is_integer()
+                                      and steps >= 0):
+            raise UserInputError(f"run: steps must be an integer >= 0, got {steps!r}")
         out: list[StepResult] = []
         nominal = self.tau
         try:

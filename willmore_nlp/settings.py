@@ -13,17 +13,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
+
+import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.tangential import CONTROL_METHODS, DEFAULT_CONTROL_WEIGHT
 
 
 def is_number(v: Any) -> bool:
-    """An int or float, not a bool."""
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    """A real number (int, float or a numpy scalar such as ``np.float32(0.01)``), not a bool."""
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
 
 
 def auto(v: Any) -> Any:

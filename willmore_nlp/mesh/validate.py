@@ -99,6 +99,8 @@ def validate_vertices(vertices: object, simplices: np.ndarray, source: str) -> n
 
 def _vertex_array(vertices: object, source: str) -> np.ndarray:
     """(N, m) float copy of ``vertices``: shape, finiteness and size checked."""
+    if np.iscomplexobj(vertices):  # (numpy would drop the imaginary parts with a warning)
+        raise MeshError(f"{source}: vertices are complex numbers; the coordinates must be real")
     try:
         V = np.array(vertices, dtype=float)
     except (TypeError, ValueError) as exc:

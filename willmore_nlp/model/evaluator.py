@@ -281,7 +281,9 @@ class StepEvaluator:
         nonlinear inner energies g = 1/2 dE/dY is the gradient of a strictly convex energy, but a
         nearly non-smooth gamma (the regularised l1 norm ``gamma2``) makes plain Newton overshoot:
         steps are halved until the residual decreases (backtracking on |g|). Converged when
-        ``|g|_inf <= tol * max(1, |J_Y|_max |Y|_max)``.
+        ``|g|_inf <= tol |J_Y|_max |Y|_max`` (relative, so that a surface of any size is solved alike: with the
+        former floor ``max(1, ...)`` a curve 4e-5 wide passed the test at Y0 = X, and its steps started
+        from a gradient of exactly 0).
 
         Parameters
         ----------
@@ -317,7 +319,7 @@ class StepEvaluator:
         r, J = self.g_jac(z, p)
         for it in range(max_iter):
             Jy = J[:, nXm:]
-            scale = max(1.0, float(np.abs(Jy).max()) * float(np.abs(Y).max()))
+            scale = max(float(np.abs(Jy).max()) * float(np.abs(Y).max()), np.finfo(float).tiny)
             if it >= min_steps and np.linalg.norm(r, np.inf) <= tol * scale:
                 return Y, z, J
             dy = (linear_solve or self.linear_solve)(Jy.tocsc(), -r).reshape(-1, m)
