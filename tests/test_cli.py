@@ -168,12 +168,20 @@ def test_internal_errors_show_their_traceback_and_io_errors_exit_74(tmp_path, mo
 
     from willmore_nlp import cli, runner
 
-    def bug(*a: object, **kw: object) -> int:
-        raise ValueError("an internal bug")
+    # a bug shows its traceback, says that it is one and exits with 70 (EX_SOFTWARE; before 2026-11-30 it exited with
+    # 1, like a failed step); an OSError that is not the environment's (ENOENT from the code itself) is a bug too
+    for exc in (ValueError("an internal bug"), OSError(errno.ENOENT, "no such thing", "x")):
+        def bug(*a: object, exc: Exception = exc, **kw: object) -> int:
+            raise exc
 
-    monkeypatch.setattr(runner, "start", bug)
-    with pytest.raises(ValueError, match="an internal bug"):  # not reported as the user's fault
-        cli.main(["run", "circle", "--out", str(tmp_path / "r"), "--steps", "1"])
+        monkeypatch.setattr(runner, "start", bug)
+        assert cli.main(["run", "circle", "--out", str(tmp_path / "r"), "--steps", "1"]) == 70
+        err = capsys.readouterr().err
+        assert "Traceback" in err and str(exc.args[-1]) in err  # not reported as the user's fault
+        assert err.strip().splitlines()[-1].startswith("willmore-nlp: internal error (a bug, not a problem with your")
+    monkeypatch.setattr(runner, "start", lambda *a, **kw: int("an internal bug"))
+    with pytest.raises(ValueError, match="an internal bug"):  # --debug: the exception itself
+        cli.main(["--debug", "run", "circle", "--out", str(tmp_path / "r"), "--steps", "1"])
 
     def full(*a: object, **kw: object) -> int:
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "r" / "history.csv"))

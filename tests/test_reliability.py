@@ -102,6 +102,22 @@ def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def test_an_inherited_ignored_sigint_stays_ignored(tmp_path: Path, reference: Path) -> None:
+    """A run started with SIGINT ignored (a shell's background job, ``willmore-nlp run ... &``) keeps ignoring it
+    (found by a new-user check: the run's own handler replaced the inherited SIG_IGN and the job stopped): the
+    run completes, the same as the reference."""
+    out = tmp_path / "run"
+    p = subprocess.Popen([*CLI, "run", *ARGS, "--steps", str(STEPS), "--out", str(out)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    wait_for(out / "states" / "state_000005.npz", p)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0 and "SIGINT" not in err, err
+    assert json.loads((out / "status.json").read_text())["state"] == "completed"
+    assert_same_run(reference, out)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_mid_run_then_resume_is_bit_identical(tmp_path: Path, reference: Path, sig: int) -> None:
     out = tmp_path / "run"

@@ -201,7 +201,7 @@ def test_api_misuse_is_one_clear_error_and_numpy_scalars_are_numbers() -> None:
     assert flow.k == 0
     assert len(flow.run(steps=np.int64(2))) == 2 and len(flow.run(steps=0)) == 0
     assert len(flow.run(t_end=np.float32(0.03))) == 1 and flow.t == pytest.approx(0.03)
-    with pytest.raises(UserInputError, match="mesh must be a willmore_nlp.mesh.Mesh .*got ndarray"):
+    with pytest.raises(UserInputError, match=r"mesh must be a willmore_nlp\.mesh\.Mesh .*got ndarray"):
         WillmoreFlow(np.zeros((16, 2)), 0.01, 1e-3)
     with pytest.raises(MeshError, match="vertices are complex numbers"):
         Mesh(polygon.vertices + 5j * polygon.vertices, polygon.simplices)

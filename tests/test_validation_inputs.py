@@ -39,6 +39,18 @@ def _ico_obj(flip: int | None = None, extra: str = "") -> str:
             + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F) + extra)
 
 
+def _icosphere_part_obj(cut: float = -0.2) -> str:
+    """An icosphere(2) cut above z = ``cut`` (-0.2: an open surface; -2: the whole sphere)."""
+    s = shapes.icosphere(2)
+    keep = s.vertices[s.simplices].mean(axis=1)[:, 2] > cut
+    F = s.simplices[keep]
+    used = np.unique(F)
+    index = np.full(s.n_vertices, -1)
+    index[used] = np.arange(used.size)
+    return ("".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in s.vertices[used])
+            + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in index[F]))
+
+
 def _npz(path: Path, **arrays: object) -> None:
     with open(path, "wb") as fh:
         np.savez(fh, **arrays)
@@ -221,7 +233,8 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("toml-typo-key", _toml('mesh = "c.txt"\nmax_retires = 3\n'),
      ["cfg.toml", "unknown key 'max_retires'", "did you mean 'max_retries'?"]),
     ("toml-tau-zero", _toml('mesh = "c.txt"\ntau = 0.0\n'), ["cfg.toml", "tau must be a number > 0, got 0.0"]),
-    ("toml-tau-string", _toml('mesh = "c.txt"\ntau = "fast"\n'), ["cfg.toml", "tau must be a number, got 'fast'"]),
+    ("toml-tau-string", _toml('mesh = "c.txt"\ntau = "fast"\n'),
+     ["cfg.toml", "tau must be a finite number, got 'fast'"]),
     ("toml-lam-negative", _toml('mesh = "c.txt"\nlam = -1\n'), ["cfg.toml", "lam must be a number >= 0, got -1"]),
     ("toml-unknown-table", _toml('mesh = "c.txt"\n[solver]\nname = "x"\n'), ["cfg.toml", "unknown table [solver]"]),
     ("toml-mesh-and-problem", _toml('mesh = "c.txt"\nproblem = "circle"\n'),
@@ -254,6 +267,22 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("ply-zero-filled", _write("s.ply", b"\0" * 100_000), ["s.ply", "not a PLY file"]),
     ("obj-zero-filled", _write("s.obj", b"\0" * 100_000), ["s.obj:1", "not a text file (contains a NUL byte)"]),
     ("toml-huge", _toml('mesh = "c.txt"\n' + "#" * 1_100_000 + "\n"), ["cfg.toml", "is not a config file"]),
+    # -- found by a new-user check (2026-11-30) ---------------------------------------------------
+    ("set-radius-inf", _circle_with("R=inf"), ["--set: R must be a finite number, got 'inf'"]),
+    ("set-radius-negative", _circle_with("R=-1"), ["regular_polygon: radius must be a finite number > 0, got -1.0"]),
+    ("set-ipopt-linear-solver-not-built", _circle_with("ipopt.linear_solver=ma27"),
+     ["IPOPT refused the options {'linear_solver': 'ma27'}", "not in this build?"]),
+    ("npy-not-a-format", _write("plain.npy", b"\x93NUMPY"),
+     ["plain.npy: not a supported mesh or config format (meshes: .curve, .npz, .obj"]),
+    ("obj-and-set-path", lambda d: [*_write("s.obj", _ico_obj())(d), "--set", "path=other.obj"],
+     ["s.obj: the mesh is given twice, as the target and as --set path=other.obj: give one"]),
+    ("toml-mesh-and-path", _toml('mesh = "c.txt"\npath = "c.txt"\n'), ["cfg.toml: give either 'mesh' or 'path'"]),
+    ("set-remesh-target-tiny",
+     lambda d: [*_write("s.obj", _icosphere_part_obj(cut=-2.0))(d), "--set", "remesh_target=1e-4"],
+     ["s.obj: remesh_target = 0.0001 would remesh the input (162 vertices", "more than refine_max_vertices = 50,000"]),
+    ("obj-open-volume",
+     lambda d: [*_write("cap.obj", _icosphere_part_obj())(d), "--set", "clamp=conormal", "--set", "volume=initial"],
+     ["cap.obj: volume needs a closed curve in R^2 or a closed surface"]),
 ]
 
 
@@ -348,3 +377,38 @@ def test_several_components_allowed_on_request(tmp_path: Path) -> None:
     rc = cli.main(["run", str(tmp_path / "two.npz"), "--set", "allow_components=true", "--out", str(out),
                    "--steps", "1", "--quiet"])
     assert rc == 0 and (out / "states" / "state_000001.npz").is_file()
+
+
+def test_output_paths_that_cannot_be_made_and_compare_misuse(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Found by a new-user check (2026-11-30): a file where the run directory's parent must go, a name too long and a
+    symlink loop printed Python tracebacks (exit 1); ``compare`` wrote its study into a run directory (whose report
+    then became the study's), hung with ``--workers 0`` and accepted ``--steps 0`` and ``--t-end -1``. Each is now
+    one line and exit 2, and nothing is written."""
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    run = tmp_path / "run"
+    assert cli.main(["run", "circle", "--set", "n=12", "--out", str(run), "--steps", "1", "--quiet"]) == 0
+    capsys.readouterr()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    listing = sorted(p.name for p in run.iterdir())
+    cases = [
+        (["run", "circle", "--out", str(tmp_path / "afile" / "sub"), "--steps", "1"], "Not a directory"),
+        (["run", "circle", "--out", str(tmp_path / ("a" * 300)), "--steps", "1"], "File name too long"),
+        (["run", "circle", "--out", str(tmp_path / "loop" / "x"), "--steps", "1"], "Too many levels of symbolic links"),
+        (["export", str(run), "--out", str(tmp_path / "afile")], "File exists"),
+        (["run", "circle", "--out", str(tmp_path / "r2"), "--t-end", "inf"], "--t-end must be a finite number > 0"),
+        (["compare", "circle", "--out", str(run), "--steps", "1", "--workers", "1"],
+         f"--out {run}: is a run directory, not a study directory"),
+        (["compare", "circle", "--out", str(tmp_path / "s"), "--steps", "1", "--workers", "0"],
+         "--workers must be an integer >= 1, got 0"),
+        (["compare", "circle", "--out", str(tmp_path / "s"), "--steps", "0"], "--steps must be an integer >= 1"),
+        (["compare", "circle", "--out", str(tmp_path / "s"), "--t-end", "-1"], "--t-end must be a finite number > 0"),
+    ]
+    for argv, text in cases:
+        assert cli.main(argv) == 2, argv
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("willmore-nlp: error: ") and text in lines[0], (argv, lines)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert sorted(p.name for p in run.iterdir()) == listing
+

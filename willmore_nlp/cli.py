@@ -4,18 +4,28 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
 import sys
+import traceback
 import warnings
 from collections.abc import Sequence
 from typing import Any
 
 from willmore_nlp import runner
 from willmore_nlp.config import ConfigError, parse_overrides, resolve
-from willmore_nlp.errors import EXIT_IO, EXIT_USAGE, IO_ERRNOS, UserInputError
+from willmore_nlp.errors import EXIT_BUG, EXIT_IO, EXIT_USAGE, IO_ERRNOS, PATH_ERRNOS, UserInputError
 
 __all__ = ["build_parser", "main"]
 
+
+
+def _check_length(args: argparse.Namespace) -> None:
+    """``--steps`` and ``--t-end`` of ``run`` and ``compare``: a positive count and a positive finite time."""
+    if args.steps is not None and args.steps < 1:
+        raise ConfigError(f"--steps must be an integer >= 1 (the total number of steps), got {args.steps}")
+    if args.t_end is not None and not 0 < args.t_end < math.inf:
+        raise ConfigError(f"--t-end must be a finite number > 0, got {args.t_end}")
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -26,10 +36,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                               "(--steps/--t-end set a new total length)")
         return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet,
                              ignore_late_signals=True)
-    if args.steps is not None and args.steps < 1:
-        raise ConfigError(f"--steps must be an integer >= 1 (the total number of steps), got {args.steps}")
-    if args.t_end is not None and not args.t_end > 0:
-        raise ConfigError(f"--t-end must be a number > 0, got {args.t_end}")
+    _check_length(args)
     if not args.target or not args.out:
         raise ConfigError("run needs a TARGET (problem name or .toml) and --out DIR, or --resume DIR")
     overrides: dict[str, Any] = parse_overrides(args.set or [])
@@ -126,6 +133,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from willmore_nlp.apps.study import make_grid, run_study
     from willmore_nlp.registry import check_params
 
+    _check_length(args)
+    if args.workers < 1:
+        raise ConfigError(f"--workers must be an integer >= 1, got {args.workers}")
     params = check_params(args.problem, parse_overrides(args.set or []))
     grid_raw = parse_overrides(args.grid or [])
     grid = {k: [check_params(args.problem, {k: v})[k] for v in vals.split(",")] for k, vals in grid_raw.items()}
@@ -160,8 +170,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", help="run directory to write (must be new or empty)")
     r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its last checkpoint "
                    "(after an interruption, a crash or a failure)")
-    r.add_argument("--steps", type=int, help="number of steps (total, counting from the initial state)")
-    r.add_argument("--t-end", type=float, dest="t_end", help="final time")
+    r.add_argument("--steps", type=int, help="number of steps (total, counting from the initial state); with "
+                   "--t-end the run ends at whichever comes first")
+    r.add_argument("--t-end", type=float, dest="t_end", help="final time (with --steps: whichever comes first)")
     r.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a parameter (repeatable)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.add_argument("--overwrite", action="store_true", help="if --out holds a run, start it afresh (deletes only "
@@ -211,6 +222,14 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _bug() -> int:
+    """An internal error (a bug, never the user's input): its traceback, a line saying so, :data:`EXIT_BUG`."""
+    traceback.print_exc()
+    print("willmore-nlp: internal error (a bug, not a problem with your input): please report it with the "
+          "traceback above", file=sys.stderr)
+    return EXIT_BUG
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; user errors print one line and exit non-zero (traceback with --debug)."""
     args = build_parser().parse_args(argv)
@@ -228,14 +247,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except OSError as exc:
-        if args.debug or exc.errno not in IO_ERRNOS:
+        if args.debug:
             raise
+        if exc.errno not in IO_ERRNOS | PATH_ERRNOS:
+            return _bug()
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"willmore-nlp: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return EXIT_IO
+        return EXIT_IO if exc.errno in IO_ERRNOS else EXIT_USAGE
     except KeyboardInterrupt:
         print("willmore-nlp: interrupted", file=sys.stderr)
         return 130
+    except Exception:
+        if args.debug:
+            raise
+        return _bug()
     finally:
         warnings.showwarning = shown
 

@@ -125,6 +125,8 @@ def read_toml(path: Path) -> dict[str, Any]:
     if "mesh" in flat:
         if "problem" in flat:
             raise ConfigError(f"{path}: give either 'problem' or 'mesh', not both")
+        if "path" in flat:
+            raise ConfigError(f"{path}: give either 'mesh' or 'path', not both")
         mesh_path = Path(str(flat.pop("mesh")))
         flat["problem"] = "file"
         flat["path"] = str(mesh_path if mesh_path.is_absolute() else (path.parent / mesh_path))
@@ -141,6 +143,9 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
         base = read_toml(path)
         where = str(path)
     elif Path(target).suffix.lower() in MESH_SUFFIXES:
+        if "path" in overrides:
+            raise ConfigError(f"{target}: the mesh is given twice, as the target and as {source} path="
+                              f"{overrides['path']}: give one")
         base = {"problem": "file", "path": target}
         where = target
     else:
@@ -153,6 +158,10 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
     try:
         entry = registry.get(name)
     except ProblemError as exc:
+        if not target.endswith(".toml") and ("/" in target or Path(target).suffix):  # a path, not a name
+            kind = "no such file" if not Path(target).exists() else "not a supported mesh or config format"
+            raise ConfigError(f"{target}: {kind} (meshes: {', '.join(sorted(MESH_SUFFIXES))}; configs: .toml; "
+                              f"or a problem name, see 'willmore-nlp problems')") from exc
         raise ConfigError(f"{where}: {exc}" if target.endswith(".toml") else str(exc)) from exc
     fparams = entry.defaults()
     factory_kw: dict[str, Any] = {}

@@ -14,10 +14,15 @@ EXIT_FAILED = 1
 """A run stopped because a step failed after every retry (the run directory is kept)."""
 EXIT_USAGE = 2
 """Bad input: file, option, parameter, run directory or environment setting (one-line message)."""
+EXIT_BUG = 70
+"""An internal error (sysexits' EX_SOFTWARE): a bug, with its traceback; never the user's input."""
 EXIT_IO = 74
 """The output could not be written (disk full, read-only or no permission; sysexits' EX_IOERR)."""
 IO_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
 """OSErrors of the environment, reported in one line with :data:`EXIT_IO` (any other OSError is a bug)."""
+PATH_ERRNOS = frozenset({errno.ENOTDIR, errno.EEXIST, errno.ENAMETOOLONG, errno.ELOOP, errno.EISDIR})
+"""OSErrors of a path the user gave that cannot be made (a file where a folder must go, a name too long, a symlink
+loop): one line with :data:`EXIT_USAGE`."""
 
 
 class UserInputError(ValueError):

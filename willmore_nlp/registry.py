@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import inspect
+import math
 import pkgutil
 import sys
 from collections.abc import Callable
@@ -194,9 +195,9 @@ def coerce(value: Any, default: Any, key: str) -> Any:
     out = value if not isinstance(value, str) or want is str else parse_bool(value) if want is bool else auto(value)
     if want in (None, str) or (want is bool and isinstance(out, bool)) or (value is None and default is None):
         return out
-    if want in (int, float) and is_number(out) and (want is float or float(out).is_integer()):
+    if want in (int, float) and is_number(out) and math.isfinite(out) and (want is float or float(out).is_integer()):
         return want(out)
-    what = {bool: "true or false", int: "an integer", float: "a number"}.get(want, f"a {want.__name__}")
+    what = {bool: "true or false", int: "an integer", float: "a finite number"}.get(want, f"a {want.__name__}")
     raise ProblemError(f"{key} must be {what}, got {value!r}")
 
 

@@ -74,14 +74,16 @@ def write_text_atomic(path: Path, text: str) -> None:
     atomic_write(path, w)
 
 
-def _write_npz(path: Path, **arrays: Any) -> None:
-    def w(t: Path) -> None:
-        with open(t, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
+def _npz_to(t: Path, arrays: dict[str, Any]) -> None:
+    """``arrays`` written to the file ``t`` as npz and synced to the disk."""
+    with open(t, "wb") as fh:
+        np.savez(fh, **arrays)
+        fh.flush()
+        os.fsync(fh.fileno())
 
-    atomic_write(path, w)
+
+def _write_npz(path: Path, **arrays: Any) -> None:
+    atomic_write(path, lambda t: _npz_to(t, arrays))
 
 
 def _csv_text(rows: list[dict[str, Any]], keys: list[str], header: bool) -> str:
@@ -462,9 +464,19 @@ class RunWriter:
             extra["simplices"] = np.asarray(r.simplices)
             if r.free is not None:
                 extra["free"] = np.asarray(r.free, dtype=bool)
-        _write_npz(self.out / "states" / f"state_{r.step:06d}.npz",
-                   vertices=r.vertices, Y=r.Y, t=r.t, step=r.step, tau=r.tau,
-                   row=np.array(json.dumps(row, default=_json_default)), **extra)
+        def state() -> None:
+            _write_npz(self.out / "states" / f"state_{r.step:06d}.npz",
+                       vertices=r.vertices, Y=r.Y, t=r.t, step=r.step, tau=r.tau,
+                       row=np.array(json.dumps(row, default=_json_default)), **extra)
+
+        if warm:  # the solver state written in full first and renamed into place after the state: a disk that fills
+            def both(tmp: Path) -> None:  # up in either leaves the last state and its solver state (the resume is
+                _npz_to(tmp, {"step": r.step, **{k: np.asarray(v) for k, v in warm.items()}})  # bit for bit; was:
+                state()  # state k written, the solver's of k - 1 kept)
+
+            atomic_write(self.out / SOLVER_STATE, both)
+        else:
+            state()
         self.rows.append(row)
         new = [k for k in row if k not in self.keys]
         if new or len(self.rows) == 1:
@@ -473,8 +485,6 @@ class RunWriter:
         else:
             with open(self.out / "history.csv", "a", encoding="utf-8") as fh:
                 fh.write(_csv_text([row], self.keys, header=False))
-        if warm:
-            _write_npz(self.out / SOLVER_STATE, step=r.step, **{k: np.asarray(v) for k, v in warm.items()})
 
     # -- status ------------------------------------------------------------------------------
     def set_status(self, state: str, **info: Any) -> None:

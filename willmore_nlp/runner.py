@@ -37,7 +37,7 @@ import numpy as np
 
 from willmore_nlp import registry
 from willmore_nlp.config import ConfigError, RunSpec, check_spec, resolve
-from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS
+from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS, UserInputError
 from willmore_nlp.flow import (
     FLOOR_REASON,
     FOLD_REASON,
@@ -174,7 +174,8 @@ class SignalGuard:
 
     def __enter__(self) -> SignalGuard:
         for s in (signal.SIGINT, signal.SIGTERM):
-            self._old[s] = signal.signal(s, self._handler)
+            if signal.getsignal(s) is not signal.SIG_IGN:  # an ignored signal stays ignored (a shell's 'run ... &'
+                self._old[s] = signal.signal(s, self._handler)  # ignores SIGINT in the background job)
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -268,6 +269,9 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
             k = int(writer.rows[-1]["step"]) if writer.rows else -1
             raise OSError(exc.errno, f"{exc.strerror or exc} (steps 0..{k} are kept; when it can be written "
                                      f"again: willmore-nlp run --resume {out})", str(exc.filename or out)) from exc
+        if isinstance(exc, UserInputError):  # found only when the step ran (the CLI's one line, exit 2): not a bug
+            writer.set_status("failed", message=f"{exc} (fix it, then --overwrite)")
+            raise
         writer.set_status("crashed", message=f"{type(exc).__name__}: {exc}")  # a bug: record it, show the traceback
         raise
     finally:

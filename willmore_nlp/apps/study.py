@@ -209,6 +209,12 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
     from dask.distributed import Client, LocalCluster, as_completed
 
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise StudyError(f"--out {out}: is a file, not a study directory")
+    if out.is_dir() and any(out.iterdir()) and not (out / STUDY_FILE).is_file():
+        what = "a run directory" if (out / "config.json").is_file() else "a folder with other files"
+        raise StudyError(f"--out {out}: is {what}, not a study directory; a study writes into a new or empty folder "
+                         f"(or reruns into its own, skipping finished cases)")
     (out / "cases").mkdir(parents=True, exist_ok=True)
     spec = {"cases": [asdict(c) for c in cases]}
     (out / STUDY_FILE).write_text(json.dumps(spec, indent=1), encoding="utf-8")
@@ -227,7 +233,12 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
         if scheduler is None:
             cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
                                    dashboard_address=":0", silence_logs=logging.ERROR)
-        client = Client(scheduler if scheduler is not None else cluster)
+        try:
+            client = Client(scheduler if scheduler is not None else cluster)
+        except OSError as exc:  # (an address given that answers nothing: the user's to fix)
+            if cluster is not None:
+                cluster.close()
+            raise StudyError(f"--scheduler {scheduler}: cannot connect ({exc})") from exc
         try:
             futures = [client.submit(run_case, c, str(out), key=f"case-{c.key}", pure=False) for c in todo]
             for i, fut in enumerate(as_completed(futures), 1):

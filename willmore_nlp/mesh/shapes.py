@@ -57,8 +57,16 @@ def open_curve(points: np.ndarray, source: str = "<curve>") -> Mesh:
     return Mesh(P, S, source)
 
 
+def _lengths(shape: str, **lengths: float) -> None:
+    """MeshError unless every length is a finite number > 0 (``shape``: the generator's name, for the message)."""
+    for name, v in lengths.items():
+        if not 0 < v < np.inf:
+            raise MeshError(f"{shape}: {name} must be a finite number > 0, got {v!r}")
+
+
 def regular_polygon(n: int, radius: float = 1.0, *, m: int = 2, phase: float = 0.0) -> Mesh:
     """Regular n-gon inscribed in the circle of ``radius`` in the plane x3 = 0 of R^m."""
+    _lengths("regular_polygon", radius=radius)
     if n < 3:
         raise MeshError(f"regular_polygon: n must be >= 3, got {n}")
     t = phase + 2 * np.pi * np.arange(n) / n
@@ -70,6 +78,7 @@ def regular_polygon(n: int, radius: float = 1.0, *, m: int = 2, phase: float = 0
 
 def ellipse(n: int, a: float = 2.0, b: float = 1.0, *, m: int = 2) -> Mesh:
     """Ellipse with semi-axes a (x1) and b (x2), n vertices equally spaced in the angle."""
+    _lengths("ellipse", a=a, b=b)
     t = 2 * np.pi * np.arange(n) / n
     P = np.zeros((n, m))
     P[:, 0] = a * np.cos(t)
@@ -104,6 +113,7 @@ def hypocycloid(n: int, delta: float = 0.0, *, m: int | None = None) -> Mesh:
 
 def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
     """Icosphere with 10 * 4**subdivisions + 2 vertices (642 for 3, 2562 for 4)."""
+    _lengths("icosphere", radius=radius)
     s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     return Mesh(np.asarray(s.vertices), np.asarray(s.faces), f"icosphere({subdivisions})")
 
@@ -113,6 +123,7 @@ def torus(R: float = 1.0, r: float = 0.5, n_major: int = 24, n_minor: int = 12) 
 
     A regular (n_major x n_minor) grid in the two angles, each quad split into two triangles.
     """
+    _lengths("torus", R=R, r=r)
     if r <= 0 or r >= R:
         raise MeshError(f"torus: need 0 < r < R, got R={R}, r={r}")
     if n_major < 3 or n_minor < 3:
@@ -140,6 +151,7 @@ def disk(rings: int = 6, radius: float = 1.0) -> Mesh:
     """
     from scipy.spatial import Delaunay
 
+    _lengths("disk", radius=radius)
     if rings < 1:
         raise MeshError(f"disk: rings must be >= 1, got {rings}")
     pts = [np.zeros((1, 2))]
@@ -161,6 +173,7 @@ def cylinder(radius: float = 1.0, length: float = 2.0, n_around: int = 24, n_alo
 
     A regular (n_along + 1) x n_around grid, each quad split into two triangles.
     """
+    _lengths("cylinder", radius=radius, length=length)
     if n_around < 3 or n_along < 1:
         raise MeshError(f"cylinder: need n_around >= 3 and n_along >= 1, got {n_around}, {n_along}")
     u = 2 * np.pi * np.arange(n_around) / n_around
@@ -182,6 +195,7 @@ def spherical_cap(rings: int = 8, angle: float = 45.0, radius: float = 1.0) -> M
     :func:`disk` mapped to the sphere: ring k of the disk lies on the latitude circle at polar
     angle ``angle * k / rings``, so the cap's boundary and every ring are latitude circles.
     """
+    _lengths("spherical_cap", radius=radius)
     if not 0 < angle < 180:
         raise MeshError(f"spherical_cap: angle must be in (0, 180) degrees, got {angle}")
     D = disk(rings, 1.0)

@@ -98,6 +98,17 @@ def _never() -> bool:
     return False
 
 
+@cache
+def _refused(options: tuple[tuple[str, Any], ...]) -> bool:
+    """Whether this IPOPT build refuses ``options`` when it solves (a linear solver it was built without, such as
+    ``ma27``, passes the option table and is refused only then): one solve of a one-variable NLP, milliseconds."""
+    x = ca.MX.sym("x")
+    probe = ca.nlpsol("willmore_probe", "ipopt", {"x": x, "f": x * x},
+                      {"print_time": False, "error_on_fail": False, "ipopt": dict(options)})
+    probe(x0=1.0)
+    return probe.stats().get("return_status") == "Invalid_Option"
+
+
 class _StopHook(ca.Callback):
     """IPOPT iteration callback: asks ``check(f, g, x, lam_g)`` once per iteration; True stops the solve.
 
@@ -240,6 +251,9 @@ class IpoptSolver:
     def __init__(self, evaluator: StepEvaluator, settings: IpoptSettings) -> None:
         fn = evaluator.fn
         opts = {**IPOPT_DEFAULTS, **dict(settings.ipopt)}
+        if settings.ipopt and _refused(tuple(sorted(opts.items()))):  # (before a run directory is written)
+            raise UserInputError(f"IPOPT refused the options {dict(settings.ipopt)} (linear_solver = "
+                                 f"{opts['linear_solver']!r} not in this build?)")
         self.warm_start = settings.warm_start
         if self.warm_start:
             opts["warm_start_init_point"] = "yes"

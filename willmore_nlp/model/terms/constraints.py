@@ -20,9 +20,17 @@ class _Constraint(Term):
     what = ""
 
     def __init__(self, target: float) -> None:
+        self.target = target  # (checked by :meth:`check`, after the mesh: "initial" of an open mesh is nan)
+
+    def check(self, mesh: Mesh, variant: str | None) -> None:
+        self._check_mesh(mesh, variant)
+        target = self.target
         if isinstance(target, bool) or not isinstance(target, (int, float)) or not (np.isfinite(target) and target > 0):
             raise UserInputError(f"{self.what} must be a positive number, \"initial\" or None, got {target!r}")
         self.target = float(target)
+
+    def _check_mesh(self, mesh: Mesh, variant: str | None) -> None:
+        raise NotImplementedError
 
     def values(self, Xk: np.ndarray, tau: float, simplices: np.ndarray, x_free: np.ndarray) -> dict[str, Any]:
         return {self.scalars[0]: self.target}
@@ -39,7 +47,7 @@ class VolumeConstraint(_Constraint):
     scalars = ("volume0",)
     constraint_targets = ("volume0",)
 
-    def check(self, mesh: Mesh, variant: str | None) -> None:
+    def _check_mesh(self, mesh: Mesh, variant: str | None) -> None:
         if variant is not None or not mesh.is_closed or mesh.m != mesh.d + 1:
             raise MeshError(f"{mesh.source}: volume needs a closed curve in R^2 or a closed surface in R^3")
 
@@ -60,7 +68,7 @@ class AreaConstraint(_Constraint):
     scalars = ("area0",)
     constraint_targets = ("area0",)
 
-    def check(self, mesh: Mesh, variant: str | None) -> None:
+    def _check_mesh(self, mesh: Mesh, variant: str | None) -> None:
         if variant is not None or not mesh.is_closed:
             raise MeshError(f"{mesh.source}: area needs a closed curve or surface")
 
