@@ -179,6 +179,13 @@ def test_internal_errors_show_their_traceback_and_io_errors_exit_74(tmp_path, mo
         err = capsys.readouterr().err
         assert "Traceback" in err and str(exc.args[-1]) in err  # not reported as the user's fault
         assert err.strip().splitlines()[-1].startswith("willmore-nlp: internal error (a bug, not a problem with your")
+    def too_large(*a: object, **kw: object) -> int:  # (--set n=1e9 under a memory limit)
+        raise MemoryError
+
+    monkeypatch.setattr(runner, "start", too_large)
+    assert cli.main(["run", "circle", "--out", str(tmp_path / "r"), "--steps", "1"]) == 2
+    assert capsys.readouterr().err.strip() == ("willmore-nlp: error: out of memory: the problem is too large for this "
+                                               "machine (fewer vertices, or a machine with more memory)")
     monkeypatch.setattr(runner, "start", lambda *a, **kw: int("an internal bug"))
     with pytest.raises(ValueError, match="an internal bug"):  # --debug: the exception itself
         cli.main(["--debug", "run", "circle", "--out", str(tmp_path / "r"), "--steps", "1"])

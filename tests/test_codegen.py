@@ -131,3 +131,19 @@ def test_cache_clear_removes_build_dirs_of_killed_compilations(cache) -> None:
     (live / "pid").write_text(str(os.getpid()))  # this process: a compilation under way
     cgm.cache_clear()
     assert not killed.exists() and live.exists()
+
+
+def test_a_cc_that_is_not_found_says_which_compiler_is_used(monkeypatch) -> None:
+    """$CC naming no executable was replaced by cc silently (found by a new-user check): now a warning, once."""
+    import shutil
+    import warnings
+
+    if shutil.which("cc") is None:
+        pytest.skip("no cc on PATH")
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    cgm._cc_not_found.cache_clear()
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert cgm.find_compiler() == cgm.find_compiler() == shutil.which("cc")
+    assert [str(w.message) for w in seen] == [f"$CC = '/nonexistent/cc' is not an executable on PATH: compiling with "
+                                              f"{shutil.which('cc')} instead"]

@@ -257,6 +257,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("willmore-nlp: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:  # (e.g. --set n=1e9: the input's size, not a bug)
+        if args.debug:
+            raise
+        print("willmore-nlp: error: out of memory: the problem is too large for this machine (fewer vertices, or a "
+              "machine with more memory)", file=sys.stderr)
+        return EXIT_USAGE
     except Exception:
         if args.debug:
             raise

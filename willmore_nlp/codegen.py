@@ -58,13 +58,23 @@ def cache_dir() -> Path:
 
 
 def find_compiler() -> str | None:
-    """Path of the C compiler to use: $CC, else cc, gcc or clang on PATH; None if there is none."""
-    for cand in (os.environ.get("CC"), "cc", "gcc", "clang"):
+    """Path of the C compiler to use: $CC, else cc, gcc or clang on PATH (with a warning when $CC is set but not
+    found); None if there is none."""
+    env = os.environ.get("CC")
+    for cand in (env, "cc", "gcc", "clang"):
         if cand:
             path = shutil.which(cand)
             if path:
+                if env and cand != env:
+                    _cc_not_found(env, path)
                 return path
     return None
+
+
+@cache
+def _cc_not_found(env: str, path: str) -> None:
+    """Warn (once per process) that $CC = ``env`` was not found and ``path`` compiles instead."""
+    warnings.warn(f"$CC = {env!r} is not an executable on PATH: compiling with {path} instead", stacklevel=3)
 
 
 @cache

@@ -125,6 +125,13 @@ class Checkpoint:
     free: np.ndarray | None = None
 
 
+def require_run_dir(d: Path) -> None:
+    """RunError unless ``d`` is a directory (naming a file given in its place, e.g. its config.json)."""
+    if not d.is_dir():
+        raise RunError(f"{d}: " + (f"a file, not a run directory (the run directory is {d.parent})" if d.is_file()
+                                    else "no such run directory"))
+
+
 def load_solver_state(run_dir: Path, step: int) -> dict[str, Any]:
     """The step solver's warm state written after state ``step`` (:meth:`RunWriter.add`); {} when the file is missing,
     unreadable or of another step (a resume then starts with a new solver: the same flow, not bit for bit)."""
@@ -404,8 +411,7 @@ class RunWriter:
         notes : one line per removed file
         """
         d = Path(out)
-        if not d.is_dir():
-            raise RunError(f"{d}: no such run directory")
+        require_run_dir(d)
         config = read_config(d)
         V0, S0 = read_mesh_npz(d)
         lock = lock_run_dir(d)

@@ -57,6 +57,7 @@ from willmore_nlp.rundir import (
     load_solver_state,
     read_config,
     read_mesh_npz,
+    require_run_dir,
     write_text_atomic,
 )
 
@@ -415,8 +416,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
     step sizes exactly; otherwise nothing is changed and :class:`RunError` names the difference.
     """
     d = Path(run_dir)
-    if not d.is_dir():
-        raise RunError(f"{d}: no such run directory")
+    require_run_dir(d)
     where = str(d / "config.json")
     cfg = read_config(d)
     for note in restore_thread_environment(cfg.get("environment", {})):
