@@ -386,3 +386,29 @@ def test_clamped_file_surface_cut_along_a_zigzag_keeps_its_mesh(tmp_path) -> Non
     assert out[100.0, "auto"][1] < 0.05 < out[1.0, "off"][1]
     assert out[1.0, "auto"][1] < out[1.0, "off"][1]
     assert out[100.0, "auto"][2] == 0
+
+
+def test_clamped_open_cylinder_with_slivers_runs(tmp_path) -> None:
+    """trimesh's cylinder subdivided twice, caps removed, clamped by its outer strips (480 v, 5 degree slivers in the
+    strips): found by a new-user check, step 2 crashed in gpytoolbox (an AssertionError on an empty face set) when
+    the local refinement's region had no movable edge left after the repair, and the input repair that improved
+    nothing said nothing. Now the input is flowed as given with a warning and the steps run."""
+    import warnings
+
+    import trimesh
+
+    from willmore_nlp import registry
+
+    c = trimesh.creation.cylinder(radius=0.5, height=1.5, sections=24).subdivide().subdivide()
+    m = trimesh.Trimesh(c.vertices, c.faces[np.abs(c.face_normals[:, 2]) < 0.5])
+    m.remove_unreferenced_vertices()
+    m.export(tmp_path / "cyl.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "cyl.obj"), clamp="conormal")
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        flow = pb.make_flow()
+        steps = flow.run(steps=3)
+    assert len(steps) == 3 and all(np.isfinite(r.willmore) for r in steps)
+    messages = [str(w.message) for w in seen]
+    assert any("below the mesh control's thresholds" in m and "flowed as given" in m for m in messages)
+    assert not any(issubclass(w.category, RuntimeWarning) for w in seen)

@@ -1024,14 +1024,17 @@ class WillmoreFlow:
         free = self.free
         actions: list[str] = []
         boundary = self.boundary
+
         def lumped(Xc: np.ndarray, Fc: np.ndarray) -> float:
             return geometry.willmore_energy(Mesh(Xc, Fc, self.mesh.source), self.energy_nodes)
 
+        rest: list[bool] = []  # (computed once, when a flip is first proposed)
+
         def near_rest() -> bool:  # the step changed the lumped W by at most FLIP_REST of it
-            if Xk is None:
-                return False
-            w0 = lumped(Xk, F)
-            return abs(lumped(X, F) - w0) <= FLIP_REST * abs(w0)
+            if not rest:
+                w0 = None if Xk is None else lumped(Xk, F)
+                rest.append(w0 is not None and abs(lumped(X, F) - w0) <= FLIP_REST * abs(w0))
+            return rest[0]
 
         def flip(Xc: np.ndarray, Fc: np.ndarray) -> tuple[np.ndarray, int]:
             """Delaunay flips; on a healthy patch near rest only those that do not raise the lumped W by FLIP_RISE."""
@@ -1074,11 +1077,13 @@ class WillmoreFlow:
             local = None
             if self._local():  # the region of the edges sharper than LOCAL_REFINE_ANGLE refine_dihedral
                 turn, ends = _movable_turns(X1, F1, _free_of(boundary))
-                local = self._local_patch(X1, F1, ends[turn > LOCAL_REFINE_ANGLE * self.settings.refine_dihedral],
-                                          REFINE_FACTOR)
+                sharp = ends[turn > LOCAL_REFINE_ANGLE * self.settings.refine_dihedral]
+                local = self._local_patch(X1, F1, sharp, REFINE_FACTOR) if sharp.size else None
             else:  # (the global refinement compares with the stepped state)
                 turn = _movable_turns(X, F, free)[0]
-            refined = self._isotropic_remesh(X1, F1, boundary, retarget=True, target=target, local=local)
+            # (none when the repair left no movable edge that sharp: a clamped cylinder's stepped state had one)
+            refined = (self._isotropic_remesh(X1, F1, boundary, retarget=True, target=target, local=local)
+                       if local is not None or not self._local() else None)
             if refined is not None and _movable_turns(*refined[:2], _free_of(refined[2]))[0].max() < turn.max():
                 X1, F1, boundary = refined
                 actions.append("refine")
@@ -1230,6 +1235,9 @@ class WillmoreFlow:
                 actions.append("remesh")
         q1 = self._patch_quality(X1, F1, _free_of(b1))
         if not actions or not _improves(q0, q1):
+            warnings.warn(f"{mesh.source}: the input mesh is below the mesh control's thresholds (smallest angle "
+                          f"{q0['min_angle']:.3g} deg, edge ratio {q0['edge_ratio']:.3g}) and neither flips nor an "
+                          "isotropic remeshing improved it: it is flowed as given", stacklevel=3)
             return mesh, boundary
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "+".join(actions)

@@ -284,6 +284,8 @@ def isotropic_remesh(V: np.ndarray, F: np.ndarray, target: float, free: np.ndarr
     N = V.shape[0]
     free = np.ones(N, bool) if free is None else np.asarray(free, bool)
     patch = free[F].any(axis=1)
+    if not patch.any():  # (a local region of fixed vertices only: gpytoolbox asserts on an empty face set)
+        raise RemeshError("no triangle with a vertex that may move")
     used = np.unique(F[patch])
     local = np.full(N, -1, dtype=np.int64)
     local[used] = np.arange(used.size)

@@ -475,10 +475,13 @@ class RunWriter:
                        vertices=r.vertices, Y=r.Y, t=r.t, step=r.step, tau=r.tau,
                        row=np.array(json.dumps(row, default=_json_default)), **extra)
 
-        if warm:  # the solver state written in full first and renamed into place after the state: a disk that fills
-            def both(tmp: Path) -> None:  # up in either leaves the last state and its solver state (the resume is
-                _npz_to(tmp, {"step": r.step, **{k: np.asarray(v) for k, v in warm.items()}})  # bit for bit; was:
-                state()  # state k written, the solver's of k - 1 kept)
+        # the solver state is written in full first and renamed into place after the state, so that a disk that fills
+        # up in either leaves the last state with its own solver state and the resume is bit for bit (written after
+        # the state, a full disk once left state k with the solver state of k - 1)
+        if warm:
+            def both(tmp: Path) -> None:
+                _npz_to(tmp, {"step": r.step, **{k: np.asarray(v) for k, v in warm.items()}})
+                state()
 
             atomic_write(self.out / SOLVER_STATE, both)
         else:

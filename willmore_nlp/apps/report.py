@@ -196,8 +196,13 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     d.mkdir(parents=True, exist_ok=True)
     cfg = run.config
     flow_options = cfg.get("effective_flow_options", cfg.get("flow_options", {}))  # older runs lack the effective
-    refs, ref_note = references(run.states[0], float(cfg.get("lam") or 0.0), float(cfg.get("tau_tilde") or 0.0),
-                                run.times, flow_options)
+    # a curve's references follow from its start (R0, the k-fold circle); a surface's mesh-matched value is that of the
+    # mesh the run ended on (after remeshings its connectivity is not the start's); tau_tilde the last state's
+    last_tt = run.history[-1].get("tau_tilde") if run.history else None
+    tau_tilde = float(last_tt if isinstance(last_tt, (int, float)) and np.isfinite(last_tt)
+                      else cfg.get("tau_tilde") or 0.0)
+    refs, ref_note = references(run.states[0] if run.states[0].d == 1 else run.states[-1],
+                                float(cfg.get("lam") or 0.0), tau_tilde, run.times, flow_options)
     radius = np.array([mean_radius(s.vertices) for s in run.states])
     figs: list[tuple[str, str]] = []
     _series_figure(run, [("energy", "scheme energy e(X)"), ("willmore_energy", "Willmore energy 1/2 int h^2")],

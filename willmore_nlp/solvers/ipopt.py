@@ -104,7 +104,8 @@ def _refused(options: tuple[tuple[str, Any], ...]) -> bool:
     ``ma27``, passes the option table and is refused only then): one solve of a one-variable NLP, milliseconds."""
     x = ca.MX.sym("x")
     probe = ca.nlpsol("willmore_probe", "ipopt", {"x": x, "f": x * x},
-                      {"print_time": False, "error_on_fail": False, "ipopt": dict(options)})
+                      {"print_time": False, "error_on_fail": False,
+                       "ipopt": {**dict(options), "print_level": 0, "sb": "yes"}})
     probe(x0=1.0)
     return probe.stats().get("return_status") == "Invalid_Option"
 
