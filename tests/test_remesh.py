@@ -199,13 +199,13 @@ def test_resume_export_and_load_across_a_remesh(tmp_path, input_repair: bool) ->
 def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> None:
     """config.json records the resolved control ("auto" -> "meanratio", weight 1 on a sphere); a run directory
     written before that record existed (when the default was "off") resumes with the control off: 2 + 2 steps of it
-    equal 4 uninterrupted steps with ``tangential_control=off`` bit for bit (both without ``rest_dilation``, which
-    such a run did not have either)."""
+    equal 4 uninterrupted steps with ``tangential_control=off`` bit for bit (both without ``rest_dilation`` and with
+    ``flip_rest = 0``, which such a run did not have either)."""
     from willmore_nlp.runner import stored_control
 
     sphere = ["sphere", "--set", "subdivisions=2", "--set", "tau=0.05", "--quiet"]
     off, auto, old = tmp_path / "off", tmp_path / "auto", tmp_path / "old"
-    before = ["--set", "tangential_control=off", "--set", "rest_dilation=false"]
+    before = ["--set", "tangential_control=off", "--set", "rest_dilation=false", "--set", "flip_rest=0"]
     for out, steps, extra in ((off, "4", before), (auto, "2", []), (old, "2", before)):
         r = subprocess.run([*CLI, "run", *sphere, *extra, "--steps", steps, "--out", str(out)], capture_output=True,
                            text=True, timeout=600)
@@ -222,12 +222,13 @@ def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> N
     del cfg["effective_flow_options"]["large_vertices"]
     assert cfg.pop("refine_scope") == "local"
     del cfg["rest_dilation"], cfg["flow_options"]["rest_dilation"], cfg["effective_flow_options"]["rest_dilation"]
+    del cfg["flip_rest"], cfg["flow_options"]["flip_rest"], cfg["effective_flow_options"]["flip_rest"]
     (old / "config.json").write_text(json.dumps(cfg))
     assert stored_control(cfg) == {"tangential_control": "off", "tangential_control_weight": 0.3,
                                    "conformal_gauge": False, "steps_from_h": "none", "solver": "ipopt",
                                    "first_step_solver": "", "fallback_solver": "", "large_solver": "",
                                    "large_vertices": 0, "remesh_repair": 2, "refine_local": False,
-                                   "rest_dilation": False, "input_repair": False}
+                                   "rest_dilation": False, "flip_rest": 0.0, "input_repair": False}
     r = subprocess.run([*CLI, "run", "--resume", str(old), "--steps", "4", "--quiet"], capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr

@@ -158,17 +158,13 @@ were outrun by a vertex that every step slid 0.2 h. Against: an 800-v stretched 
 (1.4e-6 per step, 40 of its last 50 steps against 21), and a deliberately coarse 72-v torus folded at step 3 (the
 ``file`` problem refines such tori first) (docs/guide/mesh_quality.md, "Tori and genus 2: four repair passes")."""
 
-FLIP_REST = 1e-4
-"""A step that changed the lumped Willmore energy by at most this fraction of it counts as near rest for
-:data:`FLIP_RISE`."""
-
 FLIP_RISE = 1e-4
-"""Near rest (:data:`FLIP_REST`) and while the patch is above its thresholds the mesh control's Delaunay flips are
-dropped when they would raise the lumped Willmore energy by more than this fraction (a moving surface, or a patch below
-the thresholds, gets every flip). Near rest the nodes still slide slowly and edges cross the Delaunay condition: 8
-symmetric flips of edges at 180.5 degrees raised the lumped W of a 642-v ellipsoid 1:1:1.6 held at its volume and area
-by 0.17 % (the scheme's energy by 0.27 %), which the next two steps took back (docs/guide/mesh_quality.md, "Flips near
-rest")."""
+"""Near rest (the option ``flip_rest``) and while the patch is above its thresholds the mesh control's Delaunay
+flips are dropped when they would raise the lumped Willmore energy by more than this fraction (a moving surface, or a
+patch below the thresholds, gets every flip). Near rest the nodes still slide slowly and edges cross the Delaunay
+condition: 8 symmetric flips of edges at 180.5 degrees raised the lumped W of a 642-v ellipsoid 1:1:1.6 held at its
+volume and area by 0.17 % (the scheme's energy by 0.27 %), which the next two steps took back
+(docs/guide/mesh_quality.md, "Flips near rest")."""
 
 REPAIR_ROUNDS = 5
 """The light repair (``remesh_repair``) repeats its passes up to this many times while the mesh is below the
@@ -1030,10 +1026,10 @@ class WillmoreFlow:
 
         rest: list[bool] = []  # (computed once, when a flip is first proposed)
 
-        def near_rest() -> bool:  # the step changed the lumped W by at most FLIP_REST of it
+        def near_rest() -> bool:  # the step changed the lumped W by at most flip_rest of it
             if not rest:
-                w0 = None if Xk is None else lumped(Xk, F)
-                rest.append(w0 is not None and abs(lumped(X, F) - w0) <= FLIP_REST * abs(w0))
+                w0 = None if Xk is None or not self.settings.flip_rest else lumped(Xk, F)
+                rest.append(w0 is not None and abs(lumped(X, F) - w0) <= self.settings.flip_rest * abs(w0))
             return rest[0]
 
         def flip(Xc: np.ndarray, Fc: np.ndarray) -> tuple[np.ndarray, int]:
