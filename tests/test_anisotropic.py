@@ -223,3 +223,19 @@ def test_cli_runs_the_fig11_bunny_and_the_sphere(tmp_path) -> None:
                           str(tmp_path / "bad")], capture_output=True, text=True, timeout=600)
     assert bad.returncode != 0 and "unknown anisotropy 'gamma7'" in bad.stderr
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_clamped_anisotropic_flow_reports_its_anisotropic_energy() -> None:
+    """willmore_gamma was NaN for every clamped anisotropic run (the clamped step setup did not carry the anisotropy;
+    found by a new-user check). On a clamped cap with the ring variant gamma0's w_gamma equals the isotropic W over
+    the same nodes (patch and Gamma) to round-off, and gamma1's is finite and larger."""
+    from willmore_nlp.boundary import Boundary
+
+    cap = shapes.spherical_cap(6, 60.0)
+    out = {}
+    for name in ("gamma0", "gamma1"):
+        flow = WillmoreFlow(cap, 0.1 * cap.h, cap.h**2 / 100, anisotropy=name,
+                            boundary=Boundary.outer_strip(cap, "ring"))
+        out[name] = flow.state()
+    assert out["gamma0"].willmore_gamma == pytest.approx(out["gamma0"].willmore, rel=1e-12)
+    assert np.isfinite(out["gamma1"].willmore_gamma) and out["gamma1"].willmore_gamma > out["gamma1"].willmore

@@ -61,3 +61,18 @@ def test_control_steps_report_the_mesh_controls_share_of_a_step() -> None:
     lines = bench.control_table([row, {"case": "torus:8x4", "solver": "ipopt", "error": ["boom"]}])
     assert lines[-2].startswith("| sphere:2 | 162 | ipopt | 2 |") and "repair" in lines[-2]
     assert lines[-1] == "| torus:8x4 | | ipopt | failed: ['boom'] |"
+
+
+def test_the_header_names_the_blas_threads_openblas_reads(monkeypatch) -> None:
+    """OpenBLAS takes OMP_NUM_THREADS when OPENBLAS_NUM_THREADS is unset: the header said "unset (one per core)" for
+    a benchmark run with OMP_NUM_THREADS=1 (found by a new-user check)."""
+    from willmore_nlp.apps.bench import _blas_threads
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert _blas_threads() == "1 (OMP_NUM_THREADS)"
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")
+    assert _blas_threads() == "2 (OPENBLAS_NUM_THREADS)"
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS")
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert _blas_threads() == "unset (one per core)"

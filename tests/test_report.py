@@ -36,6 +36,8 @@ def test_report_artefacts(tmp_path, problem: str, sets: list[str]) -> None:
         assert f'src="{link}"' in page
     assert f"# Run report: {problem}" in md
     assert "| steps by solver | ipopt 3 |" in md  # history.csv's solver column, counted
+    # the run's length, not the problem's default t_end (found by a new-user check: 't_end 0.1' for a run of steps)
+    assert "| run length | 3 steps |" in md and "| t_end |" not in md
 
 
 def test_snapshot_indices_and_html() -> None:

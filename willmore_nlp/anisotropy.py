@@ -198,17 +198,20 @@ def anisotropic_area_gradient(an: Anisotropy, X: np.ndarray, S: np.ndarray) -> n
     return scatter_sum(N, [(S[:, 1], g1), (S[:, 2], g2), (S[:, 0], -(g1 + g2))])
 
 
-def anisotropic_willmore_energy(mesh: Mesh, an: Anisotropy) -> float:
+def anisotropic_willmore_energy(mesh: Mesh, an: Anisotropy, nodes: np.ndarray | None = None) -> float:
     """w_gamma = 1/2 int h_gamma^2, independent of the scheme.
 
     h_gamma is the anisotropic mean curvature, the first variation of A_gamma: nodally
     ``h_gamma_i = |grad_i A_gamma| / m_i`` with the lumped mass m_i, so
     ``w_gamma = 1/2 sum_i |grad_i A_gamma|^2 / m_i`` (for gamma0 this is
-    :func:`willmore_nlp.geometry.willmore_energy`, as grad A = L X).
+    :func:`willmore_nlp.geometry.willmore_energy`, as grad A = L X), over the interior vertices, or over
+    ``nodes`` ((N,) bool, e.g. a clamped patch and its boundary nodes) among them.
     """
     V, S = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
     G = anisotropic_area_gradient(an, V, S)
     e = 0.5 * np.sum(G**2, axis=1) / lumped_mass(V, S)
     if not mesh.is_closed:
         e[mesh.boundary_vertices] = 0.0
+    if nodes is not None:
+        e = e[np.asarray(nodes, bool)]
     return float(e.sum())

@@ -695,7 +695,7 @@ class WillmoreFlow:
             stats={} if res is None else dict(res.stats),
             rejected=rejected,
             willmore_gamma=(float("nan") if self.setup.anisotropy is None
-                            else anisotropic_willmore_energy(mesh, self.setup.anisotropy)),
+                            else anisotropic_willmore_energy(mesh, self.setup.anisotropy, self.energy_nodes)),
             simplices=self.mesh.simplices,
             free=self.free,
             tau_tilde=self.tau_tilde,

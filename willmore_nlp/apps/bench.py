@@ -43,6 +43,14 @@ LATER_STEPS = (2, 3)
 newton-krylov preconditioner is no longer the first step's, so steps 2 and 3 differ)."""
 
 
+def _blas_threads() -> str:
+    """The thread count OpenBLAS takes from the environment (OPENBLAS_NUM_THREADS, else OMP_NUM_THREADS), as text."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+        if os.environ.get(var):
+            return f"{os.environ[var]} ({var})"
+    return "unset (one per core)"
+
+
 def _mesh(case: str) -> Any:
     from willmore_nlp.mesh import shapes
 
@@ -248,8 +256,8 @@ def write_report(rows: list[dict[str, Any]], out: Path, command: str) -> str:
         f"Command: `{command}`",
         "",
         f"Machine: {platform.platform()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
-        f"CasADi {casadi.__version__}, numpy {np.__version__}; BLAS threads (`OPENBLAS_NUM_THREADS`, read by "
-        f"CasADi's OpenBLAS under MUMPS): {os.environ.get('OPENBLAS_NUM_THREADS') or 'unset (one per core)'}. "
+        f"CasADi {casadi.__version__}, numpy {np.__version__}; BLAS threads (`OPENBLAS_NUM_THREADS`, else "
+        f"`OMP_NUM_THREADS`, read by CasADi's OpenBLAS under MUMPS): {_blas_threads()}. "
         "Sphere = icosphere scaled 1:1:1.3 in z, "
         "torus R = 1, r = 0.5; tau = 0.2 h, tau_tilde = h^2/100 (the library's default for surfaces), "
         "IPOPT tol 1e-9, MUMPS with METIS ordering. '1 KKT fact' is IPOPT + MUMPS (same options) solving "

@@ -224,7 +224,11 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
 
     params = [["problem", cfg.get("problem", "")], ["tau", cfg.get("tau", "")], ["tau_tilde", cfg.get("tau_tilde", "")],
               ["lam", cfg.get("lam", "")]]
-    params += [[k, v] for k, v in sorted(cfg.get("params", {}).items()) if k not in ("tau", "tau_tilde", "lam")]
+    length = [f"{cfg['steps']} steps" if cfg.get("steps") is not None else "",
+              f"t_end = {cfg['t_end']:g}" if cfg.get("t_end") is not None else ""]
+    params += [["run length", " or ".join(x for x in length if x)]]  # (the run's, not the problem's default)
+    params += [[k, v] for k, v in sorted(cfg.get("params", {}).items())
+               if k not in ("tau", "tau_tilde", "lam", "steps", "t_end")]
     params += [[k, v] for k, v in sorted(flow_options.items())]
     params += [[f"mesh {k}", v] for k, v in cfg.get("mesh", {}).items()]
     steps = [r for r in run.history if int(r["step"]) > 0]

@@ -111,7 +111,7 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None, tang
         terms.append(Conormal(bd.nco))
     problem = StepProblem(mesh.simplices[cells], mesh.n_vertices, mesh.m, terms, x_free=bd.free,
                           y_free=bd.patch_nodes, element_const=consts, name="clamped_" + _name(mesh, terms))
-    return StepSetup(problem, bd, simplices=mesh.simplices)
+    return StepSetup(problem, bd, anisotropy=an, simplices=mesh.simplices)
 
 
 def _name(mesh: Mesh, terms: list[Term]) -> str:
