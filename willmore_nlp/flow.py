@@ -1021,8 +1021,8 @@ class WillmoreFlow:
         actions: list[str] = []
         boundary = self.boundary
 
-        def lumped(Xc: np.ndarray, Fc: np.ndarray) -> float:
-            return geometry.willmore_energy(Mesh(Xc, Fc, self.mesh.source), self.energy_nodes)
+        def lumped(Xc: np.ndarray, Fc: np.ndarray) -> float:  # (flips keep the boundary: no new Mesh to check)
+            return geometry.willmore_energy(self.mesh, self.energy_nodes, vertices=Xc, simplices=Fc)
 
         rest: list[bool] = []  # (computed once, when a flip is first proposed)
 

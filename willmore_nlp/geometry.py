@@ -157,7 +157,8 @@ def gauss_curvature(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     return (2 * np.pi - ang) / lumped_mass(V, S)
 
 
-def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None, vertices: np.ndarray | None = None) -> float:
+def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None, vertices: np.ndarray | None = None,
+                    simplices: np.ndarray | None = None) -> float:
     """w = 1/2 int h^2 with h the sum of principal curvatures.
 
     Uses the stiffness matrix and the lumped mass: w = 1/2 sum_i |(L X)_i|^2 / m_i, over
@@ -172,8 +173,12 @@ def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None, vertices: np.nd
     vertices : (N, m) float array, optional
         Positions to use instead of ``mesh.vertices`` with the mesh's connectivity (not validated:
         e.g. a k-fold covered circle, whose vertices coincide in pairs).
+    simplices : (K, d + 1) int array, optional
+        Connectivity to use instead of ``mesh.simplices``, of the same vertices with the same boundary (not
+        validated: e.g. the mesh after interior edge flips, without building and checking a new Mesh).
     """
-    V, S = (mesh.vertices if vertices is None else np.asarray(vertices, float)), mesh.simplices
+    V = mesh.vertices if vertices is None else np.asarray(vertices, float)
+    S = mesh.simplices if simplices is None else np.asarray(simplices)
     _, L = mass_stiffness(V, S)
     LX = L @ V
     mi = lumped_mass(V, S)

@@ -308,9 +308,6 @@ class IpoptSolver:
         r = self._solver(**args)
         st = self._solver.stats()
         status = self._monitor.cut or str(st.get("return_status", "unknown"))
-        if status == "Invalid_Option":
-            raise UserInputError(f"IPOPT refused its options when solving (linear_solver = "
-                                 f"{self.options['linear_solver']!r} not in this build?)")
         it = st.get("iterations", {})
         stats = {
             "n_eval_f": st.get("n_call_nlp_f", 0),
