@@ -239,3 +239,27 @@ def test_a_clamped_anisotropic_flow_reports_its_anisotropic_energy() -> None:
         out[name] = flow.state()
     assert out["gamma0"].willmore_gamma == pytest.approx(out["gamma0"].willmore, rel=1e-12)
     assert np.isfinite(out["gamma1"].willmore_gamma) and out["gamma1"].willmore_gamma > out["gamma1"].willmore
+
+
+def test_a_clamped_anisotropic_patch_keeps_its_mesh_without_remeshing() -> None:
+    """A clamped surface with an anisotropy gets the in-step control at weight 100 (``default_weight``). Found by a
+    new-user check: ``sphere_cap`` with the ring variant and gamma1 slid its first free row toward Gamma in every step
+    (stepped triangles at 7-8 deg), which the mesh control remeshed after every step, with 3 retries per step. With the
+    default weight: steps at tau, no retry, no remeshing, every stepped state above 30 deg; weight 1 (given) keeps the
+    behaviour before. Isotropic clamped patches and closed anisotropic surfaces keep weight 1."""
+    from willmore_nlp.tangential import ANISOTROPIC_CLAMPED_CONTROL_WEIGHT, DEFAULT_CONTROL_WEIGHT
+
+    pb, _ = registry.build("sphere_cap", rings=6, variant="ring")
+    flow = pb.make_flow(anisotropy="gamma1")
+    assert flow.tangential_control.weight == ANISOTROPIC_CLAMPED_CONTROL_WEIGHT
+    steps = [flow.step() for _ in range(4)]
+    assert [(r.retries, r.tau) for r in steps] == [(0, pb.tau)] * 4
+    assert not any("remesh" in r.remeshed for r in steps)
+    assert min(r.stats["min_angle_before_remesh"] for r in steps) > 30.0
+    before = pb.make_flow(anisotropy="gamma1", tangential_control_weight=1.0)
+    slid = [before.step() for _ in range(2)]
+    assert all("remesh" in r.remeshed and r.stats["min_angle_before_remesh"] < 15.0 for r in slid)
+    assert all(r.retries > 0 and r.tau < pb.tau for r in slid)
+    assert pb.make_flow().tangential_control.weight == DEFAULT_CONTROL_WEIGHT
+    ellipsoid = WillmoreFlow(shapes.icosphere(2), 0.1, 1e-3, anisotropy="gamma1")
+    assert ellipsoid.tangential_control.weight == DEFAULT_CONTROL_WEIGHT

@@ -102,6 +102,48 @@ def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+_INTERRUPT_WHILE_LOADING = """
+import os, signal, sys
+from willmore_nlp import __main__ as launcher
+block = signal.pthread_sigmask
+def block_and_press_ctrl_c(how, mask):
+    old = block(how, mask)
+    if how == signal.SIG_BLOCK and {press}:
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while the library loads
+    return old
+signal.pthread_sigmask = block_and_press_ctrl_c
+code = launcher.main(["problems"])
+print("cli loaded" if "willmore_nlp.cli" in sys.modules else "cli not loaded")
+sys.exit(code)
+"""
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="signal masks are POSIX")
+def test_ctrl_c_while_the_library_loads_is_an_interrupt_not_a_traceback() -> None:
+    """Ctrl-C during the second the imports take (found by a new-user check: an import traceback, or exit 70 as a
+    bug when it hit trimesh's import, which turns it into a broken module): the launcher of ``willmore-nlp`` holds
+    it back until the library is loaded, then ends with one line and exit 130, having run nothing."""
+    r = subprocess.run([sys.executable, "-c", _INTERRUPT_WHILE_LOADING.format(press=True)], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 130, r.stderr
+    assert r.stderr.strip() == "willmore-nlp: interrupted" and r.stdout.split() == ["cli", "loaded"], (r.stdout,
+                                                                                                      r.stderr)
+    clean = subprocess.run([sys.executable, "-c", _INTERRUPT_WHILE_LOADING.format(press=False)], capture_output=True,
+                           text=True, timeout=300)
+    assert clean.returncode == 0 and "circle" in clean.stdout, clean.stderr
+
+
+def test_the_package_loads_its_names_on_first_use() -> None:
+    """``import willmore_nlp`` loads neither CasADi nor NumPy (the command line starts before them); the public
+    names load their modules when first used."""
+    code = ("import sys, willmore_nlp\n"
+            "before = {m for m in ('casadi', 'numpy', 'trimesh') if m in sys.modules}\n"
+            "from willmore_nlp import WillmoreFlow\n"
+            "print(sorted(before), WillmoreFlow.__module__, 'casadi' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.split() == ["[]", "willmore_nlp.flow", "True"], (r.stdout, r.stderr)
+
+
 def test_an_inherited_ignored_sigint_stays_ignored(tmp_path: Path, reference: Path) -> None:
     """A run started with SIGINT ignored (a shell's background job, ``willmore-nlp run ... &``) keeps ignoring it
     (found by a new-user check: the run's own handler replaced the inherited SIG_IGN and the job stopped): the

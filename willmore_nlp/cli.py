@@ -14,7 +14,7 @@ from typing import Any
 
 from willmore_nlp import runner
 from willmore_nlp.config import ConfigError, parse_overrides, resolve
-from willmore_nlp.errors import EXIT_BUG, EXIT_IO, EXIT_USAGE, IO_ERRNOS, PATH_ERRNOS, UserInputError
+from willmore_nlp.errors import EXIT_BUG, EXIT_IO, EXIT_USAGE, IO_ERRNOS, PATH_ERRNOS, UserInputError, interrupted
 
 __all__ = ["build_parser", "main"]
 
@@ -255,8 +255,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"willmore-nlp: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return EXIT_IO if exc.errno in IO_ERRNOS else EXIT_USAGE
     except KeyboardInterrupt:
-        print("willmore-nlp: interrupted", file=sys.stderr)
-        return 130
+        return interrupted()
     except MemoryError:  # (e.g. --set n=1e9: the input's size, not a bug)
         if args.debug:
             raise

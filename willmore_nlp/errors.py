@@ -8,6 +8,7 @@ is a :class:`UserInputError`: the CLI prints its message as one line and exits w
 from __future__ import annotations
 
 import errno
+import sys
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -23,6 +24,16 @@ IO_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, er
 PATH_ERRNOS = frozenset({errno.ENOTDIR, errno.EEXIST, errno.ENAMETOOLONG, errno.ELOOP, errno.EISDIR})
 """OSErrors of a path the user gave that cannot be made (a file where a folder must go, a name too long, a symlink
 loop): one line with :data:`EXIT_USAGE`."""
+EXIT_INTERRUPTED = 130
+"""Ctrl-C (SIGINT, 128 + 2) outside a run's steps: while the library loads, in a study, a report (runs that catch the
+signal end with 128 + its number after their last finished step, :mod:`willmore_nlp.runner`)."""
+
+
+def interrupted() -> int:
+    """Say "interrupted" on stderr (one line, no traceback: the user's Ctrl-C is not a bug) and return
+    :data:`EXIT_INTERRUPTED`."""
+    print("willmore-nlp: interrupted", file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 class UserInputError(ValueError):

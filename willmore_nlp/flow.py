@@ -23,7 +23,7 @@ from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
 from willmore_nlp.settings import FlowSettings, check_run_value, is_number, moebius_invariant
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
-from willmore_nlp.tangential import TangentialControl, resolve_method
+from willmore_nlp.tangential import TangentialControl, default_weight, resolve_method
 
 
 class FlowError(RuntimeError):
@@ -488,7 +488,10 @@ class WillmoreFlow:
                                 for n in self._solver_names())
         method = resolve_method(s.tangential_control, mesh, s.mesh_control, self._variational,
                                 _free_of(boundary))
-        self._control = TangentialControl(method, s.tangential_control_weight, s.tangential_control_time)
+        weight = s.tangential_control_weight
+        if weight is None:
+            weight = default_weight(mesh, s.anisotropy, _free_of(boundary) is not None)
+        self._control = TangentialControl(method, weight, s.tangential_control_time)
         self.codegen_info: dict[str, Any] = {"enabled": False}
         codegen = s.codegen
         if codegen is None:

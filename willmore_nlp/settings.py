@@ -21,7 +21,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from willmore_nlp.errors import UserInputError
-from willmore_nlp.tangential import CONTROL_METHODS, DEFAULT_CONTROL_WEIGHT
+from willmore_nlp.tangential import CONTROL_METHODS
 
 
 def is_number(v: Any) -> bool:
@@ -340,10 +340,12 @@ class FlowSettings(Settings):
         the normal component of every nodal equation, hence the geometric flow as h -> 0, is unchanged. Fixed
         (boundary) nodes never move. The discrete energy may rise by at most ``beta_c sum_i m_i |S_i|^2 / (2
         tau)`` in a step (the energy check uses the full W).
-    tangential_control_weight : float
-        beta_c > 0 of the mean-ratio control (default 1, measured: docs/guide/mesh_quality_measurements.md, "Rest
-        means rest"): the tangential motion is about beta_c / (1 + beta_c) of S plus 1 / (1 + beta_c)
-        of what the energy asks for.
+    tangential_control_weight : float or None
+        beta_c > 0 of the mean-ratio control: the tangential motion is about beta_c / (1 + beta_c) of S plus
+        1 / (1 + beta_c) of what the energy asks for. None (default): 1 (measured:
+        docs/guide/mesh_quality_measurements.md, "Rest means rest"), and 100 on a clamped surface with an
+        anisotropy, whose first free row slides toward the clamp under a smaller weight (docs/guide/anisotropy.md;
+        :func:`willmore_nlp.tangential.default_weight`).
     tangential_control_time : float
         T_c >= 0: a step of size tau targets the fraction min(1, tau / T_c) of the mesh-improving
         step (a tangential velocity of at most 1/T_c steps per unit time, consistent as tau -> 0);
@@ -555,7 +557,8 @@ class FlowSettings(Settings):
     volume: float | str | None = option(None, TARGET)
     area: float | str | None = option(None, TARGET)
     tangential_control: str = option("auto", one_of(*CONTROL_METHODS))
-    tangential_control_weight: float = option(DEFAULT_CONTROL_WEIGHT, real(0, lo_open=True))
+    tangential_control_weight: float | None = option(None, real(0, lo_open=True, unset="1; 100 on clamped "
+                                                                                   "anisotropic surfaces"))
     tangential_control_time: float = option(0.0, real(0))
     redistribute: bool = option(False, BOOL)
     adaptive: bool = option(False, BOOL)

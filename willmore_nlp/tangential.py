@@ -39,6 +39,15 @@ DEFAULT_CONTROL_WEIGHT = 1.0
 mesh-quality study's surfaces (docs/guide/mesh_quality_measurements.md, "Rest means rest"): 1 was at least as good as
 the repair alone in every case (the 642-v vesicle cup rests with 1 and not with 0.3; 3 slows the blends' rest)."""
 
+ANISOTROPIC_CLAMPED_CONTROL_WEIGHT = 100.0
+"""Default beta of the control on a clamped surface with an anisotropy (:func:`default_weight`). Measured
+(2026-11-30, docs/guide/anisotropy.md, "Clamped surfaces"): with gamma1 and the ring variant every step of weight 1
+slid the first free row toward Gamma (0.18 h per step at rest; the stepped triangles there at 5-7 deg) and an isotropic
+remeshing undid it after every step, with 4 retries per step on ``sphere_cap``; weight 10 still let it fall to 14.6
+deg, 30 to 19 deg every fourth step; 100 keeps every stepped state above 32 deg with no remeshing and no retry, and
+gamma0 and gamma2:1e-2 on the same patch run as well as with 1. On closed anisotropic surfaces it lets the energy
+rise (a gamma1 ellipsoid: W_gamma 42.42 -> 43.25 in 30 steps), so they keep :data:`DEFAULT_CONTROL_WEIGHT`."""
+
 
 def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool,
                    free: np.ndarray | None = None) -> str:
@@ -66,6 +75,15 @@ def resolve_method(method: str, mesh: Mesh, mesh_control: str, variational: bool
     from willmore_nlp.mesh.topology import components, euler_characteristic
 
     return "meanratio" if euler_characteristic(mesh.simplices) == 2 * components(mesh)[0] else "off"
+
+
+def default_weight(mesh: Mesh, anisotropy: object, clamped: bool) -> float:
+    """The control's weight when ``tangential_control_weight`` is not given:
+    :data:`ANISOTROPIC_CLAMPED_CONTROL_WEIGHT` for a clamped surface with an ``anisotropy``, else
+    :data:`DEFAULT_CONTROL_WEIGHT`."""
+    if clamped and anisotropy is not None and mesh.d == 2:
+        return ANISOTROPIC_CLAMPED_CONTROL_WEIGHT
+    return DEFAULT_CONTROL_WEIGHT
 
 
 @dataclass(frozen=True)
