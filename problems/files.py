@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 
 from willmore_nlp.boundary import VARIANTS, Boundary
-from willmore_nlp.flow import REPAIR_PASSES_HANDLES, SMALL_MESH_SIZE, check_scale
+from willmore_nlp.flow import REPAIR_PASSES_HANDLES, check_scale, ipopt_scale_trouble
 from willmore_nlp.geometry import enclosed_volume, length_scale
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import load_mesh
@@ -86,10 +86,12 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     -> 30.63 where the unit one became a sphere, 24.97; scaled by 0.01 its first step was taken at 6e-8 of its tau after
     2 retries; with tau = h L^3 the three flows agree step for step, W to 1e-9). ``length = 1`` is tau = h in the file's
     units, this problem's default before 2026-11-29 (night), at which the measurements quoted below were taken. A
-    curve or surface narrower than :data:`~willmore_nlp.flow.SMALL_MESH_SIZE` gets ``solver = "newton-krylov"`` alone:
-    IPOPT's absolute ``tol`` is met there by steps that do not move (a 162-v ellipsoid 4e-5 wide: 0 iterations),
-    newton-krylov's tolerance is relative (the same steps as at unit size, W to 1e-9; a 40-gon ellipse 4e-5 wide,
-    closed or clamped: W to 1e-11).
+    curve or surface narrower than :data:`~willmore_nlp.flow.SMALL_MESH_SIZE`, wider than
+    :data:`~willmore_nlp.flow.LARGE_MESH_SIZE` or farther from the origin than :data:`~willmore_nlp.flow.OFF_CENTRE`
+    widths gets ``solver = "newton-krylov"`` alone (:func:`~willmore_nlp.flow.ipopt_scale_trouble`): IPOPT's absolute
+    ``tol`` is met there by steps that do not move (a 162-v ellipsoid 4e-5 wide: 0 iterations) or fails (the same
+    ellipsoid 28,000 wide or moved 1e4 from the origin), newton-krylov's tolerance is relative (the same steps as at
+    unit size and at the origin, W to 1e-9; a 40-gon ellipse 4e-5 wide, closed or clamped: W to 1e-11).
 
     Surfaces get the surface defaults of the other surface problems: tau_tilde = h^2 / 100 (the
     scheme shrinks spheres at rate 16 tau_tilde / R^5, see README) and the mesh control of
@@ -115,6 +117,9 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     spurious minimiser of the step: four edges collapsed (edge ratio 327) and the polygon's Willmore energy rose from
     4.9 to 188 while the scheme's fell; h^2 / 10 and smaller flow it smoothly (W 4.87 -> 1.83 in 10 steps), and the
     same curve in the plane z = 0 flows alike at h^2 / 4.
+
+    A closed surface oriented inward (or a closed plane curve running clockwise) is flowed with each simplex reversed,
+    with a warning: the flow does not depend on the orientation, a volume constraint and c0 take the outward one.
 
     A mesh with a boundary needs ``clamp``: its outermost strip of simplices (every simplex with a
     vertex on the mesh boundary) is held fixed and clamps the rest, position and tangent plane
@@ -156,8 +161,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
         raise ProblemError(f"problem 'file': clamp must be one of {', '.join(VARIANTS)} (or empty), got {clamp!r}")
     if not 0 <= length < math.inf:
         raise ProblemError(f"problem 'file': length must be a positive number (0: the mesh's own), got {length!r}")
-    mesh = load_mesh(path)
-    width = check_scale(mesh, warn=False)  # (a mesh too wide is refused before L^3 can overflow; the flow warns)
+    mesh = _outward(load_mesh(path), path)
+    check_scale(mesh, warn=False)  # (a mesh too wide is refused before L^3 can overflow; the flow warns)
     parts = components(mesh)[0]
     options: dict[str, object] = ({"adaptive": True, "max_retries": 8, "first_step_budget": FIRST_STEP_BUDGET}
                                   if mesh.d == 2 else {})
@@ -173,8 +178,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
         options.update(tangential_weight=10.0, conformal_gauge=True, remesh_repair=REPAIR_PASSES_HANDLES)
     if chi is not None and mesh.m == 3 and not clamp and parts == 1:  # (several: the flow's error)
         _refine_if_coarse(mesh, chi, options, path)
-    if width < SMALL_MESH_SIZE:  # (IPOPT's absolute tol: steps that barely move; newton-krylov's is relative: the
-        options.update(solver="newton-krylov")  # same steps at any scale)
+    if ipopt_scale_trouble(mesh.vertices):  # (IPOPT's absolute tolerances; newton-krylov's are relative: the same
+        options.update(solver="newton-krylov")  # steps at any scale and place)
     elif mesh.d == 2 and mesh.n_vertices >= NEWTON_KRYLOV_FROM:
         options.update(solver="newton-krylov", fallback_solver="ipopt")
     elif mesh.d == 2:  # (from the refined input's first step, or a refinement's next step, on)
@@ -188,6 +193,24 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
                                   mesh.is_closed)  # (per component; areas only: a sliver is an error later)
     return Problem(mesh, h * size**3 if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
                    lam, steps=steps, flow_options=options, description=f"mesh from {path}")
+
+
+def _outward(mesh: Mesh, path: str) -> Mesh:
+    """``mesh`` oriented outward: a closed curve in the plane or closed surface in R^3 of one component whose signed
+    enclosed volume is negative is given with each simplex reversed, with a warning. The Willmore flow does not depend
+    on the orientation; a volume constraint and a spontaneous curvature c0 take the outward one (an inward ellipsoid
+    file with ``volume = initial`` was refused with "volume must be a positive number", and with c0 = 1 it flowed
+    as c0 = -1: found by a new-user check)."""
+    if not (mesh.is_closed and mesh.m == mesh.d + 1) or components(mesh)[0] != 1:
+        return mesh
+    v = enclosed_volume(mesh)
+    if v >= 0:
+        return mesh
+    what = "the mesh is oriented inward (signed enclosed volume" if mesh.d == 2 else \
+        "the curve runs clockwise (signed enclosed area"
+    warnings.warn(f"{path}: {what} {v:.4g}): it is flowed with each {'triangle' if mesh.d == 2 else 'segment'} "
+                  "reversed, outward, as volume constraints and the spontaneous curvature c0 take it", stacklevel=3)
+    return Mesh(mesh.vertices, np.asarray(mesh.simplices)[:, ::-1], mesh.source)
 
 
 def _planar(V: np.ndarray) -> bool:

@@ -78,6 +78,8 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
         raise UserInputError(f"parameter start: must be one of {', '.join(STARTS)}, got {start!r}")
     if not 0 < reduced_volume < 1:
         raise UserInputError(f"parameter reduced_volume: must be in (0, 1), got {reduced_volume}")
+    if not 1 <= subdivisions <= 7:  # (0 made a 12-vertex icosahedron "vesicle", -1 the same: a new-user check)
+        raise UserInputError(f"parameter subdivisions: must be in [1, 7] (42 to 163,842 vertices), got {subdivisions}")
     if start == "cup":
         if not bend > 0:
             raise UserInputError(f"parameter bend: must be > 0, got {bend}")
@@ -86,7 +88,10 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
         except MeshError as e:
             raise UserInputError(f"parameter reduced_volume: {e}") from None
     else:
-        mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
+        try:
+            mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
+        except MeshError as e:
+            raise UserInputError(f"parameter reduced_volume: {e}") from None
     h = mesh.h
     tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)
     if tangential_weight is None:
@@ -104,4 +109,5 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
         options.update(relax=True, relax_max_tau=8 * tau_, relax_tol=1e-5, tangential_control=SPHEROID_CONTROL)
         t_end = None
     return Problem(mesh, tau_, tt_, 0.0, steps=steps, t_end=t_end, flow_options=options,
-                   description=f"{start} vesicle of reduced volume {reduced_volume} relaxing at fixed V and A")
+                   description=f"{start} vesicle of reduced volume {reduced_volume} relaxing at fixed V and A",
+                   held={"volume": "reduced_volume", "area": "reduced_volume"})

@@ -572,3 +572,72 @@ def test_a_space_curve_file_gets_the_space_curve_tau_tilde(tmp_path) -> None:
     assert np.all(np.diff(w) < 0) and w[-1] < 0.5 * w[0]
     edges = np.linalg.norm(flow.X - np.roll(flow.X, -1, axis=0), axis=1)
     assert edges.max() / edges.min() < 3
+
+
+def test_meshes_far_from_the_origin_or_wide_flow_with_newton_krylov(tmp_path) -> None:
+    """IPOPT's absolute tolerances do not suit every placement and size (found by a new-user check): the 162-v
+    ellipsoid moved 1e3 from the origin needed a retry and fell behind, 1e4 crawled, 1e5 failed step 1; scaled
+    28,000 wide it took 6 retries and ended 2 % off. The ``file`` problem gives such meshes newton-krylov alone
+    (``ipopt_scale_trouble``), which repeats the centred unit steps (W to 1e-9; vertices to 1e-6 of the width);
+    IPOPT run on them warns; a mesh 1e4 widths from the origin or farther is refused (its coordinates keep too few
+    digits of its shape)."""
+    from willmore_nlp.flow import ipopt_scale_trouble
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.mesh.core import MeshError
+    from willmore_nlp.mesh.io import save_mesh
+
+    base = shapes.icosphere(2)
+    V = base.vertices * [1.0, 1.0, 1.4]
+    problems = {}
+    for name, W in (("unit", V), ("far", V + 1e3), ("wide", 3e4 * V)):
+        save_mesh(base.with_vertices(W), tmp_path / f"{name}.obj")
+        problems[name] = registry.build("file", path=str(tmp_path / f"{name}.obj"))[0]
+    unit = problems.pop("unit")
+    assert not ipopt_scale_trouble(unit.mesh.vertices) and "solver" not in unit.flow_options
+    ref = unit.make_flow(solver="newton-krylov", large_solver="")
+    steps = [ref.step() for _ in range(2)]
+    for name, pb in problems.items():
+        assert pb.flow_options["solver"] == "newton-krylov" and "fallback_solver" not in pb.flow_options, name
+        scale = 3e4 if name == "wide" else 1.0
+        shift = 1e3 if name == "far" else 0.0
+        flow = pb.make_flow()
+        for a in steps:
+            b = flow.step()
+            assert b.retries == a.retries == 0 and b.willmore == pytest.approx(a.willmore, rel=1e-9), name
+            np.testing.assert_allclose((b.vertices - shift) / scale, a.vertices, rtol=0, atol=1e-6 * 2.8)
+        with pytest.warns(UserWarning, match="IPOPT's absolute tolerances are then too tight"):
+            pb.make_flow(solver="ipopt")
+    save_mesh(base.with_vertices(V + 3e4), tmp_path / "farther.obj")
+    with pytest.raises(MeshError, match=r"times its width 2\.8: its coordinates keep too few digits"):
+        registry.build("file", path=str(tmp_path / "farther.obj"))
+
+
+def test_an_inward_file_is_flowed_outward(tmp_path) -> None:
+    """A closed surface (or curve) whose file orients it inward is flowed with its simplices reversed, with a warning
+    (found by a new-user check: ``volume = initial`` was refused as "volume must be a positive number ... got -5.67",
+    and ``c0 = 1`` flowed it as c0 = -1): the same steps as the outward file, c0 and the volume constraint included.
+    WillmoreFlow itself, given an inward mesh and a volume constraint or c0, names the orientation (with c0 it had
+    flowed it as -c0)."""
+    from willmore_nlp import WillmoreFlow
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.mesh.core import Mesh, MeshError
+    from willmore_nlp.mesh.io import save_mesh
+
+    base = shapes.icosphere(2)
+    out = base.with_vertices(base.vertices * [1.0, 1.0, 1.4])
+    save_mesh(out, tmp_path / "out.obj")
+    inward = Mesh(out.vertices, out.simplices[:, ::-1])
+    save_mesh(inward, tmp_path / "in.obj")
+    a, _ = registry.build("file", path=str(tmp_path / "out.obj"))
+    with pytest.warns(UserWarning, match=r"oriented inward \(signed enclosed volume -.*each triangle reversed"):
+        b, _ = registry.build("file", path=str(tmp_path / "in.obj"))
+    np.testing.assert_array_equal(b.mesh.simplices, out.simplices)
+    kw = {"c0": 1.0, "volume": "initial"}
+    fa, fb = a.make_flow(**kw), b.make_flow(**kw)
+    for _ in range(2):
+        ra, rb = fa.step(), fb.step()
+        assert rb.willmore == pytest.approx(ra.willmore, rel=1e-12) and rb.volume == pytest.approx(ra.volume, rel=1e-12)
+    for kw in ({"volume": "initial"}, {"c0": 1.0}):
+        with pytest.raises(MeshError, match=r"oriented inward \(signed enclosed volume -.*outward orientation; reverse "
+                                            r"each triangle's vertex"):
+            WillmoreFlow(inward, 0.1, 1e-3, **kw)

@@ -36,19 +36,30 @@ TIMING = {"wall_time", "t_wall_eval", "t_wall_solver", "t_wall_total", "t_wall_c
 
 @pytest.fixture(autouse=True)
 def _restore_signal_handlers() -> object:
-    """cli.main leaves SIGINT/SIGTERM ignored after a signal (it is about to exit); pytest goes on."""
+    """cli.main leaves SIGINT/SIGTERM ignored after a signal (it is about to exit); pytest goes on. The tests see
+    SIGINT as in a terminal: pytest started as a shell's background job ('pytest ... &') inherits it ignored, and an
+    ignored SIGINT stays ignored by design (``test_an_inherited_ignored_sigint_stays_ignored``)."""
     saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    if saved[signal.SIGINT] is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
     for s, h in saved.items():
         signal.signal(s, h)
 
 
+def _as_in_a_terminal() -> None:
+    """``preexec_fn`` of the subprocesses: SIGINT delivered (see :func:`_restore_signal_handlers`)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def run_cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=600)
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=600,
+                          preexec_fn=_as_in_a_terminal)
 
 
 def start_cli(*args: str | Path) -> subprocess.Popen[str]:
-    return subprocess.Popen([*CLI, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen([*CLI, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_as_in_a_terminal)
 
 
 def wait_for(path: Path, proc: subprocess.Popen[str], timeout: float = 300.0) -> None:
@@ -124,7 +135,7 @@ def test_ctrl_c_while_the_library_loads_is_an_interrupt_not_a_traceback() -> Non
     bug when it hit trimesh's import, which turns it into a broken module): the launcher of ``willmore-nlp`` holds
     it back until the library is loaded, then ends with one line and exit 130, having run nothing."""
     r = subprocess.run([sys.executable, "-c", _INTERRUPT_WHILE_LOADING.format(press=True)], capture_output=True,
-                       text=True, timeout=300)
+                       text=True, timeout=300, preexec_fn=_as_in_a_terminal)
     assert r.returncode == 130, r.stderr
     assert r.stderr.strip() == "willmore-nlp: interrupted" and r.stdout.split() == ["cli", "loaded"], (r.stdout,
                                                                                                       r.stderr)

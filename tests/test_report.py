@@ -117,6 +117,13 @@ def test_mesh_matched_references() -> None:
     assert references(shapes.icosphere(2), 0.0, 1e-4, t, {"boundary": "..."})[0] == []
     assert references(shapes.ellipse(32, 2.0, 1.0), 0.0, 1e-3, t, {})[0] == []
     assert references(shapes.ellipse(32, 2.0, 1.0), 0.1, 1e-3, t, {"anisotropy": "gamma1"})[0] == []
+    # nor where volume or area are held or c0 is set (a discocyte's report said "Target: sphere", +19.6 to 8 pi; a
+    # circle of fixed length was compared with the expanding circle: a new-user check); c0 = 0 is the Willmore flow
+    for held in ({"volume": "initial"}, {"area": 4.5}, {"c0": 1.0}):
+        refs, note = references(shapes.icosphere(2), 0.0, 1e-4, t, held)
+        assert refs == [] and ("held fixed" in note or "spontaneous curvature" in note), note
+    assert references(shapes.regular_polygon(60), 0.0, 1e-4, t, {"area": "initial"})[0] == []
+    assert references(shapes.icosphere(2), 0.0, 1e-4, t, {"c0": 0.0})[1] == "sphere"
 
 
 def test_report_references_and_log_tau(tmp_path) -> None:

@@ -19,7 +19,7 @@ import pytest
 
 from willmore_nlp import cli
 from willmore_nlp.flow import StepSizeWarning, WillmoreFlow
-from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh import Mesh, shapes
 from willmore_nlp.mesh.io import save_mesh
 
 CLI = [sys.executable, "-m", "willmore_nlp.cli"]
@@ -49,6 +49,19 @@ def _icosphere_part_obj(cut: float = -0.2) -> str:
     index[used] = np.arange(used.size)
     return ("".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in s.vertices[used])
             + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in index[F]))
+
+
+def _saved(d: Path, name: str, V: object, S: object) -> list[str]:
+    save_mesh(Mesh(np.asarray(V, float), np.asarray(S)), d / name)
+    return [str(d / name)]
+
+
+def _slab(thickness: float) -> tuple[np.ndarray, np.ndarray]:
+    """A 1 x 1 x ``thickness`` box subdivided three times (386 vertices, edges about 0.1)."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=[1.0, 1.0, thickness]).subdivide().subdivide().subdivide()
+    return np.asarray(box.vertices), np.asarray(box.faces)
 
 
 def _npz(path: Path, **arrays: object) -> None:
@@ -283,6 +296,32 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("obj-open-volume",
      lambda d: [*_write("cap.obj", _icosphere_part_obj())(d), "--set", "clamp=conormal", "--set", "volume=initial"],
      ["cap.obj: volume needs a closed curve in R^2 or a closed surface"]),
+    ("ply-concave-polygon", _write("s.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\n"
+                                   "property double y\nproperty double z\nelement face 1\n"
+                                   "property list uchar int vertex_indices\nend_header\n0 0 0\n2 1 0\n0 2 0\n"
+                                   "0.5 1 0\n4 0 1 2 3\n"),
+     ["s.ply:face 0: a face with 4 corners is not convex (at its corner 4)"]),
+    ("obj-far-from-origin", lambda d: _saved(d, "far.obj", shapes.icosphere(1).vertices + 1e5,
+                                             shapes.icosphere(1).simplices),
+     ["far.obj: the mesh lies 1e+05 from the origin, 5e+04 times its width", "move it to the origin"]),
+    ("obj-thin-slab", lambda d: _saved(d, "slab.obj", *_slab(0.02)),
+     ["slab.obj: the input mesh is below the mesh control's thresholds, and repairing it at its own edge length would "
+      "change its shape (area 2.08 ->", "features thinner than its edges", "--set input_repair=false"]),
+    ("obj-clamped-without-free-vertex",
+     lambda d: [*_saved(d, "grid.obj", np.c_[np.mgrid[0:3, 0:3].reshape(2, -1).T, np.zeros(9)],
+                        [[0, 3, 4], [0, 4, 1], [1, 4, 5], [1, 5, 2], [3, 6, 7], [3, 7, 4], [4, 7, 8], [4, 8, 5]]),
+                "--set", "clamp=conormal"], ["grid.obj: empty patch: no free vertex selected"]),
+    ("set-vesicle-reduced-volume-tiny", lambda d: ["vesicle", "--set", "reduced_volume=0.01", "--set", "start=prolate"],
+     ["parameter reduced_volume: ellipsoid_of_reduced_volume: no prolate spheroid of reduced volume 0.01"]),
+    ("set-vesicle-subdivisions-zero", lambda d: ["vesicle", "--set", "subdivisions=0"],
+     ["parameter subdivisions: must be in [1, 7]"]),
+    ("set-vesicle-volume", lambda d: ["vesicle", "--set", "volume=3"],
+     ["volume is set by the problem's parameters; set reduced_volume instead"]),
+    ("set-volume-far-from-the-mesh",
+     lambda d: [*_saved(d, "e.obj", shapes.icosphere(3).vertices * [1.0, 1.0, 1.6], shapes.icosphere(3).simplices),
+                "--set", "volume=3", "--set", "area=initial"],
+     ["e.obj: volume/area targets far from the initial mesh's own (volume 3 (its own 6.6", "smallest angle of 0.5",
+      "start from a mesh nearer the targets"]),
 ]
 
 
@@ -319,6 +358,19 @@ def test_lenient_inputs_are_read(tmp_path: Path) -> None:
     (tmp_path / "c.txt").write_text(_circle_txt(12))
     (tmp_path / "cfg.toml").write_bytes(b'\xef\xbb\xbfmesh = "c.txt"\nsteps = 3\n')
     assert resolve(str(tmp_path / "cfg.toml")).steps == 3
+    # a byte-order mark in OBJ, OFF and curve files (Windows editors write one; it was "unknown OBJ statement")
+    (tmp_path / "b.obj").write_bytes(b"\xef\xbb\xbf# exported\n" + _ico_obj().encode())
+    (tmp_path / "b.off").write_bytes(b"\xef\xbb\xbfOFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    (tmp_path / "b.txt").write_bytes(b"\xef\xbb\xbf" + _circle_txt(12).encode())
+    assert [load_mesh(tmp_path / f).n_simplices for f in ("b.obj", "b.off", "b.txt")] == [20, 1, 12]
+    # an STL 3e-8 wide: its corners are joined where exactly equal (trimesh's merge rounded to 1e-8: "simplex 0
+    # repeats a vertex")
+    import trimesh
+
+    ico = shapes.icosphere(1)
+    trimesh.Trimesh(1.5e-8 * ico.vertices, ico.simplices, process=False).export(tmp_path / "tiny.stl")
+    tiny = load_mesh(tmp_path / "tiny.stl")
+    assert (tiny.n_vertices, tiny.n_simplices) == (ico.n_vertices, ico.n_simplices)
 
 
 def test_negative_steps_name_the_option(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

@@ -119,6 +119,26 @@ SMALL_MESH_SIZE = 0.1
 met by iterates that barely move (measured: the unit-size steps are reproduced to 2e-7 (ellipse) and
 2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4)."""
 
+LARGE_MESH_SIZE = 1e3
+"""WillmoreFlow warns when IPOPT may run on a mesh wider than this (and the ``file`` problem gives it newton-krylov):
+IPOPT's absolute tolerances are then too tight for the coordinates. Measured (``file`` problem, 10 steps of the 162-v
+ellipsoid 1:1:1.4 scaled to width w): w = 280 repeats the unit steps (W to 1e-9); w = 2,800 needs a retry and ends
+1.5e-5 off, w = 28,000 6 retries and 2 % off, w = 84,000 fails; newton-krylov repeats them at every width."""
+
+OFF_CENTRE = 100.0
+"""WillmoreFlow warns when IPOPT may run on a mesh whose farthest coordinate exceeds this many of its widths (and the
+``file`` problem gives it newton-krylov). Measured (the same ellipsoid, 2.8 wide, moved by c along every axis, 10
+steps): c = 100 repeats the centred steps (W to 1e-9); c = 1,000 needs a retry and falls behind (t = 2.47 against
+4.79), c = 1e4 crawls and c >= 1e5 fails step 1; newton-krylov repeats them to c = 1e5 (found by a new-user check)."""
+
+MAX_OFF_CENTRE = 1e4
+"""WillmoreFlow refuses a mesh whose farthest coordinate exceeds this many of its widths: its coordinates then keep too
+few digits of its shape (float64: about 16 digits in all). Measured (the ellipsoid of :data:`OFF_CENTRE`): newton-krylov
+repeats the centred steps at c = 1e5 (3.6e4 widths) and fails step 1 at every tau at c = 1e6 (3.6e5 widths; its line
+search stops at round-off of the coordinates, about 1e-16 of 1e6 against edges of 0.5). A finer mesh loses as many
+digits a few times closer (edges h: the round-off relative to h is what counts), hence 1e4, a tenth of the last width
+measured to work on a mesh of 162 vertices."""
+
 BUDGET_WINDOW = 20
 """The iteration budget is a multiple of the median iteration count of this many last accepted steps."""
 
@@ -136,6 +156,14 @@ TARGET_CHANGE = 0.1
 """A ``remesh_target`` more than this fraction away from the input's equilateral edge remeshes the input before the
 first step (``input_repair``), whatever its quality: refining (or coarsening) a mesh is asked that way, as the
 end-of-run resolution warning advises (:func:`willmore_nlp.references.resolution_warning`)."""
+
+INPUT_SHAPE_CHANGE = 0.3
+"""``input_repair`` refuses a remeshing of the input that changes its area by more than this fraction (an error that
+names the cause): measured, the repairs of a trimesh capsule and a noisy capsule change it by 0.9 % and 2.2 %, those
+of coarse trimesh cones (34 and 98 vertices, new vertices on the input's triangles cut the apex and the rim) by 11 %
+and 15 % and then flow (tests/test_remesh.py, test_convex_start.py), while the remeshings of a 1 x 1 x 0.02 box (386
+v, triangles 0.1 wide on faces 0.02 thick) and a 1 x 1 x 0.001 one shrank them by 84 % and 100 % (to 89 and 4
+vertices; a new-user check), as any remeshing at edges longer than the features."""
 
 RESTORE_LIMIT = 0.25
 """A mesh repair is dropped when moving the repaired mesh back onto the volume/area targets would move a vertex
@@ -302,19 +330,43 @@ class StepResult:
 
 
 def check_scale(mesh: Mesh, warn: bool = True) -> float:
-    """Refuse an initial mesh too wide for the solvers' absolute tolerances (MeshError); warn when it is tiny (with
-    ``warn``: a solver other than newton-krylov may run). Returns its width (the largest extent of its bounding box).
-    """
-    size = float(np.ptp(mesh.vertices, axis=0).max())
+    """Refuse an initial mesh too wide (:data:`MAX_MESH_SIZE`) or too far from the origin (:data:`MAX_OFF_CENTRE`)
+    for float64 and the solvers' tolerances (MeshError); with ``warn`` (a solver other than newton-krylov may run),
+    warn when IPOPT's absolute tolerances do not suit its coordinates (:func:`ipopt_scale_trouble`). Returns its width
+    (the largest extent of its bounding box)."""
+    V = mesh.vertices
+    size = float(np.ptp(V, axis=0).max())
     if size > MAX_MESH_SIZE:
         raise MeshError(f"{mesh.source}: the mesh is {size:.3g} wide, beyond {MAX_MESH_SIZE:g} where the solver's "
                         f"absolute tolerances fail; rescale it to a size about 1 (Willmore flow is scale invariant: "
                         f"X -> X/L takes t -> t/L^4)")
-    if warn and size < SMALL_MESH_SIZE:
-        warnings.warn(f"{mesh.source}: the mesh is only {size:.3g} wide: IPOPT's absolute tolerance (tol) is then met "
-                      f"by steps that barely move; rescale it to a size about 1 (X -> X/L takes t -> t/L^4) or set "
+    far = float(np.abs(V).max())
+    if far > MAX_OFF_CENTRE * size:
+        raise MeshError(f"{mesh.source}: the mesh lies {far:.3g} from the origin, {far / size:.3g} times its width "
+                        f"{size:.3g}: its coordinates keep too few digits of its shape for the steps; move it to the "
+                        "origin (Willmore flow is translation invariant)")
+    trouble = ipopt_scale_trouble(V)
+    if warn and trouble:
+        warnings.warn(f"{mesh.source}: the mesh is {trouble}; move it to the origin and rescale it to a size about 1 "
+                      f"(Willmore flow is translation and scale invariant: X -> (X - c)/L takes t -> t/L^4) or set "
                       f"solver=newton-krylov (its tolerance is relative)", stacklevel=3)
     return size
+
+
+def ipopt_scale_trouble(V: np.ndarray) -> str:
+    """Why IPOPT's absolute tolerances do not suit the coordinates ``V`` (N, m) of a mesh ("" when they do): narrower
+    than :data:`SMALL_MESH_SIZE`, wider than :data:`LARGE_MESH_SIZE`, or farther from the origin than
+    :data:`OFF_CENTRE` widths."""
+    size = float(np.ptp(V, axis=0).max())
+    far = float(np.abs(V).max())
+    if size < SMALL_MESH_SIZE:
+        return f"only {size:.3g} wide: IPOPT's absolute tolerance (tol) is then met by steps that barely move"
+    if size > LARGE_MESH_SIZE:
+        return f"{size:.3g} wide: IPOPT's absolute tolerances are then too tight for its coordinates"
+    if far > OFF_CENTRE * size:
+        return (f"{far:.3g} from the origin, {far / size:.3g} times its width: IPOPT's absolute tolerances are then "
+                "too tight for its coordinates")
+    return ""
 
 
 def _check_quality(mesh: Mesh, min_angle: float, max_edge_ratio: float, repaired: str) -> None:
@@ -379,6 +431,19 @@ def _warn_folds(mesh: Mesh, limit: float) -> None:
         warnings.warn(f"{mesh.source}: {over} edge(s) whose triangles' normals turn by more than max_dihedral = "
                       f"{limit:g} deg (most at edge ({a}, {b}): {turn:.4g} deg), folds or sharp creases of the input: "
                       f"steps may keep or soften them but not sharpen them", stacklevel=3)
+
+
+def _check_shape_kept(mesh: Mesh, X1: np.ndarray, F1: np.ndarray, what: str) -> None:
+    """Refuse an ``input_repair`` remeshing (X1, F1) of ``mesh`` whose area differs by more than
+    :data:`INPUT_SHAPE_CHANGE` of the input's: the input's features are thinner than the remeshing's edges."""
+    a0 = float(geometry.simplex_volumes(mesh.vertices, mesh.simplices).sum())
+    a1 = float(geometry.simplex_volumes(X1, F1).sum())
+    if abs(a1 / a0 - 1) > INPUT_SHAPE_CHANGE:
+        raise UserInputError(
+            f"{mesh.source}: the input mesh is below the mesh control's thresholds, and {what} would change its shape "
+            f"(area {a0:.4g} -> {a1:.4g}, {a1 / a0 - 1:+.0%}; {mesh.n_vertices} -> {len(X1)} vertices): it has "
+            f"features thinner than its edges (mean edge {mesh.h:.3g}); give a finer mesh or a smaller --set "
+            "remesh_target=H, or --set input_repair=false to flow it as given")
 
 
 def _improves(before: dict[str, float], after: dict[str, float]) -> bool:
@@ -512,6 +577,7 @@ class WillmoreFlow:
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             raise UserInputError(f"volume/area: the initial mesh cannot be moved onto the targets {self._targets} "
                                  f"({exc})") from exc
+        self._check_restored(mesh)
         self.t = 0.0
         try:
             self.Y = self._solve_y(self.X, self.tau)
@@ -519,7 +585,11 @@ class WillmoreFlow:
             raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
-        self._relax_start(geometry.willmore_energy(self.mesh, self.energy_nodes))
+        # relax=true watches the energy the flow decreases: W, or with lam A, c0 or an anisotropy the scheme's energy
+        # (a c0 vesicle "relaxed" on a rise of W while its Helfrich energy still fell 2e-4 per step: a new-user check)
+        self._relax_on_energy = s.relax and not moebius_invariant(lam, s.c0, s.anisotropy)
+        self.relax_reason = ""  # why relax=true ended: "small" (change below relax_tol) or "rose" (drift at rest)
+        self._relax_start(self._relax_value(self.X, self.Y))
         self._X_prev = self.X
         # the scheme's drift of closed surfaces with mesh control and no outer constraint (a scale to drift along)
         drifts = self.remesh and boundary is None and mesh.is_closed and not self.problem.nh
@@ -633,6 +703,26 @@ class WillmoreFlow:
         p = self._x_params(X, self.tau)
         h = self.evaluator.h(P.pack_z(X, X), p)
         return float(np.max(np.abs(h) / np.abs([P.params.scalar(p, t) for t in P.targets])))
+
+    def _check_restored(self, mesh: Mesh) -> None:
+        """Refuse volume/area targets so far from the initial mesh's own that moving it onto them (:meth:`_restore`)
+        halves its smallest angle: measured on a 642-v ellipsoid (35.8 deg; area held), volume 0.9 and 0.8 of its
+        own move a vertex by 1.6 and 2.9 mean edges and leave 29.6 and 24.4 deg, 0.7 leaves 4.0 deg with a 74-deg
+        fold, and a volume of 3 instead of 6.64 left 0.54 deg and a 178-deg fold, whose run failed after 18
+        attempts (a new-user check)."""
+        if not self.problem.nh or mesh.d != 2:
+            return
+        before = float(geometry.min_angles(mesh.vertices, mesh.simplices).min())
+        after = float(geometry.min_angles(self.X, mesh.simplices).min())
+        if after < 0.5 * before:
+            own = {"volume": geometry.enclosed_volume(mesh), "area": geometry.measure(mesh)}
+            move = float(np.linalg.norm(self.X - mesh.vertices, axis=1).max()) / mesh.h
+            targets = ", ".join(f"{k} {v:.4g} (its own {own[k]:.4g})" for k, v in self._targets.items()
+                                if v is not None)
+            raise UserInputError(f"{mesh.source}: volume/area targets far from the initial mesh's own ({targets}): "
+                                 f"moving it onto them moves a vertex by {move:.2g} mean edges and leaves a smallest "
+                                 f"angle of {after:.2g} deg ({before:.3g} before); start from a mesh nearer the "
+                                 "targets, or use \"initial\"")
 
     def _restore(self, X: np.ndarray) -> np.ndarray:
         """X moved onto the outer constraints (volume, area: functions of X only) by least-norm
@@ -922,7 +1012,8 @@ class WillmoreFlow:
         if self.settings.relax:
             # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
             # energy changed by less than relax_tol relative per nominal step, or rose without a flip
-            result.relaxed = self.relaxed = self._relax_test(result.willmore, tau, action)
+            value = result.energy if self._relax_on_energy else result.willmore
+            result.relaxed = self.relaxed = self._relax_test(value, tau, action)
         return result
 
     def _iteration_limit(self) -> int | None:
@@ -1205,9 +1296,9 @@ class WillmoreFlow:
         improved the smallest angle or the edge ratio."""
         from willmore_nlp import remesh as rm
 
-        if _explicit(boundary):
-            return mesh, boundary
         free = _free_of(boundary)
+        if _explicit(boundary) or (free is not None and not free.any()):  # (no patch: the boundary's own error)
+            return mesh, boundary
         X, F = mesh.vertices, mesh.simplices
         q0 = self._patch_quality(X, F, free)
         target = self.settings.remesh_target
@@ -1238,6 +1329,7 @@ class WillmoreFlow:
                           f"{q0['min_angle']:.3g} deg, edge ratio {q0['edge_ratio']:.3g}) and neither flips nor an "
                           "isotropic remeshing improved it: it is flowed as given", stacklevel=3)
             return mesh, boundary
+        _check_shape_kept(mesh, X1, F1, "repairing it at its own edge length")
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "+".join(actions)
         warnings.warn(f"{mesh.source}: the input mesh is below the mesh control's thresholds (smallest angle "
@@ -1259,6 +1351,7 @@ class WillmoreFlow:
                           "the repair thresholds: it is flowed as given", stacklevel=4)
             return mesh, boundary
         X1, F1, b1 = remeshed
+        _check_shape_kept(mesh, X1, F1, f"remeshing it toward remesh_target = {target:g}")
         q1 = self._patch_quality(X1, F1, _free_of(b1))
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "remesh"
@@ -1348,8 +1441,27 @@ class WillmoreFlow:
         newton-krylov, then IPOPT's step at tau, 83 s; docs/guide/performance.md)."""
         return self._tau_c[0] if self._tau_c is not None and self._tau_c[0] < tau / CONVEX_FAR else None
 
+    def _relax_value(self, X: np.ndarray, Y: np.ndarray) -> float:
+        """The energy relax=true watches at the state (X, Y): the Willmore energy, or the scheme's energy where the
+        flow decreases W + lam A, a Helfrich or an anisotropic energy."""
+        if self._relax_on_energy:
+            return self.discrete_energy(X, Y)
+        return geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
+
+    def relax_message(self) -> str:
+        """Why relax=true ended ("" while it has not)."""
+        if not self.relaxed:
+            return ""
+        what = "the scheme's energy (with lam, c0 or an anisotropy)" if self._relax_on_energy else "the Willmore energy"
+        if self.relax_reason == "small":
+            return (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps that changed {what} by less than relax_tol = "
+                    f"{self.settings.relax_tol:g} per nominal step")
+        return (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps over which {what} rose with no edge flip (the "
+                "scheme's drift at rest)")
+
     def _relax_start(self, willmore: float) -> None:
-        """Start the relax window at a state of Willmore energy ``willmore``, with no step-size back-off."""
+        """Start the relax window at a state of energy ``willmore`` (:meth:`_relax_value`), with no step-size
+        back-off."""
         self._relax_window: list[tuple[float, bool, float]] = [(willmore, False, 0.0)]
         self._backoff, self._hold, self._last_tau = 1, 0, 0.0
 
@@ -1421,7 +1533,9 @@ class WillmoreFlow:
         change = w[0][0] - w[-1][0]
         steps = sum(s for _, _, s in w[1:])
         small = abs(change) <= steps * self.settings.relax_tol * abs(w[-1][0])
-        return small or (change < 0 and not any(f for _, f, _ in w[1:]))
+        rose = change < 0 and not any(f for _, f, _ in w[1:])
+        self.relax_reason = "small" if small else "rose" if rose else ""
+        return small or rose
 
     def restart(self, X: np.ndarray, Y: np.ndarray, t: float, k: int,
                 lam_g: np.ndarray | None = None, last_tau: float | None = None, last_retries: int = 0,
@@ -1477,19 +1591,20 @@ class WillmoreFlow:
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         w0 = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
-        self._relax_start(w0)
+        self._relax_start(self._relax_value(X, Y))
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
         self._refinements = sum("refine" in str(r.get("remesh_action") or "").split("+") for r in history or []
                                 if int(float(r["step"])) <= self.k)
+        column = "energy" if self._relax_on_energy else "willmore_energy"
         for r in history or []:
             replayed = "willmore_energy" in r and int(float(r["step"])) == self.k
             if "willmore_energy" not in r:  # a checkpoint without its history row: the window starts after it
                 self._relax_window = []
             elif int(float(r["step"])) == 0:
-                self._relax_start(float(r["willmore_energy"]))
+                self._relax_start(float(r[column]))
             else:
                 self._grow_tau(float(r["tau"]), int(float(r["retries"])))
-                self._relax_test(float(r["willmore_energy"]), float(r["tau"]), str(r.get("remesh_action") or ""))
+                self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""))
         if not replayed:
             self._tau_adapt = (float("inf") if last_tau is None
                                else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))

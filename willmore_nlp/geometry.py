@@ -238,6 +238,19 @@ def enclosed_volume(mesh: Mesh) -> float:
     return float(np.einsum("ij,ij->i", V[S[:, 0]], np.cross(V[S[:, 1]], V[S[:, 2]])).sum() / 6.0)
 
 
+def require_outward(mesh: Mesh, what: str) -> None:
+    """Refuse (MeshError) a closed mesh oriented inward, for ``what`` (a volume constraint, c0), which takes the outward
+    orientation: its signed enclosed volume (area of a plane curve) is <= 0."""
+    from willmore_nlp.mesh.core import MeshError
+
+    v = enclosed_volume(mesh)
+    if v <= 0:
+        state, turn = (("the mesh is oriented inward (signed enclosed volume", "each triangle's vertex order "
+                        "(trimesh: mesh.invert())") if mesh.d == 2 else
+                       ("the curve runs clockwise (signed enclosed area", "the vertex order"))
+        raise MeshError(f"{mesh.source}: {state} {v:.4g}): {what} takes the outward orientation; reverse {turn}")
+
+
 def redistribute_curve(mesh: Mesh) -> np.ndarray:
     """Vertices of a closed curve moved along it to equal arc-length spacing (connectivity kept).
 

@@ -172,8 +172,8 @@ def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,
     lam : length/area energy weight
     tau_tilde : inner step (the discrete equilibrium radius of a k-fold polygon depends on it)
     times : (n_states,) times of the run's states (for the expanding circle)
-    flow_options : the run's effective flow options (``boundary`` and ``anisotropy`` switch the
-        isotropic references off)
+    flow_options : the run's effective flow options (``boundary``, ``anisotropy``, ``volume``, ``area`` and a
+        nonzero ``c0`` switch the isotropic references off)
 
     Returns
     -------
@@ -184,6 +184,12 @@ def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,
         return [], "clamped boundary: no closed-form target shape"
     if str(flow_options.get("anisotropy", "gamma0")) != "gamma0":
         return [], "anisotropic energy: no closed-form value (compare with the Wulff shape)"
+    held = [k for k in ("volume", "area") if flow_options.get(k) is not None]
+    if held:  # (a vesicle's report showed "Target: sphere", 8 pi and a gap of +19.6: a new-user check)
+        return [], (f"{' and '.join(held)} held fixed: the sphere or circle is not reachable (the vesicle problem's "
+                    "references are in docs/guide/vesicles.md)")
+    if float(flow_options.get("c0") or 0.0) != 0.0:
+        return [], "spontaneous curvature c0: no closed-form target shape"
     if not mesh.is_closed or _components(mesh) != 1:
         return [], "not a single closed curve or surface"
     V, S = mesh.vertices, mesh.simplices

@@ -41,7 +41,6 @@ from willmore_nlp.errors import EXIT_FAILED, IO_ERRNOS, UserInputError
 from willmore_nlp.flow import (
     FLOOR_REASON,
     FOLD_REASON,
-    RELAX_WINDOW,
     FlowError,
     StepInterrupted,
     StepResult,
@@ -235,8 +234,7 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
         if guard.signum is None and (remaining is None or remaining > 0):
             flow.run(t_end=t_end, steps=remaining, callback=on_step)
         if guard.signum is None:
-            relaxed = (f"relaxed: step {flow.k} ended {RELAX_WINDOW} steps that changed the Willmore energy by less "
-                       f"than relax_tol = {flow.settings.relax_tol:g} per nominal step") if flow.relaxed else ""
+            relaxed = flow.relax_message()
             writer.set_status("completed", **({"message": relaxed} if relaxed else {}))
             if not quiet:
                 bar.close()

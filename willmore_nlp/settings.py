@@ -70,6 +70,12 @@ class Kind:
     choices: tuple[str, ...] = ()
 
 
+MAX_TANGENTIAL_WEIGHT = 1e8
+"""Largest ``tangential_weight``: measured on icosphere(2) (tau = 0.01, tau_tilde = 1e-4), weights 1.5 to 1e8 take the
+first step without a retry, 1e10 and 1e12 fail every attempt (IPOPT: Search_Direction_Becomes_Too_Small; the normal
+motion is lost to round-off beside the tangential term)."""
+
+
 def real(lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False, hi_open: bool = True,
          finite: bool = True, unset: str | None = None, note: str = "") -> Kind:
     """A number in [lo, hi) (bounds open or closed); ``unset``: None allowed, meaning what is said."""
@@ -313,7 +319,8 @@ class FlowSettings(Settings):
         beta >= 1 (default 1, the paper's scheme): the distance term of W charges the tangential
         part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
         motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
-        discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000).
+        discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000). At most
+        :data:`MAX_TANGENTIAL_WEIGHT`.
     c0 : float
         Spontaneous curvature (Canham-Helfrich, default 0): the flow of ``1/2 int (h - c0)^2`` with
         h = k1 + k2 (> 0 on a sphere with the outward normal), closed curves in R^2 and closed
@@ -470,7 +477,8 @@ class FlowSettings(Settings):
     remesh_target : float, optional
         Target edge length of the isotropic remeshing (default: the edge of equilateral triangles with the
         patch's current area and triangle count, :func:`willmore_nlp.remesh.equilateral_edge`, so that a
-        remeshing keeps the resolution, e.g. the vertex count of a closed surface). Given, it also sets the
+        remeshing keeps the resolution, e.g. about the vertex count of a closed surface of even triangles: a
+        graded one ends with fewer, the 642-vertex oblate vesicle start with 532 after step 1). Given, it also sets the
         resolution of the input (``input_repair``: remeshed toward it before the first step when it differs from
         the input's equilateral edge by more than 10 %).
     remesh_repair : int
@@ -552,7 +560,8 @@ class FlowSettings(Settings):
     energy_rtol: float = option(1e-8, real(0))
     allow_components: bool = option(False, BOOL)
     anisotropy: object = option(None, ANY)
-    tangential_weight: float = option(1.0, real(1, note="1 = the paper's L^2 distance"))
+    tangential_weight: float = option(1.0, real(1, MAX_TANGENTIAL_WEIGHT, hi_open=False,
+                                                note="1 = the paper's L^2 distance"))
     c0: float = option(0.0, real())
     volume: float | str | None = option(None, TARGET)
     area: float | str | None = option(None, TARGET)

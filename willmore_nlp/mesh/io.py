@@ -10,11 +10,11 @@ Formats
     Read and written here (strict, line-numbered errors; 17 significant digits, so a
     round trip is exact). Convex polygons with more than three corners are split into a fan
     of triangles from their first corner; non-convex ones are refused (a fan would fold).
-    Bytes that are not UTF-8 are allowed in ``#`` comments. No merging or repair: what is in the file is what
-    gets validated.
+    Bytes that are not UTF-8 are allowed in ``#`` comments, and a leading byte-order mark is dropped (in curve
+    files too). No merging or repair: what is in the file is what gets validated.
 ``.ply``, ``.stl``
-    Through trimesh (STL stores every triangle with its own corners, so equal positions
-    are joined).
+    Through trimesh (STL stores every triangle with its own corners, so exactly equal positions
+    are joined; PLY polygons are split into fans like OBJ ones, and non-convex ones are refused).
 ``.npz``
     Any mesh: arrays ``vertices`` (N, m) and ``simplices`` (K, d+1).
 ``.txt``, ``.curve``, ``.xy``, ``.xyz``
@@ -39,6 +39,7 @@ import tempfile
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -57,8 +58,8 @@ _OBJ_IGNORED = frozenset({
 
 # -- helpers -------------------------------------------------------------------------------
 def _read_text(path: Path) -> list[str]:
-    """Lines of a UTF-8 text file; undecodable bytes are allowed in ``#`` comments only (a MeshError
-    naming the line and byte elsewhere)."""
+    """Lines of a UTF-8 text file (a leading byte-order mark, as some Windows editors write, is dropped); undecodable
+    bytes are allowed in ``#`` comments only (a MeshError naming the line and byte elsewhere)."""
     head = _head(path)
     if b"\x00" in head:  # fail fast on a binary file, before reading all of it
         line = head[: head.index(b"\x00")].count(b"\n") + 1
@@ -70,7 +71,7 @@ def _read_text(path: Path) -> list[str]:
     if b"\x00" in data:
         line = data[: data.index(b"\x00")].count(b"\n") + 1
         raise MeshError(f"{path}:{line}: not a text file (contains a NUL byte)")
-    lines = data.decode("utf-8", "surrogateescape").splitlines()
+    lines = data.removeprefix(b"\xef\xbb\xbf").decode("utf-8", "surrogateescape").splitlines()  # (a BOM: editors')
     for lineno, line in enumerate(lines, start=1):
         code = line.split("#", 1)[0]
         bad = next((i for i, ch in enumerate(code) if "\udc80" <= ch <= "\udcff"), None)
@@ -136,8 +137,9 @@ def _fan(corners: Sequence[int]) -> list[list[int]]:
     return [[corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)]
 
 
-def _check_convex(polygons: Sequence[tuple[Sequence[int], int]], V: np.ndarray, path: Path) -> None:
-    """Refuse polygons (corners, line) that are not convex: their fan triangulation would fold."""
+def _check_convex(polygons: Sequence[tuple[Sequence[int], int | str]], V: np.ndarray, path: Path) -> None:
+    """Refuse polygons (corners, where: a line number or e.g. "face 7") that are not convex: their fan triangulation
+    would fold."""
     for corners, lineno in polygons:
         P = V[list(corners)]
         nxt = np.roll(P, -1, axis=0)
@@ -385,12 +387,30 @@ def _read_trimesh(path: Path) -> Mesh:
         tm = trimesh.load(path, force="mesh", process=False, validate=False)
     except Exception as exc:  # trimesh raises many types for malformed files
         raise MeshError(f"{path}: cannot be read as {ext[1:].upper()} ({type(exc).__name__}: {exc})") from exc
-    if ext == ".stl":  # STL stores every triangle with its own corners: join equal positions
-        tm.merge_vertices()
     faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))))
     if faces.size == 0:
         raise MeshError(f"{path}: no triangles found")
-    return Mesh(np.asarray(tm.vertices), faces, str(path))
+    V = np.asarray(tm.vertices)
+    if ext == ".stl":  # STL stores every triangle with its own corners: join equal positions (exactly equal: trimesh's
+        V, inverse = np.unique(V, axis=0, return_inverse=True)  # merge_vertices rounds to 1e-8, which joined the
+        faces = inverse.reshape(-1)[faces]  # corners of a mesh 3e-8 wide)
+    if ext == ".ply":
+        _check_convex(_ply_polygons(tm), V, path)
+    return Mesh(V, faces, str(path))
+
+
+def _ply_polygons(tm: Any) -> list[tuple[list[int], str]]:
+    """The faces of more than three corners of a PLY file as trimesh read it (it splits them into fans, as the OBJ and
+    OFF readers do; a non-convex one then folds), with their number in the file; [] when the raw faces are not
+    kept."""
+    raw = tm.metadata.get("_ply_raw", {}).get("face", {}).get("data", {})
+    if not isinstance(raw, dict):
+        return []
+    idx = next((raw[k] for k in ("vertex_indices", "vertex_index") if k in raw), None)
+    if idx is None:
+        return []
+    rows = list(idx) if np.asarray(idx, dtype=object).ndim == 1 else list(np.asarray(idx))
+    return [([int(i) for i in c], f"face {k}") for k, c in enumerate(rows) if len(c) > 3]
 
 
 def load_mesh(path: str | os.PathLike[str]) -> Mesh:

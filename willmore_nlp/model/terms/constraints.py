@@ -9,6 +9,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.element import measure
+from willmore_nlp.geometry import require_outward
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.terms.base import Element, Term
 
@@ -50,6 +51,7 @@ class VolumeConstraint(_Constraint):
     def _check_mesh(self, mesh: Mesh, variant: str | None) -> None:
         if variant is not None or not mesh.is_closed or mesh.m != mesh.d + 1:
             raise MeshError(f"{mesh.source}: volume needs a closed curve in R^2 or a closed surface in R^3")
+        require_outward(mesh, "the volume constraint")
 
     def constraints(self, e: Element) -> list[ca.SX]:
         X = e.X

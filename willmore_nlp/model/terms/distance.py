@@ -8,6 +8,7 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.element import mass_matrix, quad, tangent_projector
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.terms.base import Element, Term
+from willmore_nlp.settings import MAX_TANGENTIAL_WEIGHT
 
 
 class Distance(Term):
@@ -26,12 +27,15 @@ class Distance(Term):
 
     def __init__(self, beta: float = 1.0) -> None:
         beta = float(beta)
-        if not (beta == beta and beta >= 1.0 and beta != float("inf")):
-            raise UserInputError(f"tangential_weight must be a number >= 1 (1 = the paper's L^2 distance), "
-                                 f"got {beta!r}")
+        if not (beta == beta and 1.0 <= beta <= MAX_TANGENTIAL_WEIGHT):
+            raise UserInputError(f"tangential_weight must be a number in [1, {MAX_TANGENTIAL_WEIGHT:g}] (1 = the "
+                                 f"paper's L^2 distance), got {beta!r}")
         self.beta = beta
         self.requires = frozenset() if beta == 1.0 else frozenset({"variational"})
-        self.name = "" if beta == 1.0 else f"tw{beta:g}"
+        # (kernel names must be identifiers: f"tw{beta:g}" made "tw1.5", which CasADi refused, exit 70)
+        tag = str(int(beta)) if beta.is_integer() and beta < 1e15 else \
+            repr(beta).replace(".", "p").replace("+", "").replace("-", "m")
+        self.name = "" if beta == 1.0 else f"tw{tag}"
 
     def check(self, mesh: Mesh, variant: str | None) -> None:
         if self.beta != 1.0 and mesh.d == 2 and mesh.m != 3:

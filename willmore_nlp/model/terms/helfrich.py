@@ -22,6 +22,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.element import measure
+from willmore_nlp.geometry import require_outward
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.terms.anisotropic_inner import area_vector
 from willmore_nlp.model.terms.base import Element, Term
@@ -45,6 +46,7 @@ class Helfrich(Term):
         if variant is not None or not mesh.is_closed or mesh.m != mesh.d + 1:
             raise MeshError(f"{mesh.source}: c0 (spontaneous curvature) needs a closed curve in R^2 or a closed "
                             f"surface in R^3 (an oriented normal)")
+        require_outward(mesh, "c0 (spontaneous curvature)")  # (inward, c0 = 1 flowed as c0 = -1: a new-user check)
 
     def outer(self, e: Element) -> ca.SX:
         tau, tt, c0 = e.par["tau"], e.par["tt"], e.par["c0"]
