@@ -34,6 +34,8 @@ def arc_mesh(n: int, R: float = 1.0, angle: float = 180.0) -> tuple[Mesh, np.nda
     free : (n + 4,) bool
     theta : (n + 4,) polar angle of each vertex
     """
+    if n < 1:
+        raise MeshError(f"arc: n (free nodes) must be >= 1, got {n}")
     th = np.radians(angle) / 2 * np.linspace(-1, 1, n + 2)
     d = th[1] - th[0]
     th = np.concatenate([[th[0] - d], th, [th[-1] + d]])
@@ -123,6 +125,8 @@ def curve_blending(n: int = 60, gap: float = 2.0, offset: float = 0.8, angle: fl
     leaving in the direction ``angle`` degrees above +x1. The free curve starts as the straight
     line between them. The paper used tau = h = 0.01386, tau_tilde = 1.386e-5, lam = 1.
     """
+    if n < 1:
+        raise MeshError(f"curve_blending: n (free nodes) must be >= 1, got {n}")
     a = np.array([-gap / 2, 0.0])
     b = np.array([gap / 2, offset])
     L = float(np.linalg.norm(b - a))
@@ -155,6 +159,8 @@ def surface_blending(r_bottom: float = 1.0, r_top: float = 0.8, gap: float = 1.2
     100 leaves 7.8e-7 per step after 400 steps
     (docs/guide/mesh_quality_measurements.md, "Restorations and blends at rest").
     """
+    if n_gap < 2:
+        raise MeshError(f"surface_blending: n_gap must be >= 2 (n_gap - 1 free rows), got {n_gap}")
     n_fixed = 3
     nz = 2 * n_fixed + n_gap
     dz = gap / n_gap
@@ -177,6 +183,10 @@ def _refill(name: str, mesh: Mesh, free: np.ndarray, fill: str, amp: float, seed
     along ``normals()`` ((N, 3) unit normals of the uncut surface) by ``amp`` h times a seeded standard normal
     draw; "flat" presses the patch toward the plane x_axis = centre(x_axis of the patch) by the factor 1 - amp.
     """
+    if not free.any():
+        raise MeshError(f"{name}: the hole cuts out no vertex (hole = the radius of the cut-out ball)")
+    if seed < 0:
+        raise MeshError(f"{name}: seed must be an integer >= 0, got {seed}")
     V = np.array(mesh.vertices)
     if fill == "noisy":
         noise = np.random.default_rng(seed).standard_normal(int(free.sum()))

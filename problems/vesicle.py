@@ -6,7 +6,6 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import Problem, register
-from willmore_nlp.settings import is_number
 
 STARTS = ("prolate", "oblate", "cup")
 CUP_TAU = 2e-3
@@ -94,10 +93,8 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
             raise UserInputError(f"parameter reduced_volume: {e}") from None
     h = mesh.h
     tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)
-    if tangential_weight is None:
+    if tangential_weight is None:  # (a value is a number: the registry reads it by its annotation)
         tangential_weight = 1.0 if start == "cup" else SPHEROID_WEIGHT
-    elif not is_number(tangential_weight):
-        raise UserInputError(f"parameter tangential_weight: must be a number >= 1, got {tangential_weight!r}")
     options: dict[str, object] = {"volume": "initial", "area": "initial", "c0": float(c0),
                                   "tangential_weight": float(tangential_weight), "input_repair": INPUT_REPAIR}
     if start == "cup":

@@ -393,8 +393,8 @@ def cases(scale: float) -> dict[str, Any]:
     def n(s: int) -> int:
         return max(2, round(s * scale))
 
-    def genus0(mesh: Mesh, **kw: Any) -> Any:
-        return lambda: run_case(mesh.source, mesh, mesh.h, 0.01 * mesh.h**2, steps=n(200),
+    def genus0(mesh: Mesh, note: str = "", **kw: Any) -> Any:
+        return lambda: run_case(mesh.source + note, mesh, mesh.h, 0.01 * mesh.h**2, steps=n(200),
                                 reference=lambda m, f: sphere_reference(m), **kw)
 
     def clifford(m: Mesh, f: Any) -> float:
@@ -472,6 +472,11 @@ def cases(scale: float) -> dict[str, Any]:
         "box": genus0(smoothed_box()),
         # today's surface defaults (tangential_control = auto: the in-step control on these genus-0 meshes)
         **{f"{key}_today": genus0(make(), tangential_control="auto")
+           for key, make in (("ellipsoid642", lambda: ellipsoid(3)), ("ellipsoid2562", lambda: ellipsoid(4)),
+                             ("capsule", capsule), ("capsule_noisy", noisy_capsule), ("box", smoothed_box))},
+        # the library's defaults of 2026-11-30 (also rest_dilation, the near-rest flip rule flip_rest and input_repair)
+        **{f"{key}_defaults1130": genus0(make(), ", defaults of 2026-11-30", tangential_control="auto",
+                                          rest_dilation=True)
            for key, make in (("ellipsoid642", lambda: ellipsoid(3)), ("ellipsoid2562", lambda: ellipsoid(4)),
                              ("capsule", capsule), ("capsule_noisy", noisy_capsule), ("box", smoothed_box))},
         "box_relax": lambda: run_case("smoothed box, relax", smoothed_box(), smoothed_box().h,

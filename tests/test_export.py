@@ -50,3 +50,38 @@ def test_vertex_normals_outward() -> None:
     s = shapes.icosphere(3)
     n = vertex_normals(s)
     assert np.all(np.einsum("ij,ij->i", n, s.vertices) > 0.999)
+
+
+def test_one_state_exports_to_a_mesh_file(tmp_path) -> None:
+    """``export RUN --out NAME.obj`` (.off, .ply, .stl, .npz, a curve's .txt) writes one state, the last unless
+    ``--step`` names another (found by a new-user check: ``--out x.obj`` made a folder named x.obj holding VTU files).
+    OBJ, npz and the text curve read back bit for bit; a step the run does not have, or --step with a folder, is one
+    line and exit 2."""
+    from willmore_nlp.mesh.io import load_mesh
+
+    cli = [sys.executable, "-m", "willmore_nlp.cli"]
+    for problem, sets, files in (("sphere", ["subdivisions=1"], ("s.obj", "s.npz", "s.ply")),
+                                 ("circle", ["n=16"], ("c.txt",))):
+        run_dir = tmp_path / problem
+        subprocess.run([*cli, "run", problem, "--out", str(run_dir), "--steps", "2", "--quiet",
+                        *[a for s in sets for a in ("--set", s)]], check=True, capture_output=True)
+        run = load_run(run_dir)
+        for name in files:
+            for step, k in ((None, -1), (0, 0), (1, 1)):
+                out = tmp_path / f"{step}_{name}"
+                r = subprocess.run([*cli, "export", str(run_dir), "--out", str(out),
+                                    *(["--step", str(step)] if step is not None else [])],
+                                   capture_output=True, text=True)
+                assert r.returncode == 0 and f"wrote {out}" in r.stdout, r.stderr
+                mesh = load_mesh(out)
+                if name.endswith(".ply"):  # (float32 in trimesh's binary PLY)
+                    np.testing.assert_allclose(mesh.vertices, run.states[k].vertices, rtol=0, atol=1e-6)
+                else:
+                    np.testing.assert_array_equal(mesh.vertices, run.states[k].vertices)
+    r = subprocess.run([*cli, "export", str(tmp_path / "sphere"), "--out", str(tmp_path / "x.obj"), "--step", "7"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "no state of step 7 (the run has steps 0 to 2)" in r.stderr
+    r = subprocess.run([*cli, "export", str(tmp_path / "sphere"), "--out", str(tmp_path / "vtk"), "--step", "1"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "--step 1: one state is exported to a mesh file" in r.stderr
+    assert not (tmp_path / "vtk").exists() and not (tmp_path / "x.obj").exists()

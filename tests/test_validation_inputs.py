@@ -311,6 +311,13 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
      lambda d: [*_saved(d, "grid.obj", np.c_[np.mgrid[0:3, 0:3].reshape(2, -1).T, np.zeros(9)],
                         [[0, 3, 4], [0, 4, 1], [1, 4, 5], [1, 5, 2], [3, 6, 7], [3, 7, 4], [4, 7, 8], [4, 8, 5]]),
                 "--set", "clamp=conormal"], ["grid.obj: empty patch: no free vertex selected"]),
+    ("ply-truncated-ascii", _write("t.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\n"
+                                   "property double y\nproperty double z\nelement face 2\n"
+                                   "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+                                   "0 0 1\n3 0 1 2\n"),
+     ["t.ply: the header promises 2 face rows, the file has 1 (truncated?)"]),
+    ("stl-truncated-ascii", _write("t.stl", "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"),
+     ["t.stl: no triangles found (an ASCII STL without 'endsolid' at its end: truncated?)"]),
     ("set-vesicle-reduced-volume-tiny", lambda d: ["vesicle", "--set", "reduced_volume=0.01", "--set", "start=prolate"],
      ["parameter reduced_volume: ellipsoid_of_reduced_volume: no prolate spheroid of reduced volume 0.01"]),
     ("set-vesicle-subdivisions-zero", lambda d: ["vesicle", "--set", "subdivisions=0"],

@@ -88,9 +88,18 @@ def cmd_cache(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    """Export a run directory as VTU files with a PVD time index."""
-    from willmore_nlp.export import export_run
+    """Export a run directory as VTU files with a PVD time index, or one state as a mesh file."""
+    from pathlib import Path
 
+    from willmore_nlp.export import MESH_FILE_FORMATS, export_run, export_state
+
+    if Path(args.out).suffix.lower() in MESH_FILE_FORMATS:
+        path = export_state(args.run_dir, args.out, args.step)
+        print(f"wrote {path} (step {'last' if args.step is None else args.step})")
+        return 0
+    if args.step is not None:
+        raise UserInputError(f"--step {args.step}: one state is exported to a mesh file (--out NAME.obj, .off, .ply, "
+                             ".stl, .npz or a curve's .txt); the folder export writes every state")
     pvd = export_run(args.run_dir, args.out)
     print(f"wrote {pvd}")
     return 0
@@ -187,9 +196,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("action", choices=["info", "clear"])
     c.set_defaults(func=cmd_cache)
 
-    e = sub.add_parser("export", help="export a run as VTU files + a PVD time index (ParaView)")
+    e = sub.add_parser("export", help="export a run as VTU files + a PVD time index (ParaView), or one state as a "
+                                      "mesh file (OBJ, OFF, PLY, STL, npz)")
     e.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
-    e.add_argument("--out", required=True, help="output directory for the .vtu files and run.pvd")
+    e.add_argument("--out", required=True, help="output directory for the .vtu files and run.pvd, or a mesh file "
+                                                "(.obj, .off, .ply, .stl, .npz; a curve's .txt) for one state")
+    e.add_argument("--step", type=int, help="with a mesh file: the step whose state is written (default the last)")
     e.set_defaults(func=cmd_export)
 
     rp = sub.add_parser("report", help="write a report (Markdown, HTML, PNG figures) of a run or study directory")

@@ -197,7 +197,7 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
         raise ConfigError(f"{where}: {exc}") from exc
     except MeshError:
         raise
-    except (ValueError, TypeError) as exc:
+    except UserInputError as exc:  # (not any ValueError: a bug in a problem is a bug, with its traceback)
         raise ConfigError(f"{where}: problem {name!r}: {exc}") from exc
     steps = run.get("steps", problem.steps)
     t_end = run.get("t_end", problem.t_end)

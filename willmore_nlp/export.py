@@ -13,7 +13,8 @@ grid of lines (curves) or triangles (surfaces), 3-D points (curves in R^2 get z 
 * ``normal_speed``: velocity . normal.
 
 The .pvd index (a small VTK XML file listing the .vtu files with their times) is written with the
-standard library's XML writer.
+standard library's XML writer. :func:`export_state` writes one state as a mesh file instead (OBJ, OFF, PLY, STL,
+npz or a text curve), for other tools.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 from willmore_nlp.flow import NEW_VERTICES
 from willmore_nlp.geometry import mean_curvature_vector, vertex_normals
 from willmore_nlp.mesh.core import Mesh
-from willmore_nlp.mesh.io import atomic_write
+from willmore_nlp.mesh.io import CURVE_FORMATS, SURFACE_FORMATS, atomic_write, save_mesh
 from willmore_nlp.rundir import load_run
 
 
@@ -77,3 +78,29 @@ def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> 
     ET.indent(root)
     atomic_write(pvd, lambda p: ET.ElementTree(root).write(p, xml_declaration=True, encoding="utf-8"))
     return pvd
+
+
+MESH_FILE_FORMATS = (*SURFACE_FORMATS, *CURVE_FORMATS, ".npz")
+"""Suffixes of ``export --out`` that ask for one state as a mesh file (:func:`export_state`); any other is a folder."""
+
+
+def export_state(run_dir: str | os.PathLike[str], out: str | os.PathLike[str], step: int | None = None) -> Path:
+    """Write the state of step ``step`` of a run (default: its last state) as the mesh file ``out``, its format
+    from the suffix (:func:`willmore_nlp.mesh.io.save_mesh`: OBJ, OFF, npz and text curves round-trip exactly);
+    returns ``out``. A state after a remeshing is written with its own connectivity.
+
+    Raises
+    ------
+    RunError
+        No state of that step in the run (the message names the steps there are).
+    """
+    from willmore_nlp.rundir import RunError
+
+    run = load_run(run_dir)
+    steps = [int(r["step"]) for r in run.history]
+    k = len(steps) - 1 if step is None else next((i for i, s in enumerate(steps) if s == step), None)
+    if k is None:
+        raise RunError(f"{run_dir}: no state of step {step} (the run has steps {steps[0]} to {steps[-1]})")
+    path = Path(out)
+    save_mesh(run.states[k], path)
+    return path

@@ -544,6 +544,7 @@ class WillmoreFlow:
         # "initial" volume and area are the input's (a vesicle's reduced volume), also when input_repair remeshes it
         self._targets = {"volume": _target(s.volume, "volume", mesh), "area": _target(s.area, "area", mesh)}
         self.input_repair = ""  # what input_repair did to the initial mesh ("": nothing)
+        self._input_min_angle = float("nan")  # the smallest angle of the input's patch, when input_repair acted
         if self.remesh and s.input_repair:
             mesh, boundary = self._repair_input(mesh, boundary)
         _check_quality(mesh, s.min_angle, s.max_edge_ratio, self.input_repair)  # the limits every step must keep
@@ -763,6 +764,8 @@ class WillmoreFlow:
         ``input_repair`` did to the initial mesh)."""
         r = self._result(self.X, self.Y, self.tau, float("nan"), None, 0.0, 0, [])
         r.remeshed = self.input_repair if self.k == 0 else ""
+        if r.remeshed:  # (the input's smallest angle, as a step's row has its stepped state's)
+            r.stats["min_angle_before_remesh"] = self._input_min_angle
         return r
 
     def _result(self, X: np.ndarray, Y: np.ndarray, tau: float, obj: float, res: Any,
@@ -1332,6 +1335,7 @@ class WillmoreFlow:
         _check_shape_kept(mesh, X1, F1, "repairing it at its own edge length")
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "+".join(actions)
+        self._input_min_angle = q0["min_angle"]
         warnings.warn(f"{mesh.source}: the input mesh is below the mesh control's thresholds (smallest angle "
                       f"{q0['min_angle']:.3g} deg, edge ratio {q0['edge_ratio']:.3g}); repaired before the first step "
                       f"by {' and '.join(actions)}: {mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle "
@@ -1355,6 +1359,7 @@ class WillmoreFlow:
         q1 = self._patch_quality(X1, F1, _free_of(b1))
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "remesh"
+        self._input_min_angle = q0["min_angle"]
         warnings.warn(f"{mesh.source}: remeshed toward remesh_target = {target:g} before the first step: "
                       f"{mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle {q1['min_angle']:.3g} deg, edge "
                       f"ratio {q1['edge_ratio']:.3g} (input_repair=false flows it as given)", stacklevel=4)

@@ -230,10 +230,22 @@ def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
     ProblemError
         Naming the unknown parameter, or the value that cannot be read as its type.
     """
-    defaults = get(name).defaults()
+    entry = get(name)
+    defaults = entry.defaults()
     unknown = sorted(set(params) - set(defaults))
     if unknown:
         raise ProblemError(
             f"problem {name!r} has no parameter {unknown[0]!r}; its parameters: {', '.join(sorted(defaults))}"
         )
-    return {k: coerce(v, defaults[k], k) for k, v in params.items()}
+    return {k: v if v is None else coerce(v, _typed(entry, k, defaults[k]), k) for k, v in params.items()}
+
+
+def _typed(entry: Entry, key: str, default: Any) -> Any:
+    """The default of parameter ``key``, or for a default of None a value of the annotated type ("float | None":
+    0.0), so that :func:`coerce` reads and checks it (``tangential_weight=zzz`` reached ``float()`` in the factory:
+    a new-user check)."""
+    if default is not None:
+        return default
+    ann = inspect.signature(entry.factory).parameters[key].annotation
+    first = (ann if isinstance(ann, str) else getattr(ann, "__name__", "")).split("|")[0].strip()
+    return {"float": 0.0, "int": 0}.get(first)

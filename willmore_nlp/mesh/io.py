@@ -387,9 +387,21 @@ def _read_trimesh(path: Path) -> Mesh:
         tm = trimesh.load(path, force="mesh", process=False, validate=False)
     except Exception as exc:  # trimesh raises many types for malformed files
         raise MeshError(f"{path}: cannot be read as {ext[1:].upper()} ({type(exc).__name__}: {exc})") from exc
+    if ext == ".ply":  # (trimesh reads a truncated ASCII PLY's first rows silently: "unreferenced vertices" followed)
+        for element, raw in tm.metadata.get("_ply_raw", {}).items():
+            data = raw.get("data")
+            got = len(next(iter(data.values()))) if isinstance(data, dict) and data else None
+            if got is not None and isinstance(raw.get("length"), int) and got < raw["length"]:
+                raise MeshError(f"{path}: the header promises {raw['length']} {element} rows, the file has {got} "
+                                "(truncated?)")
     faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))))
     if faces.size == 0:
-        raise MeshError(f"{path}: no triangles found")
+        with open(path, "rb") as fh:
+            text_stl = ext == ".stl" and fh.read(5).lower() == b"solid"
+            fh.seek(max(0, path.stat().st_size - 256))
+            ended = b"endsolid" in fh.read().lower()
+        raise MeshError(f"{path}: no triangles found" + (" (an ASCII STL without 'endsolid' at its end: truncated?)"
+                                                         if text_stl and not ended else ""))
     V = np.asarray(tm.vertices)
     if ext == ".stl":  # STL stores every triangle with its own corners: join equal positions (exactly equal: trimesh's
         V, inverse = np.unique(V, axis=0, return_inverse=True)  # merge_vertices rounds to 1e-8, which joined the

@@ -14,6 +14,7 @@ import numpy as np
 import trimesh
 
 from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.mesh.validate import simplex_volumes
 
 
 def closed_curve(points: np.ndarray, source: str = "<curve>") -> Mesh:
@@ -64,6 +65,22 @@ def _lengths(shape: str, **lengths: float) -> None:
             raise MeshError(f"{shape}: {name} must be a finite number > 0, got {v!r}")
 
 
+MAX_REMESHED_VERTICES = 2_000_000
+"""Generators that remesh a surface to an edge length ``h`` refuse an ``h`` that would make more vertices than this (a
+negative h hung ``genus2_blending``, a tiny one would fill the memory: a new-user check)."""
+
+
+def _remesh_size(shape: str, area: float, h: float) -> None:
+    """MeshError unless ``h`` is a finite number > 0 giving at most :data:`MAX_REMESHED_VERTICES` vertices on a
+    surface of ``area`` (about 2 area / (sqrt(3) h^2) with equilateral triangles)."""
+    _lengths(shape, h=h)
+    estimate = 2 * area / (np.sqrt(3) * h * h)
+    if estimate > MAX_REMESHED_VERTICES:
+        least = np.sqrt(2 * area / (np.sqrt(3) * MAX_REMESHED_VERTICES))
+        raise MeshError(f"{shape}: h = {h:g} would make about {estimate:,.0f} vertices, more than "
+                        f"{MAX_REMESHED_VERTICES:,}; choose h >= {least:.3g}")
+
+
 def regular_polygon(n: int, radius: float = 1.0, *, m: int = 2, phase: float = 0.0) -> Mesh:
     """Regular n-gon inscribed in the circle of ``radius`` in the plane x3 = 0 of R^m."""
     _lengths("regular_polygon", radius=radius)
@@ -98,6 +115,8 @@ def hypocycloid(n: int, delta: float = 0.0, *, m: int | None = None) -> Mesh:
     m : int, optional
         Ambient dimension; defaults to 3 when ``delta != 0`` and 2 otherwise.
     """
+    if n < 3:
+        raise MeshError(f"hypocycloid: n must be >= 3, got {n}")
     if m is None:
         m = 3 if delta != 0 else 2
     if m == 2 and delta != 0:
@@ -236,8 +255,11 @@ def _genus2_level_set(func: Callable[[np.ndarray], np.ndarray], ax: list[np.ndar
 
     n = [len(a) for a in ax]
     G = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3, order="F")  # x fastest
+    _lengths(name, h=h)
     V, F = gpytoolbox.marching_cubes(func(G), G, *n)
-    V, F = gpytoolbox.remesh_botsch(np.asarray(V, float), np.asarray(F, np.int32), 20, h, True)
+    V, F = np.asarray(V, float), np.asarray(F, np.int64)
+    _remesh_size(name, float(simplex_volumes(V, F).sum()), h)
+    V, F = gpytoolbox.remesh_botsch(V, F.astype(np.int32), 20, h, True)
     V, F = np.asarray(V, float), np.asarray(F, np.int64)
     if np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])) < 0:
         F = F[:, ::-1].copy()
@@ -307,8 +329,7 @@ def lawson_genus2(h: float | None = None) -> Mesh:
         V, F = np.asarray(z["vertices"], float), np.asarray(z["simplices"], np.int64)
     if h is None:
         return Mesh(V, F, "lawson_genus2()")
-    if not h > 0:
-        raise MeshError(f"lawson_genus2: h must be positive, got {h!r}")
+    _remesh_size("lawson_genus2", float(simplex_volumes(V, F).sum()), h)
     r = isotropic_remesh(V, F, float(h), smooth=False)  # on the stored polyhedron: the cached studies' starts
     return Mesh(r.vertices, r.simplices, f"lawson_genus2(h={h})")
 
