@@ -557,6 +557,11 @@ class WillmoreFlow:
         weight = s.tangential_control_weight
         if weight is None:
             weight = default_weight(mesh, s.anisotropy, _free_of(boundary) is not None)
+        elif method == "off" and s.tangential_control == "auto":  # (a weight given and silently unused on a noisy
+            warnings.warn(f"{mesh.source}: tangential_control_weight = {weight:g} is not used: "  # trimesh cylinder)
+                          "tangential_control = 'auto' leaves the in-step control off on this flow (as on curves, "
+                          "closed surfaces of genus >= 1, meshes with sharp edges or spikes and with mesh_control = "
+                          "off); tangential_control=meanratio turns it on", stacklevel=2)
         self._control = TangentialControl(method, weight, s.tangential_control_time)
         self.codegen_info: dict[str, Any] = {"enabled": False}
         codegen = s.codegen
