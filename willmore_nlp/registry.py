@@ -237,7 +237,8 @@ def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
         raise ProblemError(
             f"problem {name!r} has no parameter {unknown[0]!r}; its parameters: {', '.join(sorted(defaults))}"
         )
-    return {k: v if v is None else coerce(v, _typed(entry, k, defaults[k]), k) for k, v in params.items()}
+    return {k: v if v is None and defaults[k] is None else coerce(v, _typed(entry, k, defaults[k]), k)
+            for k, v in params.items()}
 
 
 def _typed(entry: Entry, key: str, default: Any) -> Any:
