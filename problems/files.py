@@ -9,7 +9,7 @@ import numpy as np
 
 from willmore_nlp.boundary import VARIANTS, Boundary
 from willmore_nlp.flow import REPAIR_PASSES_HANDLES, check_scale, ipopt_scale_trouble
-from willmore_nlp.geometry import enclosed_volume, length_scale
+from willmore_nlp.geometry import enclosed_volume, inward, length_scale
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import load_mesh
 from willmore_nlp.mesh.topology import components, euler_characteristic
@@ -203,13 +203,11 @@ def _outward(mesh: Mesh, path: str) -> Mesh:
     as c0 = -1: found by a new-user check)."""
     if not (mesh.is_closed and mesh.m == mesh.d + 1) or components(mesh)[0] != 1:
         return mesh
-    v = enclosed_volume(mesh)
-    if v >= 0:
+    state = inward(mesh)
+    if not state:
         return mesh
-    what = "the mesh is oriented inward (signed enclosed volume" if mesh.d == 2 else \
-        "the curve runs clockwise (signed enclosed area"
-    warnings.warn(f"{path}: {what} {v:.4g}): it is flowed with each {'triangle' if mesh.d == 2 else 'segment'} "
-                  "reversed, outward, as volume constraints and the spontaneous curvature c0 take it", stacklevel=3)
+    warnings.warn(f"{path}: {state}: it is flowed with each {'triangle' if mesh.d == 2 else 'segment'} reversed, "
+                  "outward, as volume constraints and the spontaneous curvature c0 take it", stacklevel=3)
     return Mesh(mesh.vertices, np.asarray(mesh.simplices)[:, ::-1], mesh.source)
 
 

@@ -17,25 +17,23 @@ from willmore_nlp.errors import interrupted
 
 def _load() -> bool:
     """Import the command line and trimesh; False when Ctrl-C came meanwhile (it is taken, not delivered)."""
-    if not hasattr(signal, "pthread_sigmask"):  # (Windows: no signal masks; an interrupt raises as it comes)
-        try:
-            import trimesh
-
-            import willmore_nlp.cli
-        except KeyboardInterrupt:
-            return False
-        return True
+    masks = hasattr(signal, "pthread_sigmask")  # (Windows has none: an interrupt raises as it comes)
     held = {signal.SIGINT}
-    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    if masks:
+        signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    came = False
     try:
         import trimesh  # noqa: F401
 
         import willmore_nlp.cli  # noqa: F401
+    except KeyboardInterrupt:
+        came = True
     finally:
-        came = signal.SIGINT in signal.sigpending()
-        if came:
-            signal.sigwait(held)
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+        if masks:
+            came = signal.SIGINT in signal.sigpending()
+            if came:
+                signal.sigwait(held)
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
     return not came
 
 

@@ -1600,8 +1600,8 @@ class WillmoreFlow:
         self._X_prev = self.X
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
-        w0 = geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
-        self._relax_start(self._relax_value(X, Y))
+        w0 = self._relax_value(X, Y)  # (W, the rest rule's, whenever that rule runs: it runs without relax)
+        self._relax_start(w0)
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
         self._refinements = sum("refine" in str(r.get("remesh_action") or "").split("+") for r in history or []
                                 if int(float(r["step"])) <= self.k)

@@ -238,17 +238,26 @@ def enclosed_volume(mesh: Mesh) -> float:
     return float(np.einsum("ij,ij->i", V[S[:, 0]], np.cross(V[S[:, 1]], V[S[:, 2]])).sum() / 6.0)
 
 
+def inward(mesh: Mesh) -> str:
+    """How a closed mesh is oriented inward ("" when it is not): its signed enclosed volume (area of a plane curve)
+    is <= 0, e.g. "the mesh is oriented inward (signed enclosed volume -5.666)"."""
+    v = enclosed_volume(mesh)
+    if not v <= 0:
+        return ""
+    if mesh.d == 2:
+        return f"the mesh is oriented inward (signed enclosed volume {v:.4g})"
+    return f"the curve runs clockwise (signed enclosed area {v:.4g})"
+
+
 def require_outward(mesh: Mesh, what: str) -> None:
-    """Refuse (MeshError) a closed mesh oriented inward, for ``what`` (a volume constraint, c0), which takes the outward
-    orientation: its signed enclosed volume (area of a plane curve) is <= 0."""
+    """Refuse (MeshError) a closed mesh oriented inward (:func:`inward`), for ``what`` (a volume constraint, c0), which
+    takes the outward orientation."""
     from willmore_nlp.mesh.core import MeshError
 
-    v = enclosed_volume(mesh)
-    if v <= 0:
-        state, turn = (("the mesh is oriented inward (signed enclosed volume", "each triangle's vertex order "
-                        "(trimesh: mesh.invert())") if mesh.d == 2 else
-                       ("the curve runs clockwise (signed enclosed area", "the vertex order"))
-        raise MeshError(f"{mesh.source}: {state} {v:.4g}): {what} takes the outward orientation; reverse {turn}")
+    state = inward(mesh)
+    if state:
+        turn = "each triangle's vertex order (trimesh: mesh.invert())" if mesh.d == 2 else "the vertex order"
+        raise MeshError(f"{mesh.source}: {state}: {what} takes the outward orientation; reverse {turn}")
 
 
 def redistribute_curve(mesh: Mesh) -> np.ndarray:
