@@ -113,6 +113,42 @@ def test_surface_round_trip(tmp_path, ext: str) -> None:
     np.testing.assert_allclose(s2.vertices, s.vertices, atol=1e-6 if ext == ".ply" else 1e-15)
 
 
+@pytest.mark.parametrize("ext", [".obj", ".off"])
+def test_a_straight_corner_away_from_the_first_is_read(tmp_path, ext: str) -> None:
+    """A square face with a vertex in the middle of a side (where a neighbouring face ends), the straight corner not
+    next to the first: read as a fan of three triangles of positive area covering the square."""
+    V = "0 0 0\n1 0 0\n2 0 0\n2 2 0\n0 2 0\n"
+    p = tmp_path / f"pent{ext}"
+    if ext == ".obj":
+        p.write_text("".join(f"v {row}\n" for row in V.splitlines()) + "f 4 5 1 2 3\n")
+    else:
+        p.write_text(f"OFF\n5 1 0\n{V}5 3 4 0 1 2\n")
+    m = load_mesh(p)
+    areas = 0.5 * np.linalg.norm(np.cross(*(m.vertices[m.simplices[:, k]] - m.vertices[m.simplices[:, 0]]
+                                            for k in (1, 2))), axis=1)
+    assert m.n_simplices == 3 and areas.min() > 0.4 and areas.sum() == pytest.approx(4.0)
+
+
+def test_a_headerless_curve_file_is_read_when_it_is_a_sampled_curve(tmp_path) -> None:
+    """A curve file without '# closed' is checked for being a sampled curve (io.POINT_CLOUD_TURN): a 24-gon with
+    noise (median turn 15 degrees) and a 3D trefoil of 100 points are read; their points shuffled are refused, and
+    read again with '# closed' before them."""
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    polygon = np.c_[np.cos(t), np.sin(t)] * (1 + 0.02 * rng.standard_normal(24))[:, None]
+    s = np.linspace(0, 2 * np.pi, 100, endpoint=False)
+    trefoil = np.c_[np.sin(s) + 2 * np.sin(2 * s), np.cos(s) - 2 * np.cos(2 * s), -np.sin(3 * s)]
+    for name, P in (("polygon.xy", polygon), ("trefoil.xyz", trefoil)):
+        p = tmp_path / name
+        np.savetxt(p, P)
+        assert load_mesh(p).n_vertices == len(P)
+        np.savetxt(p, rng.permutation(P))
+        with pytest.raises(MeshError, match="not a sampled curve"):
+            load_mesh(p)
+        p.write_text("# closed\n" + p.read_text())
+        assert load_mesh(p).is_closed
+
+
 def test_curve_text_round_trip(tmp_path) -> None:
     c = shapes.hypocycloid(30, 0.1)
     save_mesh(c, tmp_path / "c.txt")

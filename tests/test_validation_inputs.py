@@ -271,6 +271,10 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     # -- found in the second reliability pass ---------------------------------------------------
     ("obj-concave-polygon", _write("s.obj", "v 0 0 0\nv 2 1 0\nv 0 2 0\nv 0.5 1 0\nf 1 2 3 4\n"),
      ["s.obj:5", "a face with 4 corners is not convex (at its corner 4)", "triangulate it"]),
+    ("obj-straight-corner-next-to-the-first",
+     _write("s.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 2 2 0\nv 0 2 0\nf 1 2 3 4 5\n"),
+     ["s.obj:6", "a face with 5 corners has a straight (180-degree) corner 2 next to its first",
+      "start the face at another corner"]),
     ("off-concave-polygon", _write("s.off", "OFF\n4 1 0\n0 0 0\n2 1 0\n0 2 0\n0.5 1 0\n4 0 1 2 3\n"),
      ["s.off:7", "is not convex"]),
     ("obj-latin1-outside-comment", _write("s.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\ng caf\xe9\nf 1 2 3\n"),
@@ -311,6 +315,10 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
      lambda d: [*_saved(d, "grid.obj", np.c_[np.mgrid[0:3, 0:3].reshape(2, -1).T, np.zeros(9)],
                         [[0, 3, 4], [0, 4, 1], [1, 4, 5], [1, 5, 2], [3, 6, 7], [3, 7, 4], [4, 7, 8], [4, 8, 5]]),
                 "--set", "clamp=conormal"], ["grid.obj: empty patch: no free vertex selected"]),
+    ("xyz-point-cloud", _write("cloud.xyz", "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in
+                                                    np.random.default_rng(1).standard_normal((30, 3)))),
+     ["cloud.xyz: its 30 points joined in file order turn by", "not a sampled curve (a point cloud?)",
+      "'# closed' or '# open' before them reads it as it is"]),
     ("ply-truncated-ascii", _write("t.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\n"
                                    "property double y\nproperty double z\nelement face 2\n"
                                    "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"

@@ -9,7 +9,8 @@ Formats
 ``.obj``, ``.off``
     Read and written here (strict, line-numbered errors; 17 significant digits, so a
     round trip is exact). Convex polygons with more than three corners are split into a fan
-    of triangles from their first corner; non-convex ones are refused (a fan would fold).
+    of triangles from their first corner; non-convex ones are refused (a fan would fold), and so are those with a
+    straight corner next to the first (a fan triangle of zero area; straight corners elsewhere are read).
     Bytes that are not UTF-8 are allowed in ``#`` comments, and a leading byte-order mark is dropped (in curve
     files too). No merging or repair: what is in the file is what gets validated.
 ``.ply``, ``.stl``
@@ -26,7 +27,8 @@ Formats
         ...
 
     Vertices are joined in file order; a closed curve also joins the last vertex to the
-    first (so the first vertex must not be repeated at the end).
+    first (so the first vertex must not be repeated at the end). A file without the '# closed' / '# open' line
+    whose points do not look like a sampled curve (a point cloud) is refused (``POINT_CLOUD_TURN``).
 """
 
 from __future__ import annotations
@@ -138,18 +140,26 @@ def _fan(corners: Sequence[int]) -> list[list[int]]:
 
 
 def _check_convex(polygons: Sequence[tuple[Sequence[int], int | str]], V: np.ndarray, path: Path) -> None:
-    """Refuse polygons (corners, where: a line number or e.g. "face 7") that are not convex: their fan triangulation
-    would fold."""
+    """Refuse polygons (corners, where: a line number or e.g. "face 7") whose fan triangulation from the first corner
+    would fold (a corner that turns the other way: not convex) or have a triangle of zero area (a straight corner next
+    to the first; a straight corner elsewhere, e.g. where a neighbouring face ends on a side, is harmless)."""
     for corners, lineno in polygons:
         P = V[list(corners)]
         nxt = np.roll(P, -1, axis=0)
         normal = np.cross(P, nxt).sum(axis=0)  # Newell's normal of the polygon
         e = nxt - P
-        turn = np.cross(np.roll(e, 1, axis=0), e) @ normal  # > 0 at every corner of a convex polygon
-        bad = np.flatnonzero(turn <= 1e-12 * float(normal @ normal))
-        if bad.size:
-            raise MeshError(f"{path}:{lineno}: a face with {len(corners)} corners is not convex (at its corner "
-                            f"{bad[0] + 1}); it would be split into folded triangles: triangulate it in the file")
+        turn = np.cross(np.roll(e, 1, axis=0), e) @ normal  # > 0 at every corner of a convex polygon, 0 where straight
+        tol = 1e-12 * float(normal @ normal)
+        reflex = np.flatnonzero(turn < -tol)
+        straight = [k for k in (1, len(corners) - 1) if abs(turn[k]) <= tol]
+        if reflex.size or not normal.any():
+            where = f" (at its corner {reflex[0] + 1})" if reflex.size else " (it has no area)"
+            raise MeshError(f"{path}:{lineno}: a face with {len(corners)} corners is not convex{where}; it would be "
+                            "split into folded triangles: triangulate it in the file")
+        if straight:
+            raise MeshError(f"{path}:{lineno}: a face with {len(corners)} corners has a straight (180-degree) corner "
+                            f"{straight[0] + 1} next to its first, so its fan from the first corner would have a "
+                            "triangle of zero area: start the face at another corner or triangulate it in the file")
 
 
 def _locate(exc: MeshError, vlines: Sequence[int], slines: Sequence[int]) -> str:
@@ -184,6 +194,7 @@ def _mesh(V: object, S: object, path: Path, vlines: Sequence[int], slines: Seque
 # -- readers -------------------------------------------------------------------------------
 def _read_curve_text(path: Path) -> Mesh:
     closed = True
+    declared = False  # a '# open' or '# closed' line (save_mesh writes one)
     rows: list[list[float]] = []
     lines: list[int] = []
     for lineno, line in enumerate(_read_text(path), start=1):
@@ -195,7 +206,7 @@ def _read_curve_text(path: Path) -> Mesh:
             if word in ("open", "closed"):
                 if rows:
                     raise MeshError(f"{path}:{lineno}: '# {word}' must come before the first vertex")
-                closed = word == "closed"
+                closed, declared = word == "closed", True
             continue
         parts = s.replace(",", " ").split()
         vals = [_number(x, path, lineno, "vertex coordinate") for x in parts]
@@ -218,10 +229,40 @@ def _read_curve_text(path: Path) -> Mesh:
             f"{path}:{lines[-1]}: the last vertex repeats the first (line {lines[0]}); a closed curve is "
             f"closed automatically: remove the last vertex"
         )
+    if not declared:
+        _check_sampled(np.array(rows), closed, path)
     idx = np.arange(n)
     S = np.stack([idx, (idx + 1) % n], 1) if closed else np.stack([idx[:-1], idx[1:]], 1)
     seg_lines = lines if closed else lines[:-1]
     return _mesh(np.array(rows), S, path, lines, seg_lines)
+
+
+POINT_CLOUD_TURN = 60.0
+"""A curve file without '# open' / '# closed' whose vertices, joined in file order, turn by more than this many degrees
+at the median corner (and has at least ``POINT_CLOUD_MIN`` of them) is refused as not a sampled curve: a point cloud
+(``.xyz`` is also a point-cloud format) joined in file order turns by much more (measured: 500 random points on a
+sphere 121 degrees, the 642 vertices of a trimesh icosphere 147), a curve resolved by its vertices by 360 / n for a
+regular n-gon."""
+POINT_CLOUD_MIN = 20
+"""Fewest vertices for the test of ``POINT_CLOUD_TURN`` (a coarse polygon turns by more: 72 degrees for a pentagon)."""
+
+
+def _check_sampled(P: np.ndarray, closed: bool, path: Path) -> None:
+    """Refuse the vertices P (n, m) of a curve file without an '# open' / '# closed' line that do not look like a
+    sampled curve (``POINT_CLOUD_TURN``)."""
+    if len(P) < POINT_CLOUD_MIN:
+        return
+    e = np.diff(np.vstack([P, P[:1]]) if closed else P, axis=0)
+    a, b = (np.roll(e, 1, axis=0), e) if closed else (e[:-1], e[1:])
+    norms = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
+    ok = norms > 0  # (a repeated vertex is the validation's to name)
+    turn = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", a[ok], b[ok]) / norms[ok], -1.0, 1.0)))
+    median = float(np.median(turn)) if turn.size else 0.0
+    if median > POINT_CLOUD_TURN:
+        raise MeshError(f"{path}: its {len(P)} points joined in file order turn by {median:.0f} degrees at the "
+                        "median corner: not a sampled curve (a point cloud?). A curve file lists the vertices of one "
+                        "polygon in order ('# closed' or '# open' before them reads it as it is); a surface needs "
+                        "its triangles: .obj, .off, .ply, .stl or .npz")
 
 
 def _read_obj(path: Path) -> Mesh:
