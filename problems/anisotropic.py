@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from willmore_nlp.mesh import shapes
-from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.registry import Problem, register
 
 BUNNY_H = 0.00865
@@ -23,8 +23,7 @@ def bunny_curve(n: int = 436, h: float = BUNNY_H) -> Mesh:
     -------
     Mesh with n vertices, (n, 2) positions.
     """
-    if n < 3:
-        raise MeshError(f"bunny_curve: n must be >= 3, got {n}")
+    shapes.vertex_count("bunny_curve", n=n)
     th = np.linspace(0.0, 2 * np.pi, 4000, endpoint=False)
     r = 1.0 / np.sqrt((np.cos(th) / 0.55) ** 2 + (np.sin(th) / 0.38) ** 2)
 

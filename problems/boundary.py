@@ -34,8 +34,7 @@ def arc_mesh(n: int, R: float = 1.0, angle: float = 180.0) -> tuple[Mesh, np.nda
     free : (n + 4,) bool
     theta : (n + 4,) polar angle of each vertex
     """
-    if n < 1:
-        raise MeshError(f"arc: n (free nodes) must be >= 1, got {n}")
+    shapes.vertex_count("arc", least=1, n=n)
     th = np.radians(angle) / 2 * np.linspace(-1, 1, n + 2)
     d = th[1] - th[0]
     th = np.concatenate([[th[0] - d], th, [th[-1] + d]])
@@ -54,6 +53,13 @@ def circle_arc(n: int = 64, R: float = 1.0, angle: float = 180.0, amp: float = 0
     The free nodes are displaced radially by ``amp * R * sin(3 pi s)`` (s in [0, 1] along the arc).
     lam = 1 / (2 R^2) (default) makes the circular arc an equilibrium: it is the length weight at
     which circles of radius R are stationary (kappa^2 / 2 = lam).
+
+    The perturbation leaves Gamma at an angle (a kink of about 3 pi amp R / (angle h) radians against the clamped
+    tangent), and with the ring variant IPOPT could not take the first step at some sizes: n = 128 and 144 failed
+    every attempt from tau = h to h/16 (200 iterations each; a full step at iteration 8 left the constraint, the
+    watchdog then sent the objective from 0.2 to 22), where n = 127 and 129 ran. So the problem's flows have
+    ``fallback_solver = "newton-krylov"``, which takes that step at tau = h in 5 Newton iterations (the later steps
+    are IPOPT's again; new-user check, 2026-11-30).
     """
     mesh, free, th = arc_mesh(n, R, angle)
     s = (th - th[1]) / (th[-2] - th[1])
@@ -62,7 +68,7 @@ def circle_arc(n: int = 64, R: float = 1.0, angle: float = 180.0, amp: float = 0
     tau_, tt_ = _steps(mesh.h, tau, tau_tilde)
     lam_ = 1 / (2 * R * R) if lam is None else float(lam)
     return Problem(mesh.with_vertices(V), tau_, tt_, lam_, steps=steps,
-                   flow_options={"boundary": Boundary(free, variant)},
+                   flow_options={"boundary": Boundary(free, variant), "fallback_solver": "newton-krylov"},
                    description="perturbed circular arc restored with clamped ends")
 
 
@@ -125,8 +131,7 @@ def curve_blending(n: int = 60, gap: float = 2.0, offset: float = 0.8, angle: fl
     leaving in the direction ``angle`` degrees above +x1. The free curve starts as the straight
     line between them. The paper used tau = h = 0.01386, tau_tilde = 1.386e-5, lam = 1.
     """
-    if n < 1:
-        raise MeshError(f"curve_blending: n (free nodes) must be >= 1, got {n}")
+    shapes.vertex_count("curve_blending", least=1, n=n)
     a = np.array([-gap / 2, 0.0])
     b = np.array([gap / 2, offset])
     L = float(np.linalg.norm(b - a))

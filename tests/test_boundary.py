@@ -194,6 +194,20 @@ def test_perturbed_arc_returns_to_the_circle(variant) -> None:
     assert fit_order(hs, defect) > 0.8
 
 
+def test_the_ring_arc_whose_first_step_ipopt_cannot_take_runs() -> None:
+    """circle_arc with n = 128 and the ring variant: IPOPT fails the first step at every tau from h to h/16 (a
+    new-user check); the problem's fallback solver, newton-krylov, takes it and IPOPT the next one."""
+    from willmore_nlp import registry
+
+    pb, _ = registry.build("circle_arc", n=128, variant="ring")
+    flow = pb.make_flow()
+    e0 = flow.state().energy
+    res = flow.run(steps=2)
+    assert [r.stats["solver"] for r in res] == ["newton-krylov", "ipopt"]
+    assert "ipopt: solver did not converge" in res[0].rejected[0]
+    assert res[1].energy <= res[0].energy <= e0
+
+
 @pytest.mark.parametrize("variant", ["conormal", "ring"])
 def test_flattened_sphere_cap_is_restored(variant) -> None:
     """A cap pressed halfway flat returns to the unit sphere; the maximal distance decreases as O(h)."""
@@ -275,6 +289,15 @@ def test_boundary_errors_name_the_problem() -> None:
     zero = np.zeros_like(mesh.vertices)
     with pytest.raises(BoundaryError, match="no usable prescribed co-normal"):
         boundary_data(mesh, Boundary(free, "conormal", conormal=zero))
+    # co-normals given by vertex: an index out of range, a negative one, one off Gamma (an IndexError, the last
+    # vertex and silence before)
+    arc = shapes.open_curve(np.stack([np.linspace(0, 1, 21), np.zeros(21)], 1))
+    for extra, match in ((99, r"conormal given at vertex 99: a vertex index in \[0, 21\)"),
+                         (-1, r"conormal given at vertex -1: a vertex index"),
+                         (7, "conormal given at vertex 7, which is not a node of the clamped boundary "
+                             r"\(its nodes: 0, 20\)")):
+        with pytest.raises(BoundaryError, match=match):
+            boundary_data(arc, Boundary.complement(arc, [0, 20], conormal={0: [-1, 0], 20: [1, 0], extra: [1, 0]}))
 
 
 def test_open_curve_with_prescribed_end_tangents() -> None:

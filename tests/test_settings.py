@@ -207,3 +207,14 @@ def test_api_misuse_is_one_clear_error_and_numpy_scalars_are_numbers() -> None:
         Mesh(polygon.vertices + 5j * polygon.vertices, polygon.simplices)
     with pytest.raises(UserInputError, match="tau must be a number > 0"):
         WillmoreFlow(polygon, np.bool_(True), 1e-3)
+
+
+def test_a_misspelt_flow_option_is_named_as_such() -> None:
+    """WillmoreFlow passes the options it does not know to the solver; a misspelt flow option reached IPOPT's check and
+    was called an unknown IPOPT option: now the message says it is neither and names the closest option."""
+    m = shapes.regular_polygon(20)
+    with pytest.raises(UserInputError, match="unknown option tangential_wieght = 3: neither a flow option nor an "
+                                             "IPOPT option; did you mean 'tangential_weight'"):
+        WillmoreFlow(m, 0.1, 0.01, tangential_wieght=3)
+    with pytest.raises(UserInputError, match="did you mean 'max_iter'"):
+        WillmoreFlow(m, 0.1, 0.01, max_itr=3)

@@ -319,6 +319,10 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
                                                     np.random.default_rng(1).standard_normal((30, 3)))),
      ["cloud.xyz: its 30 points joined in file order turn by", "not a sampled curve (a point cloud?)",
       "'# closed' or '# open' before them reads it as it is"]),
+    ("set-n-huge", _circle_with("n=1e9"),
+     ["regular_polygon: n = 1,000,000,000 would make 1,000,000,000 vertices, more than 2,000,000"]),
+    ("set-torus-grid-huge", lambda d: ["torus", "--set", "n_major=100000", "--set", "n_minor=100000"],
+     ["torus: n_major = 100,000 x n_minor = 100,000 would make 10,000,000,000 vertices"]),
     ("ply-truncated-ascii", _write("t.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\n"
                                    "property double y\nproperty double z\nelement face 2\n"
                                    "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"

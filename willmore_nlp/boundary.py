@@ -321,11 +321,23 @@ def _facet_conormal(mesh: Mesh, patch: np.ndarray, facets: np.ndarray, boundary:
     return _unit(w, "outer triangle").reshape(-1, m)
 
 
+def _few(items: list[int], n: int = 6) -> str:
+    """The first ``n`` of ``items`` written out, with how many more."""
+    head = ", ".join(map(str, items[:n]))
+    return head + (f", ... ({len(items)} in all)" if len(items) > n else "")
+
+
 def _explicit_conormal(mesh: Mesh, conormal: np.ndarray | Mapping[int, np.ndarray], nodes: np.ndarray) -> np.ndarray:
     N, m = mesh.n_vertices, mesh.m
     if isinstance(conormal, Mapping):
         arr = np.full((N, m), np.nan)
+        on_gamma = set(np.asarray(nodes).tolist())
         for k, v in conormal.items():
+            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < N:
+                raise BoundaryError(f"{mesh.source}: conormal given at vertex {k!r}: a vertex index in [0, {N})")
+            if int(k) not in on_gamma:
+                raise BoundaryError(f"{mesh.source}: conormal given at vertex {k}, which is not a node of the "
+                                    f"clamped boundary (its nodes: {_few(sorted(on_gamma))})")
             vv = np.asarray(v, float).ravel()
             if vv.shape != (m,):
                 raise BoundaryError(f"conormal at vertex {k}: expected {m} components, got {vv.size}")

@@ -65,27 +65,40 @@ def _lengths(shape: str, **lengths: float) -> None:
             raise MeshError(f"{shape}: {name} must be a finite number > 0, got {v!r}")
 
 
-MAX_REMESHED_VERTICES = 2_000_000
-"""Generators that remesh a surface to an edge length ``h`` refuse an ``h`` that would make more vertices than this (a
-negative h hung ``genus2_blending``, a tiny one would fill the memory: a new-user check)."""
+MAX_VERTICES = 2_000_000
+"""Generators refuse a size (a vertex count n, an edge length h to remesh a surface to) that would make more vertices
+than this: a negative h hung ``genus2_blending``, a tiny one would fill the memory, and ``--set n=1e9`` on ``circle``
+was killed by the kernel's out-of-memory killer (exit 137, the machine's 24 GB taken) before any step (new-user
+checks)."""
+
+
+def vertex_count(shape: str, least: int = 3, **counts: int) -> None:
+    """MeshError unless every count (``name=value``) is at least ``least`` and their product at most
+    :data:`MAX_VERTICES` (``shape``: the generator's name, for the message)."""
+    for name, n in counts.items():
+        if n < least:
+            raise MeshError(f"{shape}: {name} must be >= {least}, got {n}")
+    total = float(np.prod([float(n) for n in counts.values()]))
+    if total > MAX_VERTICES:
+        raise MeshError(f"{shape}: {' x '.join(f'{k} = {v:,}' for k, v in counts.items())} would make "
+                        f"{total:,.0f} vertices, more than {MAX_VERTICES:,}")
 
 
 def _remesh_size(shape: str, area: float, h: float) -> None:
-    """MeshError unless ``h`` is a finite number > 0 giving at most :data:`MAX_REMESHED_VERTICES` vertices on a
+    """MeshError unless ``h`` is a finite number > 0 giving at most :data:`MAX_VERTICES` vertices on a
     surface of ``area`` (about 2 area / (sqrt(3) h^2) with equilateral triangles)."""
     _lengths(shape, h=h)
     estimate = 2 * area / (np.sqrt(3) * h * h)
-    if estimate > MAX_REMESHED_VERTICES:
-        least = np.sqrt(2 * area / (np.sqrt(3) * MAX_REMESHED_VERTICES))
+    if estimate > MAX_VERTICES:
+        least = np.sqrt(2 * area / (np.sqrt(3) * MAX_VERTICES))
         raise MeshError(f"{shape}: h = {h:g} would make about {estimate:,.0f} vertices, more than "
-                        f"{MAX_REMESHED_VERTICES:,}; choose h >= {least:.3g}")
+                        f"{MAX_VERTICES:,}; choose h >= {least:.3g}")
 
 
 def regular_polygon(n: int, radius: float = 1.0, *, m: int = 2, phase: float = 0.0) -> Mesh:
     """Regular n-gon inscribed in the circle of ``radius`` in the plane x3 = 0 of R^m."""
     _lengths("regular_polygon", radius=radius)
-    if n < 3:
-        raise MeshError(f"regular_polygon: n must be >= 3, got {n}")
+    vertex_count("regular_polygon", n=n)
     t = phase + 2 * np.pi * np.arange(n) / n
     P = np.zeros((n, m))
     P[:, 0] = radius * np.cos(t)
@@ -96,6 +109,7 @@ def regular_polygon(n: int, radius: float = 1.0, *, m: int = 2, phase: float = 0
 def ellipse(n: int, a: float = 2.0, b: float = 1.0, *, m: int = 2) -> Mesh:
     """Ellipse with semi-axes a (x1) and b (x2), n vertices equally spaced in the angle."""
     _lengths("ellipse", a=a, b=b)
+    vertex_count("ellipse", n=n)
     t = 2 * np.pi * np.arange(n) / n
     P = np.zeros((n, m))
     P[:, 0] = a * np.cos(t)
@@ -115,8 +129,7 @@ def hypocycloid(n: int, delta: float = 0.0, *, m: int | None = None) -> Mesh:
     m : int, optional
         Ambient dimension; defaults to 3 when ``delta != 0`` and 2 otherwise.
     """
-    if n < 3:
-        raise MeshError(f"hypocycloid: n must be >= 3, got {n}")
+    vertex_count("hypocycloid", n=n)
     if m is None:
         m = 3 if delta != 0 else 2
     if m == 2 and delta != 0:
@@ -148,8 +161,7 @@ def torus(R: float = 1.0, r: float = 0.5, n_major: int = 24, n_minor: int = 12) 
     _lengths("torus", R=R, r=r)
     if r <= 0 or r >= R:
         raise MeshError(f"torus: need 0 < r < R, got R={R}, r={r}")
-    if n_major < 3 or n_minor < 3:
-        raise MeshError(f"torus: n_major and n_minor must be >= 3, got {n_major}, {n_minor}")
+    vertex_count("torus", n_major=n_major, n_minor=n_minor)
     u = 2 * np.pi * np.arange(n_major) / n_major
     v = 2 * np.pi * np.arange(n_minor) / n_minor
     U, W = np.meshgrid(u, v, indexing="ij")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -90,6 +91,13 @@ class IpoptSettings(SolverSettings):
     def from_options(cls, options: dict[str, Any]) -> IpoptSettings:
         """``warm_start`` and IPOPT options (with or without the ``ipopt.`` prefix)."""
         mine, other = cls.split(options)
+        for k, v in other.items():
+            if not k.startswith("ipopt.") and k not in ipopt_kinds():  # (a typo of a flow option lands here)
+                from willmore_nlp.settings import FlowSettings
+
+                close = difflib.get_close_matches(k, [*FlowSettings.kinds(), *ipopt_kinds()], n=1)
+                hint = f"; did you mean {close[0]!r}?" if close else ""
+                raise UserInputError(f"unknown option {k} = {v!r}: neither a flow option nor an IPOPT option{hint}")
         return cls(**mine, ipopt=tuple((k.removeprefix("ipopt."), check_ipopt_option(k.removeprefix("ipopt."), v))
                                        for k, v in other.items()))
 
