@@ -256,3 +256,31 @@ def test_newton_krylov_leaves_a_first_step_far_from_convex_under_the_floor_to_it
     assert r.rejected == [f"tau={flow.tau:.6g}: newton-krylov: {SKIP_REASON} = {flow.min_tau:.3g}"]
     assert len(notes) == 1 and notes[0].endswith(f"attempt 1: ipopt at tau={flow.tau:.3g}")  # no attempt before
     np.testing.assert_array_equal(r.vertices, q.vertices)
+
+
+def test_a_first_look_that_finds_nothing_is_followed_by_the_full_one_after_a_failure(tmp_path, monkeypatch) -> None:
+    """When the first look before newton-krylov's first attempt does not converge (nan: a 28,212-vertex dumbbell,
+    whose full look finds tau / 1.65e5), the full look follows that attempt's failure instead of the second attempt at
+    tau / 2 (200 s there). Made so on the cylinder: its first look answers nan, and with ``CONVEX_FAR`` at 1e4 its
+    tau_c (tau / 5e4) is far: one failed attempt, then the step below tau_c, the state of the two-failure path."""
+    import willmore_nlp.flow as flow_module
+    from willmore_nlp.solvers import reduced
+
+    pb, _ = registry.build("file", path=_cylinder(tmp_path), length=1.0)
+    with pytest.warns(UserWarning, match="convex at the initial state only below"):
+        two = pb.make_flow().step()  # (the full look after two failures: tau_c above tau / CONVEX_FAR)
+    looks: list[int] = []
+    full = reduced.convexity_limit
+
+    def blind_first(evaluator, z0, p, restarts=reduced.CONVEXITY_RESTARTS, solver=None):
+        looks.append(restarts)
+        return float("nan") if restarts == reduced.CONVEXITY_FIRST_RESTARTS else full(evaluator, z0, p, restarts,
+                                                                                        solver)
+
+    monkeypatch.setattr(reduced, "convexity_limit", blind_first)
+    monkeypatch.setattr(flow_module, "CONVEX_FAR", 1e4)
+    with pytest.warns(UserWarning, match="convex at the initial state only below"):
+        one = pb.make_flow().step()
+    assert looks == [reduced.CONVEXITY_FIRST_RESTARTS, reduced.CONVEXITY_RESTARTS]
+    assert (two.retries, one.retries) == (2, 1) and one.tau == two.tau
+    assert np.array_equal(one.vertices, two.vertices)

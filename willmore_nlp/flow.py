@@ -1405,9 +1405,10 @@ class WillmoreFlow:
         attempts: when a first look (:data:`~willmore_nlp.solvers.reduced.CONVEXITY_FIRST_RESTARTS`) finds tau_c <
         tau / :data:`CONVEX_FAR`, before the first attempt (``failed`` 0: newton-krylov's) or after it (1: other
         solvers'); after the first two attempts (2: at tau and tau / 2) when tau_c < tau / :data:`CONVEX_JUMP` (the
-        restarts then :data:`~willmore_nlp.solvers.reduced.CONVEXITY_RESTARTS` unless the first look converged). The
-        step size is the largest tau / 2^j not above tau_c / 2, or not above tau_c when that one is below the floor
-        ``min_tau``. None: the first attempt at tau, or halve tau as usual."""
+        restarts then :data:`~willmore_nlp.solvers.reduced.CONVEXITY_RESTARTS` unless the first look converged;
+        already after the first attempt when a look before it did not converge). The step size is the largest tau /
+        2^j not above tau_c / 2, or not above tau_c when that one is below the floor ``min_tau``. None: the first
+        attempt at tau, or halve tau as usual."""
         from willmore_nlp.solvers.reduced import (
             CONVEXITY_FIRST_RESTARTS,
             CONVEXITY_RESTARTS,
@@ -1418,7 +1419,11 @@ class WillmoreFlow:
         s = self.settings
         if not (s.convex_start and (s.adaptive or s.relax)):
             return None
-        restarts = CONVEXITY_FIRST_RESTARTS if failed <= 1 else CONVEXITY_RESTARTS
+        # the full look after two failures, and already after one when a first look before it found nothing (a
+        # 28,212-vertex dumbbell: the first look's two cycles did not converge, the full one found tau / 1.65e5 in
+        # 10 s, and the attempt at tau / 2 in between cost 200 s)
+        looked = self._tau_c is not None and np.isnan(self._tau_c[0])
+        restarts = CONVEXITY_FIRST_RESTARTS if failed == 0 or (failed == 1 and not looked) else CONVEXITY_RESTARTS
         # (once per number of restarts: a fallback solver's failures jump to the same step sizes)
         if self._tau_c is None or (np.isnan(self._tau_c[0]) and self._tau_c[1] < restarts):
             z0 = self.problem.pack_z(self.X, self.Y)
