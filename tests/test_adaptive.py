@@ -105,3 +105,21 @@ def test_a_grown_step_may_not_crush_the_mesh_for_little_gain(monkeypatch) -> Non
     r = flow.step()
     assert tried == [tau0] and r.retries == 1 and r.tau == tau0
     assert r.rejected[0].startswith(f"tau={2 * tau0:.6g}: {flow_module.GROWN_REASON}")
+
+
+@pytest.mark.parametrize(("cap", "hold"), [(64, 64), (0, 1024)])
+def test_the_wait_before_a_doubling_is_at_most_adaptive_max_wait(cap: int, hold: int) -> None:
+    """Ten steps that needed retries make the wait 2^10 = 1,024 steps without the limit (a file's double torus held
+    tau / 4,100 for 246 steps without a retry); ``adaptive_max_wait`` (64) bounds it, and the held steps then count
+    down to a doubling."""
+    from willmore_nlp.mesh import shapes
+
+    m = shapes.regular_polygon(16)
+    flow = WillmoreFlow(m, m.h, m.h**2 / 10, adaptive=True, adaptive_max_wait=cap)
+    tau = flow.tau / 8
+    for _ in range(10):
+        flow._grow_tau(tau, 1)
+    assert flow._hold == hold and flow._tau_adapt == tau
+    for _ in range(hold):
+        flow._grow_tau(tau, 0)
+    assert flow._tau_adapt == 2 * tau

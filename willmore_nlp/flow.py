@@ -6,7 +6,7 @@ import dataclasses
 import math
 import time
 import warnings
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,6 +20,7 @@ from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.mesh.topology import edge_triangles
 from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.model.terms.base import Term
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
 from willmore_nlp.settings import FlowSettings, check_run_value, is_number, moebius_invariant
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
@@ -488,6 +489,9 @@ class WillmoreFlow:
     settings : FlowSettings, optional
         The flow's options as one object (default: :class:`~willmore_nlp.settings.FlowSettings`()),
         overridden by ``options``.
+    terms : sequence of Term, optional
+        Energy terms or outer constraints of the user's own (:class:`willmore_nlp.model.terms.Term`), added to the
+        step problem the options build (docs/guide/terms.md, "A term of your own"); Python only.
     **options
         Flow options, the fields of :class:`~willmore_nlp.settings.FlowSettings` (``solver``,
         ``max_retries``, ``anisotropy``, ``tangential_weight``, ``relax``, ``remesh`` ...: see there
@@ -509,10 +513,15 @@ class WillmoreFlow:
     """
 
     def __init__(self, mesh: Mesh, tau: float, tau_tilde: float, *, lam: float = 0.0, boundary: Any = None,
-                 settings: FlowSettings | None = None, **options: Any) -> None:
+                 settings: FlowSettings | None = None, terms: Sequence[Term] = (), **options: Any) -> None:
         if not isinstance(mesh, Mesh):
             raise UserInputError(f"mesh must be a willmore_nlp.mesh.Mesh (Mesh(vertices, simplices) or "
                                  f"willmore_nlp.mesh.io.load_mesh(path)), got {type(mesh).__name__}")
+        self._extra_terms = tuple(terms)
+        for t in self._extra_terms:
+            if not isinstance(t, Term):
+                raise UserInputError(f"terms: each must be a willmore_nlp.model.terms.Term instance, got "
+                                     f"{type(t).__name__}")
         flow_options, self._options = FlowSettings.split(options)
         s = self.settings = dataclasses.replace(settings or FlowSettings(), **flow_options)  # validates them
         tau, tau_tilde, lam = (check_run_value(k, v) for k, v in (("tau", tau), ("tau_tilde", tau_tilde), ("lam", lam)))
@@ -581,8 +590,9 @@ class WillmoreFlow:
         try:
             self.X = self._restore(np.array(mesh.vertices, float))
         except (RuntimeError, np.linalg.LinAlgError) as exc:
-            raise UserInputError(f"volume/area: the initial mesh cannot be moved onto the targets {self._targets} "
-                                 f"({exc})") from exc
+            held = [t.label for t in self.problem.terms if t.constraint_targets]
+            raise UserInputError(f"{mesh.source}: the initial mesh cannot be moved onto the outer constraints "
+                                 f"({', '.join(held)}; {exc})") from exc
         self._check_restored(mesh)
         self.t = 0.0
         try:
@@ -591,9 +601,20 @@ class WillmoreFlow:
             raise MeshError(f"{mesh.source}: the inner mean-curvature step Y[X] cannot be solved on the initial "
                             f"mesh ({exc}); look for nearly degenerate simplices or an extreme scale") from exc
         self.lam_g: np.ndarray | None = None
+        e0 = self.discrete_energy(self.X, self.Y)
+        if not np.isfinite(e0):
+            raise UserInputError(f"{mesh.source}: the step's energy at the initial state is {e0} (terms: "
+                                 f"{', '.join(t.label for t in self.problem.terms)}): a term is not finite there")
+        # the energy is the Willmore energy's, Moebius invariant: no lam, c0, anisotropy or term of the user's that
+        # changes W (a user's surface tension term had its dilation undone by the drift rule: a new-user check)
+        invariant = moebius_invariant(lam, s.c0, s.anisotropy) and all(t.moebius_invariant for t in self.problem.terms)
+        if s.conformal_gauge and not invariant:
+            raise UserInputError(f"{mesh.source}: conformal_gauge=True needs the Willmore energy alone (Moebius "
+                                 "invariant); the terms " + ", ".join(t.label for t in self.problem.terms
+                                                                     if not t.moebius_invariant) + " are not")
         # relax=true watches the energy the flow decreases: W, or with lam A, c0 or an anisotropy the scheme's energy
         # (a c0 vesicle "relaxed" on a rise of W while its Helfrich energy still fell 2e-4 per step: a new-user check)
-        self._relax_on_energy = s.relax and not moebius_invariant(lam, s.c0, s.anisotropy)
+        self._relax_on_energy = s.relax and not invariant
         self.relax_reason = ""  # why relax=true ended: "small" (change below relax_tol) or "rose" (drift at rest)
         self._relax_start(self._relax_value(self.X, self.Y))
         self._X_prev = self.X
@@ -607,7 +628,7 @@ class WillmoreFlow:
         # the drift told by the motion (DRIFT_SHARE), also in relax mode (whose growing steps drift the most), where the
         # energy is Moebius invariant, so that the ten conformal fields are its zero modes (not with lam A, c0 or an
         # anisotropy: lengths, directions)
-        self._drift_rule = drifts and moebius_invariant(lam, s.c0, s.anisotropy)  # (drifts: no outer constraint)
+        self._drift_rule = drifts and invariant  # (drifts: no outer constraint)
 
     def _build(self, mesh: Mesh, boundary: Any) -> None:
         """Step problem, evaluator and solver for the connectivity of ``mesh``.
@@ -619,7 +640,7 @@ class WillmoreFlow:
         self.boundary = boundary
         self.setup = build_step(mesh, boundary=boundary, anisotropy=self.settings.anisotropy,
                                 tangential_weight=self.settings.tangential_weight, tangential_control=self._control,
-                                c0=self.settings.c0, **self._targets)
+                                c0=self.settings.c0, extra_terms=self._extra_terms, **self._targets)
         self.problem = self.setup.problem
         bd = self.setup.boundary
         self.energy_nodes: np.ndarray | None = None if bd is None else bd.patch_nodes
@@ -702,13 +723,20 @@ class WillmoreFlow:
 
     # -- helpers -----------------------------------------------------------------------
     def constraint_violation(self, X: np.ndarray) -> float:
-        """Largest relative residual |h_i| / |target_i| of the outer constraints at X (0 without any)."""
+        """Largest relative residual |h_i| / s_i of the outer constraints at X (0 without any): s_i = |target_i|, or
+        where that is smaller the change of h_i when every vertex moves by the mean edge h, ``|dh_i/dX| h`` at the
+        first X asked (a target 0, e.g. a fixed centroid, had no scale: every residual was inf, and a target of
+        round-off size 4e-16 made 1e-16 a relative 0.29)."""
         P = self.problem
         if not P.nh:
             return 0.0
         p = self._x_params(X, self.tau)
         h = self.evaluator.h(P.pack_z(X, X), p)
-        return float(np.max(np.abs(h) / np.abs([P.params.scalar(p, t) for t in P.targets])))
+        targets = np.abs([P.params.scalar(p, t) for t in P.targets])
+        if getattr(self, "_h_scale", None) is None or len(self._h_scale) != len(targets):
+            Jc = self.evaluator.c_jac(P.pack_z(X, X), p)[1].tocsr()[P.ng:, : P.nX * P.m]
+            self._h_scale = np.sqrt(np.asarray(Jc.multiply(Jc).sum(axis=1)).ravel()) * self.mesh.h
+        return float(np.max(np.abs(h) / np.maximum(targets, self._h_scale)))
 
     def _check_restored(self, mesh: Mesh) -> None:
         """Refuse volume/area targets so far from the initial mesh's own that moving it onto them (:meth:`_restore`)
@@ -1490,7 +1518,8 @@ class WillmoreFlow:
         (not doubling it after retries at the held tau was slower: docs/guide/runs.md).
         """
         if attempt:
-            self._backoff *= 2
+            cap = self.settings.adaptive_max_wait
+            self._backoff = 2 * self._backoff if not cap else min(2 * self._backoff, cap)
             self._hold = self._backoff
         elif tau > self._last_tau:  # a grown step succeeded
             self._backoff, self._hold = 1, 0

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,7 +52,7 @@ class StepSetup:
 
 def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None, tangential_weight: float = 1.0,
                tangential_control: TangentialControl | None = None, c0: float = 0.0, volume: float | None = None,
-               area: float | None = None) -> StepSetup:
+               area: float | None = None, extra_terms: Sequence[Term] = ()) -> StepSetup:
     """The step problem of ``mesh``: the sum of the terms its options select.
 
     Parameters
@@ -69,11 +69,13 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None, tang
     tangential_weight : float
         beta >= 1 of the distance term (:class:`~willmore_nlp.model.terms.distance.Distance`).
     tangential_control : TangentialControl, optional
-        Tangential motion inside the step (:mod:`willmore_nlp.tangential`); None or "off": none.
+        Tangential motion inside the step (:mod:`willmore_nlp.tangential`); None: none.
     c0 : float
         Spontaneous curvature (:class:`~willmore_nlp.model.terms.helfrich.Helfrich`); 0: no term.
     volume, area : float, optional
         Targets of the outer constraints V[X] = volume, A[X] = area (closed meshes); None: free.
+    extra_terms : sequence of Term
+        Terms of the user's own (docs/guide/terms.md, "A term of your own"), added to the built-in ones.
     """
     control = TangentialControl() if tangential_control is None else tangential_control
     an = None if anisotropy is None else get_anisotropy(anisotropy, mesh.m)
@@ -87,6 +89,7 @@ def build_step(mesh: Mesh, *, boundary: Any = None, anisotropy: Any = None, tang
         terms.append(VolumeConstraint(volume))
     if area is not None:
         terms.append(AreaConstraint(area))
+    terms += list(extra_terms)
     if boundary is None:
         if not mesh.is_closed:
             raise MeshError(

@@ -33,9 +33,10 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.topology import sorted_unique
 from willmore_nlp.model.params import BASE_SCALARS, StepParams
-from willmore_nlp.model.terms.base import Element, Term
+from willmore_nlp.model.terms.base import CAPABILITIES, Element, Term
 
 KERNEL_NAMES = ("k_f", "k_g", "k_grad", "k_jac", "k_hess", "k_h", "k_hjac")
 """Element kernels in a fixed order (also the order in compiled libraries); k_h, k_hjac only with outer constraints."""
@@ -72,6 +73,26 @@ def _total(parts: list[ca.SX | float]) -> ca.SX:
     return ca.SX(total)
 
 
+def _check_terms(terms: Sequence[Term]) -> None:
+    """UserInputError unless every term's name is an identifier (or empty), its ``requires`` are known capabilities
+    and no two terms (nor a term and the step itself: tau, tt, lam) declare the same scalar parameter (one would
+    silently take the other's value)."""
+    owner: dict[str, str] = {k: "the step itself" for k in BASE_SCALARS}
+    for t in terms:
+        if t.name and not t.name.isidentifier():
+            raise UserInputError(f"term {t.label!r}: its name {t.name!r} must be a Python identifier (it names the "
+                                 "compiled element kernels)")
+        unknown = set(t.requires) - CAPABILITIES
+        if unknown:
+            raise UserInputError(f"term {t.label!r} requires {', '.join(sorted(unknown))}: not a solver capability "
+                                 f"(known: {', '.join(sorted(CAPABILITIES))})")
+        for k in t.scalars:
+            if k in owner:
+                raise UserInputError(f"term {t.label!r} declares the scalar parameter {k!r}, which {owner[k]} "
+                                     "declares too: give it a name of its own")
+            owner[k] = f"term {t.label!r}"
+
+
 def element_kernels(spec: KernelSpec, terms: Sequence[Term], name: str = "step") -> dict[str, ca.Function]:
     """Differentiate the sum of the terms' element contributions into the element kernels.
 
@@ -97,11 +118,24 @@ def element_kernels(spec: KernelSpec, terms: Sequence[Term], name: str = "step")
                 Xk=ca.reshape(xe[2 * nl : 3 * nl], m, nv), par={k: par[i] for i, k in enumerate(spec.scalars)},
                 const={k: xe[3 * nl + nq + i] for i, k in enumerate(spec.consts)}, nodal=nodal)
     groups: dict[str, list[ca.SX | float]] = {}
+    inners, hs = [], []
     for t in terms:  # terms with the same element weight are summed first, then weighted (as written by hand)
-        groups.setdefault(t.weight, []).append(t.outer(e))
+        try:
+            groups.setdefault(t.weight, []).append(t.outer(e))
+            inners.append(t.inner(e))
+            rows = list(t.constraints(e))
+        except KeyError as exc:  # (a name read from e.par, e.const or e.nodal that no term declares)
+            raise UserInputError(f"term {t.label!r} reads {exc.args[0]!r}, which is not among the step's parameters "
+                                 f"(scalars: {', '.join(spec.scalars)}; per-node data: "
+                                 f"{', '.join(k for k, _ in spec.nodal) or 'none'}): declare it in the term's "
+                                 "`scalars` or `nodal`") from exc
+        for row in rows:
+            if ca.depends_on(ca.SX(row), ca.vec(e.Y)):
+                raise UserInputError(f"term {t.label!r}: its outer constraint depends on Y; outer constraints are "
+                                     "functions of the positions X alone (the flow restores them on X)")
+        hs += rows
     w = _total([e.c(k) * _total(v) if k else _total(v) for k, v in groups.items()])
-    inner = _total([t.inner(e) for t in terms])
-    hs = [h for t in terms for h in t.constraints(e)]
+    inner = _total(inners)
     z = xe[0 : 2 * nl]
     g = 0.5 * ca.gradient(inner, xe[nl : 2 * nl])
     lf = ca.SX.sym("lf")
@@ -264,6 +298,7 @@ class StepProblem:
         self.const_values = (np.column_stack([np.asarray(consts[k], float) for k in self.const_names])
                              if consts else np.zeros((self.K, 0)))
         ts = self.terms
+        _check_terms(ts)
         self.params = StepParams(N, m, _unique([*BASE_SCALARS, *(k for t in ts for k in t.scalars)]),
                                  tuple(b for t in ts for b in t.nodal), _unique([k for t in ts for k in t.vectors]))
         self.targets = tuple(k for t in ts for k in t.constraint_targets)
@@ -431,7 +466,12 @@ class StepProblem:
                 values.update({k: 0.0 for k in t.scalars})
                 values.update({k: np.zeros((N, w)) for k, w in t.nodal})
             else:
-                values.update(t.values(Xk, tau, S, self.x_free))
+                given = t.values(Xk, tau, S, self.x_free)
+                undeclared = set(given) - {*t.scalars, *(k for k, _ in t.nodal), *t.vectors}
+                if undeclared:
+                    raise UserInputError(f"term {t.label!r} gives values for {', '.join(sorted(undeclared))}, which "
+                                         "it does not declare (its scalars, nodal and vectors)")
+                values.update(given)
         return self.params.pack(Xk, values)
 
 

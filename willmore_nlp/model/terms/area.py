@@ -13,6 +13,8 @@ class AreaEnergy(Term):
 
     name = "area"
     label = "length/area energy"
+    requires: frozenset[str] = frozenset()  # (the semi-implicit baseline carries it)
+    moebius_invariant = True  # (lam A: the flow checks lam itself)
     weight = "patch"
 
     def outer(self, e: Element) -> ca.SX:

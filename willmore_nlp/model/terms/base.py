@@ -55,10 +55,17 @@ class Term:
     nodal : (name, width) per-node data blocks
     vectors : (N, m) nodal vectors added to g as ``-tt * b`` on the free-Y rows
     constraint_targets : scalar parameter holding the target of each constraint row
-    requires : solver capabilities (:data:`CAPABILITIES`) the term needs
+    requires : solver capabilities (:data:`CAPABILITIES`) the term needs; by default ``variational``: only the
+        solvers that minimise the step problem itself carry a term they do not know (the semi-implicit baseline
+        has its own formulas and would drop it); the built-in terms it carries declare less
     nonlinear_inner : the inner energy is not quadratic in Y
     weight : name of a per-element constant that multiplies :meth:`outer` ("" for none); the
         problem sums the terms of one weight first and multiplies the sum once
+    moebius_invariant : the term leaves the energy of a closed surface's step Moebius invariant (it adds nothing
+        to W but the Willmore energy, or only the inner energy, the distance or a constraint). Where every term
+        says so (and lam = 0) the flow treats the step's drift along the conformal fields, the zero modes of W, as
+        motion to undo (``rest_dilation``, the drift rule) and ``relax`` watches W; a term that changes W otherwise
+        (an area or a curvature term) leaves it False, the default, so that its own dilation is kept.
     """
 
     name = "term"
@@ -68,9 +75,10 @@ class Term:
     nodal: tuple[tuple[str, int], ...] = ()
     vectors: tuple[str, ...] = ()
     constraint_targets: tuple[str, ...] = ()
-    requires: frozenset[str] = frozenset()
+    requires: frozenset[str] = frozenset({"variational"})
     nonlinear_inner = False
     weight = ""
+    moebius_invariant = False
 
     def check(self, mesh: Any, variant: str | None) -> None:
         """Raise MeshError/UserInputError when the term does not support ``mesh`` or the boundary ``variant``

@@ -17,6 +17,8 @@ class Conormal(Term):
 
     name = ""
     label = "co-normal boundary term"
+    requires: frozenset[str] = frozenset()  # (the semi-implicit baseline carries it)
+    moebius_invariant = True
     vectors = ("conormal",)
 
     def __init__(self, nco: np.ndarray) -> None:

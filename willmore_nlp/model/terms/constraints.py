@@ -43,6 +43,7 @@ class VolumeConstraint(_Constraint):
 
     name = "vol"
     label = "volume constraint"
+    moebius_invariant = True
     hint = "use volume=None"
     what = "volume"
     scalars = ("volume0",)
@@ -65,6 +66,7 @@ class AreaConstraint(_Constraint):
 
     name = "are"
     label = "area constraint"
+    moebius_invariant = True
     hint = "use area=None"
     what = "area"
     scalars = ("area0",)

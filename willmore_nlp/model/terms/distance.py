@@ -22,6 +22,7 @@ class Distance(Term):
 
     name = "dist"
     label = "tangential weight"
+    moebius_invariant = True
     weight = "patch"
     hint = "use tangential_weight=1"
 

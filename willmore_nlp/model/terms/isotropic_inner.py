@@ -16,6 +16,8 @@ class IsotropicInner(Term):
 
     name = "iso"
     label = "isotropic inner energy"
+    requires: frozenset[str] = frozenset()  # (the semi-implicit baseline carries it)
+    moebius_invariant = True
 
     def inner(self, e: Element) -> ca.SX:
         return quad(mass_matrix(e.X), e.Y - e.X, e.Y - e.X) + e.c("stiff") * e.par["tt"] * quad(

@@ -25,6 +25,7 @@ class TangentialControlTerm(Term):
     """
 
     label = "tangential control"
+    moebius_invariant = True
     weight = "patch"
     hint = "use tangential_control=off"
     scalars = ("control_weight",)

@@ -13,6 +13,8 @@ class Willmore(Term):
 
     name = "willmore"
     label = "Willmore energy"
+    requires: frozenset[str] = frozenset()  # (the semi-implicit baseline carries it)
+    moebius_invariant = True
 
     def outer(self, e: Element) -> ca.SX:
         return e.par["tau"] / e.par["tt"] ** 2 * quad(mass_matrix(e.X), e.Y - e.X, e.Y - e.X)
