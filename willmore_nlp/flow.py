@@ -518,6 +518,7 @@ class WillmoreFlow:
             raise UserInputError(f"mesh must be a willmore_nlp.mesh.Mesh (Mesh(vertices, simplices) or "
                                  f"willmore_nlp.mesh.io.load_mesh(path)), got {type(mesh).__name__}")
         self._extra_terms = tuple(terms)
+        self._h_scale: np.ndarray | None = None  # the outer constraints' own scales (constraint_violation)
         for t in self._extra_terms:
             if not isinstance(t, Term):
                 raise UserInputError(f"terms: each must be a willmore_nlp.model.terms.Term instance, got "
@@ -733,7 +734,7 @@ class WillmoreFlow:
         p = self._x_params(X, self.tau)
         h = self.evaluator.h(P.pack_z(X, X), p)
         targets = np.abs([P.params.scalar(p, t) for t in P.targets])
-        if getattr(self, "_h_scale", None) is None or len(self._h_scale) != len(targets):
+        if self._h_scale is None or len(self._h_scale) != len(targets):
             Jc = self.evaluator.c_jac(P.pack_z(X, X), p)[1].tocsr()[P.ng:, : P.nX * P.m]
             self._h_scale = np.sqrt(np.asarray(Jc.multiply(Jc).sum(axis=1)).ravel()) * self.mesh.h
         return float(np.max(np.abs(h) / np.maximum(targets, self._h_scale)))
