@@ -14,6 +14,7 @@ from willmore_nlp import WillmoreFlow
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.element import measure
 from willmore_nlp.mesh import shapes
+from willmore_nlp.model.checks import derivative_errors
 from willmore_nlp.model.terms import Element, Term
 
 
@@ -68,6 +69,11 @@ def test_a_users_surface_tension_term_flows_as_the_built_in_lam_term() -> None:
         assert np.abs(a.vertices - b.vertices).max() < 1e-12 and a.energy == pytest.approx(b.energy, rel=1e-12)
     R = np.linalg.norm(mine.X, axis=1).mean()
     assert abs(R - np.sqrt(1 - 4 * 1.0 * tau * steps)) < 0.01
+    # the public check of a term's derivatives, at a random point near the final state
+    rng = np.random.default_rng(3)
+    z = mine.problem.pack_z(mine.X + 1e-3 * rng.standard_normal(mine.X.shape), mine.Y)
+    err = derivative_errors(mine.evaluator, z, mine.params(mine.X, tau), rng)
+    assert max(err.values()) < 1e-6, err
 
 
 def test_a_constraint_with_target_zero_holds() -> None:
