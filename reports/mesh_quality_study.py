@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -56,6 +57,7 @@ from willmore_nlp.analysis import surface_distance as mesh_distance
 from willmore_nlp.analysis import torus_distance as exact_torus_distance
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.mesh.io import save_mesh
 
 CACHE = Path("reports/studies/mesh_quality")
 BETAS = (1.0, 10.0, 100.0)
@@ -424,6 +426,15 @@ def cases(scale: float) -> dict[str, Any]:
 
     g2 = shapes.genus2()
 
+    def file_case(mesh: Mesh, label: str, steps: int) -> dict[str, Any]:
+        """``mesh`` written to an OBJ file and flowed as ``willmore-nlp run FILE`` does: the ``file`` problem's
+        mesh, steps and flow options (with the library's ``rest_dilation``, which :func:`run_case` turns off)."""
+        with tempfile.TemporaryDirectory() as d:
+            path = Path(d) / "surface.obj"
+            save_mesh(mesh, path)
+            pb, _ = registry.build("file", path=str(path))
+        return run_case(label, pb.mesh, pb.tau, pb.tau_tilde, steps=n(steps), rest_dilation=True, **pb.flow_options)
+
     def genus2(mesh: Mesh | Callable[[], Mesh], label: str, steps: int = 200, **kw: Any) -> Any:
         """Genus 2, adaptive steps from tau = h, ``n(steps)`` steps, then Surface Evolver from the final mesh
         (normal motion, :func:`willmore_nlp.evolver.evolver_equilibrium`) as a second solver, and the final
@@ -490,6 +501,9 @@ def cases(scale: float) -> dict[str, Any]:
                             tangential_weight=100.0),
         "genus2_dt_fine": genus2(lambda: shapes.double_torus(h=0.15), "double torus", max_retries=12,
                                  tangential_weight=100.0),
+        # the double torus as a user's file, with the file problem's defaults of 2026-11-30 (adaptive_max_wait 64)
+        "genus2_dt_file1130": lambda: file_case(shapes.double_torus(h=0.22), "double torus (839 v) read from a file, "
+                                                "defaults of 2026-11-30", 1500),
         "genus2_lawson": genus2(shapes.lawson_genus2, "Lawson start", max_retries=12, tangential_weight=100.0,
                                 conformal_gauge=True),
         "genus2_lawson_nogauge": genus2(shapes.lawson_genus2, "Lawson start", 40, max_retries=12,
