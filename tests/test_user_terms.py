@@ -126,5 +126,6 @@ def test_the_mistakes_in_a_term_are_named() -> None:
     with pytest.raises(UserInputError, match=r"solver semi-implicit: .* has no surface tension"):
         WillmoreFlow(m, tau, tt, solver="semi-implicit", terms=[SurfaceTension(1.0)])
     # the conformal gauge is for the Willmore energy alone
-    with pytest.raises(UserInputError, match="conformal_gauge=True needs the Willmore energy alone"):
+    with pytest.raises(UserInputError, match=r"the terms surface tension do not declare \(moebius_invariant"):
         WillmoreFlow(m, tau, tt, conformal_gauge=True, terms=[SurfaceTension(1.0)])
+    WillmoreFlow(m, tau, tt, lam=1.0, conformal_gauge=True)  # (asked for with lam: as before the terms' flags)

@@ -22,7 +22,7 @@ from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms.base import Term
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
-from willmore_nlp.settings import FlowSettings, check_run_value, is_number, moebius_invariant
+from willmore_nlp.settings import FlowSettings, check_run_value, is_number
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
 from willmore_nlp.tangential import TangentialControl, default_weight, resolve_method
 
@@ -606,13 +606,14 @@ class WillmoreFlow:
         if not np.isfinite(e0):
             raise UserInputError(f"{mesh.source}: the step's energy at the initial state is {e0} (terms: "
                                  f"{', '.join(t.label for t in self.problem.terms)}): a term is not finite there")
-        # the energy is the Willmore energy's, Moebius invariant: no lam, c0, anisotropy or term of the user's that
-        # changes W (a user's surface tension term had its dilation undone by the drift rule: a new-user check)
-        invariant = moebius_invariant(lam, s.c0, s.anisotropy) and all(t.moebius_invariant for t in self.problem.terms)
-        if s.conformal_gauge and not invariant:
-            raise UserInputError(f"{mesh.source}: conformal_gauge=True needs the Willmore energy alone (Moebius "
-                                 "invariant); the terms " + ", ".join(t.label for t in self.problem.terms
-                                                                     if not t.moebius_invariant) + " are not")
+        # the energy is the Willmore energy's, Moebius invariant: no lam, and no term that changes W otherwise (c0,
+        # an anisotropy, a term of the user's: a user's surface tension had its dilation undone by the drift rule)
+        invariant = lam == 0 and all(t.moebius_invariant for t in self.problem.terms)
+        foreign = [t.label for t in self._extra_terms if not t.moebius_invariant]
+        if s.conformal_gauge and foreign:  # (asked for with lam, c0 or an anisotropy it is the user's choice)
+            raise UserInputError(f"{mesh.source}: conformal_gauge=True undoes the motion along the Willmore energy's "
+                                 f"Moebius zero modes, which the terms {', '.join(foreign)} do not declare "
+                                 "(moebius_invariant = False)")
         # relax=true watches the energy the flow decreases: W, or with lam A, c0 or an anisotropy the scheme's energy
         # (a c0 vesicle "relaxed" on a rise of W while its Helfrich energy still fell 2e-4 per step: a new-user check)
         self._relax_on_energy = s.relax and not invariant

@@ -15,7 +15,7 @@ import numpy as np
 
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.model.evaluator import StepEvaluator
-from willmore_nlp.settings import BOOL, Kind, SolverSettings, one_of, option, real
+from willmore_nlp.settings import BOOL, FlowSettings, Kind, SolverSettings, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
 
 IPOPT_DEFAULTS: dict[str, Any] = {
@@ -93,8 +93,6 @@ class IpoptSettings(SolverSettings):
         mine, other = cls.split(options)
         for k, v in other.items():
             if not k.startswith("ipopt.") and k not in ipopt_kinds():  # (a typo of a flow option lands here)
-                from willmore_nlp.settings import FlowSettings
-
                 close = difflib.get_close_matches(k, [*FlowSettings.kinds(), *ipopt_kinds()], n=1)
                 hint = f"; did you mean {close[0]!r}?" if close else ""
                 raise UserInputError(f"unknown option {k} = {v!r}: neither a flow option nor an IPOPT option{hint}")
