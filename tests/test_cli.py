@@ -10,6 +10,7 @@ import pytest
 
 import willmore_nlp
 from willmore_nlp import load_run, registry
+from willmore_nlp.cli import default_run_dir
 
 CLI = [sys.executable, "-m", "willmore_nlp.cli"]
 
@@ -83,6 +84,23 @@ def test_cli_run_circle_writes_run_directory(tmp_path) -> None:
     assert np.all(np.diff(R) > 0)
     np.testing.assert_allclose(R[-1], (2.0**4 + 2 * 0.03) ** 0.25, rtol=1e-3)
 
+
+
+def test_cli_run_without_out_writes_a_new_directory_under_runs(tmp_path) -> None:
+    """``run TARGET`` without ``--out`` writes runs/NAME, then runs/NAME-2 (never into a directory that holds
+    anything), and says where; ``--overwrite`` needs the directory named."""
+    (tmp_path / "runs" / "circle-2").mkdir(parents=True)  # a directory the user made: left alone
+    (tmp_path / "runs" / "circle-2" / "notes.txt").write_text("mine")
+    for expected in ("circle", "circle-3"):
+        r = run_cli("run", "circle", "--steps", "1", "--set", "n=16", "--quiet", cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert f"writing the run to runs/{expected}" in r.stderr.replace("\\", "/")
+        assert (tmp_path / "runs" / expected / "history.csv").is_file()
+    assert sorted(p.name for p in (tmp_path / "runs" / "circle-2").iterdir()) == ["notes.txt"]
+    r = run_cli("run", "circle", "--steps", "1", "--overwrite", cwd=tmp_path)
+    assert r.returncode == 2 and "--overwrite needs --out DIR" in r.stderr
+    assert default_run_dir("meshes/dt.obj", tmp_path / "runs").name == "dt"
+    assert default_run_dir("my.toml", tmp_path / "runs").name == "my"
 
 def test_cli_run_toml_config_with_mesh_file(tmp_path) -> None:
     from willmore_nlp.mesh import shapes

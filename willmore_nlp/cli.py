@@ -10,6 +10,7 @@ import sys
 import traceback
 import warnings
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from willmore_nlp import runner
@@ -37,8 +38,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet,
                              ignore_late_signals=True)
     _check_length(args)
-    if not args.target or not args.out:
-        raise ConfigError("run needs a TARGET (problem name or .toml) and --out DIR, or --resume DIR")
+    if not args.target:
+        raise ConfigError("run needs a TARGET (problem name, .toml config or mesh file), or --resume DIR")
+    if args.overwrite and not args.out:
+        raise ConfigError("--overwrite needs --out DIR (the run directory to start afresh)")
     overrides: dict[str, Any] = parse_overrides(args.set or [])
     if args.steps is not None:
         overrides["steps"] = args.steps
@@ -47,7 +50,23 @@ def cmd_run(args: argparse.Namespace) -> int:
     spec = resolve(args.target, overrides)
     if spec.steps is None and spec.t_end is None:
         raise ConfigError(f"{args.target}: give --steps or --t-end")
-    return runner.start(spec, args.out, quiet=args.quiet, overwrite=args.overwrite, ignore_late_signals=True)
+    out = args.out or default_run_dir(args.target)
+    if not args.out:
+        print(f"willmore-nlp: writing the run to {out}", file=sys.stderr)
+    return runner.start(spec, out, quiet=args.quiet, overwrite=args.overwrite, ignore_late_signals=True)
+
+
+def default_run_dir(target: str, root: str | os.PathLike[str] = "runs") -> Path:
+    """The run directory of ``run TARGET`` without ``--out``: ``runs/NAME``, NAME the problem's name or the file's
+    stem, or the first of ``runs/NAME-2``, ``runs/NAME-3``, ... that does not exist (a run never lands in a
+    directory that holds anything)."""
+    name = Path(target).stem if Path(target).suffix else Path(target).name
+    base = Path(root) / (name or "run")
+    out, k = base, 1
+    while out.exists():
+        k += 1
+        out = base.with_name(f"{base.name}-{k}")
+    return out
 
 
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
@@ -89,8 +108,6 @@ def cmd_cache(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     """Export a run directory as VTU files with a PVD time index, or one state as a mesh file."""
-    from pathlib import Path
-
     from willmore_nlp.export import MESH_FILE_FORMATS, export_run, export_state
 
     if Path(args.out).suffix.lower() in MESH_FILE_FORMATS:
@@ -107,8 +124,6 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     """Write a Markdown + HTML + PNG report of a run directory or a study directory."""
-    from pathlib import Path
-
     from willmore_nlp.apps.report import markdown_to_html, write_report
     from willmore_nlp.apps.study import STUDY_FILE, write_study
 
@@ -176,7 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("target", nargs="?",
                    help="problem name (see 'willmore-nlp problems'), a .toml config, or a mesh file (.obj .off .ply "
                    ".stl .npz, or a curve .txt/.xy/.xyz; open meshes need --set clamp=conormal|ring)")
-    r.add_argument("--out", help="run directory to write (must be new or empty)")
+    r.add_argument("--out", help="run directory to write (must be new or empty; default runs/NAME, or runs/NAME-2, "
+                   "... when that exists, NAME the problem's name or the file's stem)")
     r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its last checkpoint "
                    "(after an interruption, a crash or a failure)")
     r.add_argument("--steps", type=int, help="number of steps (total, counting from the initial state); with "

@@ -14,6 +14,7 @@ from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.model.terms.base import Element, Term
 
 
+# --8<-- [start:constraint]
 class _Constraint(Term):
     """An outer equality constraint ``sum_T local - target = 0`` whose target is the scalar :attr:`scalars` [0]."""
 
@@ -59,6 +60,7 @@ class VolumeConstraint(_Constraint):
         if X.shape[1] == 2:
             return [0.5 * (X[0, 0] * X[1, 1] - X[1, 0] * X[0, 1])]
         return [ca.dot(X[:, 0], ca.cross(X[:, 1], X[:, 2])) / 6]
+# --8<-- [end:constraint]
 
 
 class AreaConstraint(_Constraint):
