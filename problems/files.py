@@ -76,7 +76,7 @@ COARSE_TUBE_TARGET = 3.0
 @register("file", before={"length": 1.0})  # (tau = h in the file's units until 2026-11-29)
 def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None = None,
               lam: float = 0.0, steps: int = 10, clamp: str = "", length: float = 0.0) -> Problem:
-    """A curve or surface from ``path`` (open ones: clamp=conormal|ring); tau = h L^3, tau_tilde h^2/4 or h^2/100.
+    """A curve or surface from ``path`` (open ones: clamp=conormal|ring); tau = h L^3, tau_tilde = h^2/100.
 
     The step tau = h L^3 is the paper's tau = h in the mesh's own length L (``length``; 0, the default:
     :func:`~willmore_nlp.geometry.length_scale`, the radius of the sphere or disk of the surface's area, of the circle
@@ -112,11 +112,16 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     the measured inputs; a smaller one gets IPOPT and ``large_solver = "newton-krylov"`` from that size (the steps
     on a mesh that ``input_repair`` or ``refine_dihedral`` made larger; ``--set solver=ipopt`` runs every step with
     IPOPT).
-    Curves: tau_tilde = h^2 / 4 in a plane, h^2 / 100 in space (as ``hypocycloid3d``), fixed tau. A closed space
-    curve at h^2 / 4 (60 vertices on x = 1.5 cos t, y = sin t, z = 0.2 sin 3t, tau = h L^3) took a first step to a
-    spurious minimiser of the step: four edges collapsed (edge ratio 327) and the polygon's Willmore energy rose from
-    4.9 to 188 while the scheme's fell; h^2 / 10 and smaller flow it smoothly (W 4.87 -> 1.83 in 10 steps), and the
-    same curve in the plane z = 0 flows alike at h^2 / 4.
+    Curves: tau_tilde = h^2 / 100 (as ``hypocycloid`` and ``hypocycloid3d``), fixed tau. Until 2026-11-30 plane
+    curves had h^2 / 4, at which a step can go to a spurious minimiser of the step problem: edges collapse and the
+    polygon's Willmore energy jumps while the scheme's falls. Measured on plane ellipse files (aspect 1.5, 2 and 3,
+    40-120 vertices, 10 steps each): 7 of 33 went wrong at h^2 / 4 (the 48-gon of aspect 3: edge ratio 808, W 4.4 ->
+    169, exit 0; six others failed), none at h^2 / 10 or h^2 / 100; a closed space curve (60 vertices on x = 1.5
+    cos t, y = sin t, z = 0.2 sin 3t) at h^2 / 4: edge ratio 327, W 4.9 -> 188.
+    A curve's step that IPOPT fails at every tau is taken by newton-krylov (``fallback_solver``, whose stopping test is
+    relative to the step's gradient): a smooth 400-vertex trefoil from a file failed its step 18 after five IPOPT
+    attempts that ended "Solved_To_Acceptable_Level" (its accepted steps sat at KKT residuals of 1.5-5e-9 against
+    IPOPT's absolute tol 1e-9); with the fallback it runs 40 steps, newton-krylov taking steps 18 and 20-40.
 
     A closed surface oriented inward (or a closed plane curve running clockwise) is flowed with each simplex reversed,
     with a warning: the flow does not depend on the orientation, a volume constraint and c0 take the outward one.
@@ -184,14 +189,15 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
         options.update(solver="newton-krylov", fallback_solver="ipopt")
     elif mesh.d == 2:  # (from the refined input's first step, or a refinement's next step, on)
         options.update(large_solver="newton-krylov", large_vertices=NEWTON_KRYLOV_FROM)
+    else:  # a curve: a step IPOPT fails at every tau is taken by newton-krylov (relative tolerance)
+        options.update(fallback_solver="newton-krylov")
     if mesh.d == 2:  # tau = h and tau_tilde = h^2/100 of the mesh flowed, also when input_repair remeshes it
         chosen = [name for name, given in (("tau", tau), ("tau_tilde", tau_tilde)) if given is None]
         options["steps_from_h"] = "both" if len(chosen) == 2 else (chosen[0] if chosen else "none")
     h = mesh.h
-    tt_factor = 0.25 if mesh.d == 1 and _planar(mesh.vertices) else 0.01
     size = length or length_scale(float(simplex_volumes(mesh.vertices, mesh.simplices).sum()) / parts, mesh.d,
                                   mesh.is_closed)  # (per component; areas only: a sliver is an error later)
-    return Problem(mesh, h * size**3 if tau is None else tau, tt_factor * h * h if tau_tilde is None else tau_tilde,
+    return Problem(mesh, h * size**3 if tau is None else tau, 0.01 * h * h if tau_tilde is None else tau_tilde,
                    lam, steps=steps, flow_options=options, description=f"mesh from {path}")
 
 
@@ -209,15 +215,6 @@ def _outward(mesh: Mesh, path: str) -> Mesh:
     warnings.warn(f"{path}: {state}: it is flowed with each {'triangle' if mesh.d == 2 else 'segment'} reversed, "
                   "outward, as volume constraints and the spontaneous curvature c0 take it", stacklevel=3)
     return Mesh(mesh.vertices, np.asarray(mesh.simplices)[:, ::-1], mesh.source)
-
-
-def _planar(V: np.ndarray) -> bool:
-    """Whether the points ``V`` (N, m) lie in a plane (m = 2, or within 1e-9 of their width of one in R^3)."""
-    if V.shape[1] == 2:
-        return True
-    C = V - V.mean(axis=0)
-    s = np.linalg.svd(C, compute_uv=False)
-    return bool(s[-1] <= 1e-9 * s[0])
 
 
 def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: str) -> None:

@@ -262,7 +262,7 @@ def test_default_floor_is_below_the_papers_smallest_step() -> None:
 
 
 def test_mesh_file_gets_the_surface_defaults(tmp_path) -> None:
-    """`run MESH.obj`: a surface gets tau_tilde = h^2/100 and the mesh control; a curve h^2/4 and none."""
+    """`run MESH.obj`: a surface gets tau_tilde = h^2/100 and the mesh control."""
     from willmore_nlp.config import resolve
 
     m = shapes.icosphere(1)
