@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from willmore_nlp import geometry
-from willmore_nlp.boundary import Boundary
+from willmore_nlp.boundary import CLAMPED_CURVE_WEIGHT, Boundary
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.registry import Problem, register
@@ -59,7 +59,8 @@ def circle_arc(n: int = 64, R: float = 1.0, angle: float = 180.0, amp: float = 0
     every attempt from tau = h to h/16 (200 iterations each; a full step at iteration 8 left the constraint, the
     watchdog then sent the objective from 0.2 to 22), where n = 127 and 129 ran. So the problem's flows have
     ``fallback_solver = "newton-krylov"``, which takes that step at tau = h in 5 Newton iterations (the later steps
-    are IPOPT's again; new-user check, 2026-11-30).
+    are IPOPT's again; new-user check, 2026-11-30). ``tangential_weight`` = :data:`CLAMPED_CURVE_WEIGHT`: with the
+    paper's 1 the 256-node ring arc's first free node slid onto Gamma and the run stopped at step 226-306.
     """
     mesh, free, th = arc_mesh(n, R, angle)
     s = (th - th[1]) / (th[-2] - th[1])
@@ -68,7 +69,8 @@ def circle_arc(n: int = 64, R: float = 1.0, angle: float = 180.0, amp: float = 0
     tau_, tt_ = _steps(mesh.h, tau, tau_tilde)
     lam_ = 1 / (2 * R * R) if lam is None else float(lam)
     return Problem(mesh.with_vertices(V), tau_, tt_, lam_, steps=steps,
-                   flow_options={"boundary": Boundary(free, variant), "fallback_solver": "newton-krylov"},
+                   flow_options={"boundary": Boundary(free, variant), "fallback_solver": "newton-krylov",
+                                 "tangential_weight": CLAMPED_CURVE_WEIGHT},
                    description="perturbed circular arc restored with clamped ends")
 
 

@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 
-from willmore_nlp.boundary import VARIANTS, Boundary
+from willmore_nlp.boundary import CLAMPED_CURVE_WEIGHT, VARIANTS, Boundary
 from willmore_nlp.flow import REPAIR_PASSES_HANDLES, check_scale, ipopt_scale_trouble
 from willmore_nlp.geometry import enclosed_volume, inward, length_scale
 from willmore_nlp.mesh.core import Mesh
@@ -131,7 +131,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     (:meth:`~willmore_nlp.boundary.Boundary.outer_strip`), by the paper's prescribed co-normal
     (``clamp=conormal``) or fixed-ring (``clamp=ring``) variant. A clamped surface gets
     ``tangential_weight = 100`` (as ``genus2_blending``): with the paper's 1 the first free row slides
-    toward the clamp (docs/guide/boundaries.md).
+    toward the clamp (docs/guide/boundaries.md); a clamped curve gets
+    :data:`~willmore_nlp.boundary.CLAMPED_CURVE_WEIGHT` (10), as ``circle_arc``.
 
     A closed surface of genus >= 1 (Euler characteristic <= 0) gets ``tangential_weight = 10``, the ``torus``
     problem's: with the paper's 1 its large first steps fight the scheme's tangential descent on tori (IPOPT under
@@ -174,8 +175,7 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     chi = euler_characteristic(mesh.simplices) if mesh.d == 2 else None
     if clamp:
         options["boundary"] = Boundary.outer_strip(mesh, clamp)
-        if mesh.d == 2:
-            options["tangential_weight"] = 100.0
+        options["tangential_weight"] = 100.0 if mesh.d == 2 else CLAMPED_CURVE_WEIGHT
     elif not mesh.is_closed:
         raise ProblemError(f"the mesh has a boundary ({len(mesh.boundary_facets)} boundary facets): set "
                            "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")

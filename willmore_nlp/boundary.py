@@ -44,6 +44,14 @@ from willmore_nlp.mesh.topology import boundary_facets, scatter_sum, simplex_fac
 VARIANTS = ("conormal", "ring")
 """Boundary variants: prescribed co-normal (paper (2.6)) and fixed outer ring (paper (2.8))."""
 
+CLAMPED_CURVE_WEIGHT = 10.0
+"""The ``tangential_weight`` the clamped-curve problems give (``circle_arc``, curve files with ``clamp``). With the
+paper's 1 the first free node slides onto Gamma: the 256-node ring arc (tau = h, tau_tilde = h^2 / 100) reached edge
+ratio 7.4 by step 200 and stopped at step 226 (edge ratio 1.7e3; at h^2 / 10 and h^2 it ended 400 steps at edge
+ratios 399 and 85 with the polygon's W 5.9 and 265 against 1.58); with 10 it ends 400 steps at 1.29, W 1.5754. The
+restored arcs of n = 20 / 40 / 80 (150 steps, both variants) keep their distance to the circle to 4 digits (order
+1.01 either way); measured 2026-11-30."""
+
 
 class BoundaryError(MeshError):
     """A boundary selection is unusable; the message names the vertex, facet or option."""
