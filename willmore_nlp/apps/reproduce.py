@@ -754,8 +754,9 @@ def fig1(fig_dir: Path) -> str:
         "**Paper:** a perturbed curve segment and a perturbed patch of the unit sphere, with position and co-normal "
         "prescribed on the boundary, flow back to the circle / sphere (tau = h = 0.02, times 0 to 1.12).", "",
         "**Ours:** problems `circle_arc` (half circle, radial bump amp 0.1) and `sphere_cap` (45-degree cap, radial "
-        "bump amp 0.15) with their defaults (tau = h, tt = h^2/100), both boundary variants; the maximal distance "
-        "of the patch nodes to the unit circle / sphere before and after:", "",
+        "bump amp 0.15) with their defaults (tau = h, tt = h^2/100; `circle_arc`'s tangential weight 10 since "
+        "2026-11-30, its final distances as with the paper's 1 to 3 digits), both boundary variants; the maximal "
+        "distance of the patch nodes to the unit circle / sphere before and after:", "",
         "| problem | variant | N | h | steps | t | max dist initial | max dist final | note |",
         "|---|---|---|---|---|---|---|---|---|", *rows, "",
         verdict(checks), "",
