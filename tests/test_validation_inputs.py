@@ -410,7 +410,7 @@ def test_existing_output_and_resume_errors(tmp_path: Path, capsys: pytest.Captur
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
     assert cli.main(["run", "--resume", str(out), "circle", "--quiet"]) == 2
     assert "give no TARGET" in capsys.readouterr().err
-    assert cli.main(["run", "circle", "--quiet"]) == 2
+    assert cli.main(["run", "--quiet"]) == 2
     assert "needs a TARGET" in capsys.readouterr().err
 
 
