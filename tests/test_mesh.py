@@ -149,6 +149,24 @@ def test_a_headerless_curve_file_is_read_when_it_is_a_sampled_curve(tmp_path) ->
         assert load_mesh(p).is_closed
 
 
+def test_curve_file_open_and_closed_markers(tmp_path) -> None:
+    """A comment whose first word is 'open' or 'closed' (any case, then the line's end, a space or punctuation) marks
+    the curve (found by a new-user check: '# open curve' was an ordinary comment and a semicircle was closed by a
+    chord); 'opened', 'open_curve' and 'closedness' are ordinary comments (closed, the default)."""
+    t = np.linspace(0, np.pi, 21)
+    semicircle = "".join(f"{np.cos(a):.17g} {np.sin(a):.17g}\n" for a in t)
+    p = tmp_path / "c.txt"
+    for comment, closed in (("# open", False), ("# open curve", False), ("# open: clamped", False), ("#OPEN", False),
+                            ("#  Open-ended", False), ("# closed", True), ("# Closed.", True),
+                            ("# closed (a cell)", True), ("# opened by hand", True), ("# open_curve", True),
+                            ("# closedness", True), ("# the curve is open", True)):
+        p.write_text(f"# willmore_nlp curve\n{comment}\n{semicircle}")
+        assert load_mesh(p).is_closed is closed, comment
+    p.write_text("# open\n# CLOSED\n" + semicircle)
+    with pytest.raises(MeshError, match=r"c\.txt:2: .# closed. contradicts '# open' on line 1"):
+        load_mesh(p)
+
+
 def test_curve_text_round_trip(tmp_path) -> None:
     c = shapes.hypocycloid(30, 0.1)
     save_mesh(c, tmp_path / "c.txt")

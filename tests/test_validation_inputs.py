@@ -336,6 +336,9 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
      ["parameter subdivisions: must be in [1, 7]"]),
     ("set-vesicle-volume", lambda d: ["vesicle", "--set", "volume=3"],
      ["volume is set by the problem's parameters; set reduced_volume instead"]),
+    # -- found by a new-user check (2026-12-01) ---------------------------------------------------
+    ("curve-open-and-closed", _write("c.txt", "# open curve\n# Closed.\n0 0\n1 0\n0 1\n"),
+     ["c.txt:2: '# closed' contradicts '# open' on line 1: a curve is either open or closed"]),
     ("set-volume-far-from-the-mesh",
      lambda d: [*_saved(d, "e.obj", shapes.icosphere(3).vertices * [1.0, 1.0, 1.6], shapes.icosphere(3).simplices),
                 "--set", "volume=3", "--set", "area=initial"],

@@ -26,8 +26,11 @@ Formats
         x y                             (one vertex per line: 2 or 3 numbers)
         ...
 
-    Vertices are joined in file order; a closed curve also joins the last vertex to the
-    first (so the first vertex must not be repeated at the end). A file without the '# closed' / '# open' line
+    A comment whose first word is ``open`` or ``closed``, in any case and followed by the end of the line, white
+    space or punctuation (``# Open curve``, ``# open: clamped``), is the marker (``CURVE_MARKER``; ``# opened`` is
+    an ordinary comment); it must come before the first vertex, and a file with both an open and a closed marker is
+    refused. Vertices are joined in file order; a closed curve also joins the last vertex to the
+    first (so the first vertex must not be repeated at the end). A file without a marker
     whose points do not look like a sampled curve (a point cloud) is refused (``POINT_CLOUD_TURN``).
 """
 
@@ -194,7 +197,7 @@ def _mesh(V: object, S: object, path: Path, vlines: Sequence[int], slines: Seque
 # -- readers -------------------------------------------------------------------------------
 def _read_curve_text(path: Path) -> Mesh:
     closed = True
-    declared = False  # a '# open' or '# closed' line (save_mesh writes one)
+    marker: tuple[str, int] | None = None  # the '# open' or '# closed' line (save_mesh writes one), its line number
     rows: list[list[float]] = []
     lines: list[int] = []
     for lineno, line in enumerate(_read_text(path), start=1):
@@ -202,11 +205,15 @@ def _read_curve_text(path: Path) -> Mesh:
         if not s:
             continue
         if s.startswith("#"):
-            word = s[1:].strip().lower()
-            if word in ("open", "closed"):
+            found = CURVE_MARKER.match(s[1:])
+            if found:
+                word = found[1].lower()
                 if rows:
                     raise MeshError(f"{path}:{lineno}: '# {word}' must come before the first vertex")
-                closed, declared = word == "closed", True
+                if marker and marker[0] != word:
+                    raise MeshError(f"{path}:{lineno}: '# {word}' contradicts '# {marker[0]}' on line {marker[1]}: "
+                                    "a curve is either open or closed; keep one of the two lines")
+                closed, marker = word == "closed", (word, lineno)
             continue
         parts = s.replace(",", " ").split()
         vals = [_number(x, path, lineno, "vertex coordinate") for x in parts]
@@ -229,12 +236,18 @@ def _read_curve_text(path: Path) -> Mesh:
             f"{path}:{lines[-1]}: the last vertex repeats the first (line {lines[0]}); a closed curve is "
             f"closed automatically: remove the last vertex"
         )
-    if not declared:
+    if marker is None:
         _check_sampled(np.array(rows), closed, path)
     idx = np.arange(n)
     S = np.stack([idx, (idx + 1) % n], 1) if closed else np.stack([idx[:-1], idx[1:]], 1)
     seg_lines = lines if closed else lines[:-1]
     return _mesh(np.array(rows), S, path, lines, seg_lines)
+
+
+CURVE_MARKER = re.compile(r"\s*(open|closed)(?!\w)", re.IGNORECASE)
+"""A comment of a curve file whose first word is ``open`` or ``closed`` (any case; followed by the end of the line,
+white space or punctuation: ``# open``, ``# Open curve``, ``# closed: a cell``) declares the curve open or closed;
+``# opened``, ``# open_curve`` or ``# closedness`` are ordinary comments."""
 
 
 POINT_CLOUD_TURN = 60.0
