@@ -30,7 +30,8 @@ Formats
     space or punctuation (``# Open curve``, ``# open: clamped``), is the marker (``CURVE_MARKER``; ``# opened`` is
     an ordinary comment); it must come before the first vertex, and a file with both an open and a closed marker is
     refused. Vertices are joined in file order; a closed curve also joins the last vertex to the
-    first (so the first vertex must not be repeated at the end). A file without a marker
+    first (so the first vertex must not be repeated at the end), and one whose vertices all lie on a line (zero
+    enclosed area and width) is refused. A file without a marker
     whose points do not look like a sampled curve (a point cloud) is refused (``POINT_CLOUD_TURN``).
 """
 
@@ -278,6 +279,26 @@ def _check_sampled(P: np.ndarray, closed: bool, path: Path) -> None:
                         "its triangles: .obj, .off, .ply, .stl or .npz")
 
 
+def _check_encloses(mesh: Mesh, path: Path) -> Mesh:
+    """``mesh``, unless it is a closed curve whose vertices all lie on a line (MeshError): back and forth along a
+    segment, it encloses nothing and has no width, so it has no outside to flow to (it was read, called clockwise with
+    "signed enclosed area 0" and failed in the solver). On a line means within the tolerance of duplicate vertices
+    (:data:`~willmore_nlp.mesh.validate.DUPLICATE_RTOL` times the bounding box's largest side); a thin ellipse is
+    read."""
+    from willmore_nlp.mesh.validate import DUPLICATE_RTOL
+
+    if mesh.d != 1 or not mesh.is_closed:
+        return mesh
+    P = mesh.vertices - mesh.vertices.mean(axis=0)
+    direction = np.linalg.svd(P, full_matrices=False)[2][0]  # of the best-fitting line through the centroid
+    width = float(np.linalg.norm(P - np.outer(P @ direction, direction), axis=1).max())
+    if width <= DUPLICATE_RTOL * float(np.ptp(mesh.vertices, axis=0).max()):
+        hint = " ('# open' before the vertices reads them as an open curve)" if path.suffix.lower() != ".npz" else ""
+        raise MeshError(f"{path}: a degenerate closed curve: all its {mesh.n_vertices} vertices lie on a line (zero "
+                        f"enclosed area and zero width); a closed curve must enclose a region{hint}")
+    return mesh
+
+
 def _read_obj(path: Path) -> Mesh:
     verts: list[list[float]] = []
     vlines: list[int] = []
@@ -495,9 +516,9 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
         raise MeshError(f"{p}: no such file")
     ext = p.suffix.lower()
     if ext == ".npz":
-        return _read_npz(p)
+        return _check_encloses(_read_npz(p), p)
     if ext in CURVE_FORMATS:
-        return _read_curve_text(p)
+        return _check_encloses(_read_curve_text(p), p)
     if ext == ".obj":
         return _read_obj(p)
     if ext == ".off":
