@@ -33,6 +33,9 @@ Formats
     first (so the first vertex must not be repeated at the end), and one whose vertices all lie on a line (zero
     enclosed area and width) is refused. A file without a marker
     whose points do not look like a sampled curve (a point cloud) is refused (``POINT_CLOUD_TURN``).
+
+Numbers are read as Python reads them, except that a ``_`` in a number (``1_0``, read as 10 by Python) is refused in
+every text format.
 """
 
 from __future__ import annotations
@@ -122,7 +125,14 @@ def _sniff_trimesh(path: Path, ext: str) -> None:
                     f"is not ASCII STL ('solid ...')")
 
 
+def _no_separators(tok: str, path: Path, lineno: int, what: str) -> None:
+    """Refuse a number token with a '_' (Python's float and int read '1_0' as 10; no mesh format allows it)."""
+    if "_" in tok:
+        raise MeshError(f"{path}:{lineno}: {what}: {tok!r} is not a number (a '_' is not allowed in numbers)")
+
+
 def _number(tok: str, path: Path, lineno: int, what: str) -> float:
+    _no_separators(tok, path, lineno, what)
     try:
         v = float(tok)
     except ValueError as exc:
@@ -133,6 +143,7 @@ def _number(tok: str, path: Path, lineno: int, what: str) -> float:
 
 
 def _integer(tok: str, path: Path, lineno: int, what: str) -> int:
+    _no_separators(tok, path, lineno, what)
     try:
         return int(tok)
     except ValueError as exc:
