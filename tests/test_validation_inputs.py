@@ -459,6 +459,17 @@ def test_tau_tilde_far_above_h2_warns(tmp_path: Path) -> None:
     assert len(warn) == 1 and warn[0].startswith("willmore-nlp: warning: tau_tilde = ") and "10 h^2" in warn[0]
 
 
+def test_resume_of_a_file_outside_a_run_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Found by a new-user check (2026-12-01): ``run --resume in/ok.txt`` (a mesh file) said "(the run directory is
+    in)"; only a file inside a run directory (its config.json) names that directory."""
+    (tmp_path / "in").mkdir()
+    mesh = tmp_path / "in" / "ok.txt"
+    mesh.write_text(_circle_txt(12))
+    assert cli.main(["run", "--resume", str(mesh), "--quiet"]) == 2
+    assert capsys.readouterr().err.strip() == f"willmore-nlp: error: {mesh}: a file, not a run directory"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+
+
 def test_several_components_allowed_on_request(tmp_path: Path) -> None:
     _two_circles(tmp_path)
     out = tmp_path / "run"
