@@ -3,6 +3,7 @@
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import meshio
 import numpy as np
@@ -72,7 +73,8 @@ def test_one_state_exports_to_a_mesh_file(tmp_path) -> None:
                 r = subprocess.run([*cli, "export", str(run_dir), "--out", str(out),
                                     *(["--step", str(step)] if step is not None else [])],
                                    capture_output=True, text=True)
-                assert r.returncode == 0 and f"wrote {out}" in r.stdout, r.stderr
+                assert r.returncode == 0 and r.stdout.strip() == f"wrote {out} (step {2 if step is None else step})", \
+                    r.stderr  # (the step written, also by default: it said "(step last)")
                 mesh = load_mesh(out)
                 if name.endswith(".ply"):  # (float32 in trimesh's binary PLY)
                     np.testing.assert_allclose(mesh.vertices, run.states[k].vertices, rtol=0, atol=1e-6)
@@ -85,3 +87,25 @@ def test_one_state_exports_to_a_mesh_file(tmp_path) -> None:
                        capture_output=True, text=True)
     assert r.returncode == 2 and "--step 1: one state is exported to a mesh file" in r.stderr
     assert not (tmp_path / "vtk").exists() and not (tmp_path / "x.obj").exists()
+
+
+def test_export_to_a_suffix_that_is_no_mesh_format_is_refused(tmp_path, capsys) -> None:
+    """Found by a new-user check (2026-12-01): ``export RUN --out x.csv`` made a folder x.csv of VTU files. A suffix
+    that is not a mesh format is one line and exit 2 naming the formats, nothing written; a folder name without a
+    suffix (or with a number after its dot, or an existing folder) still gets the VTU files."""
+    from willmore_nlp import cli
+
+    run_dir = tmp_path / "run"
+    assert cli.main(["run", "circle", "--set", "n=12", "--out", str(run_dir), "--steps", "1", "--quiet"]) == 0
+    capsys.readouterr()
+    for name in ("x.csv", "x.VTU", "states.pvd"):
+        assert cli.main(["export", str(run_dir), "--out", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err == (f"willmore-nlp: error: --out {tmp_path / name}: {Path(name).suffix.lower()} is not a mesh "
+                       "format: give a mesh file (.obj, .ply, .off, .stl, .txt, .curve, .xy, .xyz, .npz) for one "
+                       "state, or a folder name without a suffix for the VTU files and run.pvd")
+        assert not (tmp_path / name).exists()
+    (tmp_path / "made.d").mkdir()
+    for name in ("vtk", "vtk_h0.5", "made.d"):
+        assert cli.main(["export", str(run_dir), "--out", str(tmp_path / name)]) == 0
+        assert (tmp_path / name / "run.pvd").is_file()

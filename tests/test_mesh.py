@@ -149,6 +149,41 @@ def test_a_headerless_curve_file_is_read_when_it_is_a_sampled_curve(tmp_path) ->
         assert load_mesh(p).is_closed
 
 
+def test_curve_file_open_and_closed_markers(tmp_path) -> None:
+    """A comment whose first word is 'open' or 'closed' (any case, then the line's end, a space or punctuation) marks
+    the curve (found by a new-user check: '# open curve' was an ordinary comment and a semicircle was closed by a
+    chord); 'opened', 'open_curve' and 'closedness' are ordinary comments (closed, the default)."""
+    t = np.linspace(0, np.pi, 21)
+    semicircle = "".join(f"{np.cos(a):.17g} {np.sin(a):.17g}\n" for a in t)
+    p = tmp_path / "c.txt"
+    for comment, closed in (("# open", False), ("# open curve", False), ("# open: clamped", False), ("#OPEN", False),
+                            ("#  Open-ended", False), ("# closed", True), ("# Closed.", True),
+                            ("# closed (a cell)", True), ("# opened by hand", True), ("# open_curve", True),
+                            ("# closedness", True), ("# the curve is open", True)):
+        p.write_text(f"# willmore_nlp curve\n{comment}\n{semicircle}")
+        assert load_mesh(p).is_closed is closed, comment
+    p.write_text("# open\n# CLOSED\n" + semicircle)
+    with pytest.raises(MeshError, match=r"c\.txt:2: .# closed. contradicts '# open' on line 1"):
+        load_mesh(p)
+
+
+def test_collinear_closed_curves_are_refused_and_thin_ones_read(tmp_path) -> None:
+    """A closed curve whose vertices all lie on a line (a segment, back and forth along a line, in R^2 or R^3) is
+    refused when read (found by a new-user check: it was called clockwise with "signed enclosed area 0" and failed in
+    the solver); a 40-gon ellipse 1e-6 as wide as long is read, and so is an open curve along a line."""
+    s = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    for name, P in (("thin.txt", np.c_[np.cos(s), 1e-6 * np.sin(s)]),
+                    ("thin.npz", np.c_[1e3 + np.cos(s), 1e-6 * np.sin(s), np.cos(s)])):
+        save_mesh(shapes.closed_curve(P), tmp_path / name)
+        assert load_mesh(tmp_path / name).n_vertices == 40
+    line = np.array([0.0, 1.0, 2.0, 1.5, 0.5])[:, None] * [[1.0, -3.0, 0.1]]
+    (tmp_path / "line.xyz").write_text("".join(f"{x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in line))
+    with pytest.raises(MeshError, match=r"line\.xyz: a degenerate closed curve: all its 5 vertices lie on a line"):
+        load_mesh(tmp_path / "line.xyz")
+    (tmp_path / "line.xyz").write_text("# open\n" + "".join(f"{x:.17g} {-3 * x:.17g} 0\n" for x in (0, 0.5, 1, 1.5)))
+    assert not load_mesh(tmp_path / "line.xyz").is_closed
+
+
 def test_curve_text_round_trip(tmp_path) -> None:
     c = shapes.hypocycloid(30, 0.1)
     save_mesh(c, tmp_path / "c.txt")

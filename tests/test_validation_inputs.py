@@ -336,6 +336,23 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
      ["parameter subdivisions: must be in [1, 7]"]),
     ("set-vesicle-volume", lambda d: ["vesicle", "--set", "volume=3"],
      ["volume is set by the problem's parameters; set reduced_volume instead"]),
+    # -- found by a new-user check (2026-12-01) ---------------------------------------------------
+    ("curve-open-and-closed", _write("c.txt", "# open curve\n# Closed.\n0 0\n1 0\n0 1\n"),
+     ["c.txt:2: '# closed' contradicts '# open' on line 1: a curve is either open or closed"]),
+    ("curve-on-a-segment", _write("c.txt", "".join(f"{x / 9:.17g} {2 * x / 9:.17g}\n" for x in range(10))),
+     ["c.txt: a degenerate closed curve: all its 10 vertices lie on a line (zero enclosed area and zero width)",
+      "'# open' before the vertices"]),
+    ("curve-back-and-forth", _write("c.xyz", "0 0 0\n1 1 1\n2 2 2\n1.5 1.5 1.5\n0.5 0.5 0.5\n"),
+     ["c.xyz: a degenerate closed curve: all its 5 vertices lie on a line"]),
+    ("npz-curve-on-a-line", _npz_case("m.npz", vertices=[[0, 0], [1, 0], [3, 0], [2, 0]],
+                                      simplices=[[0, 1], [1, 2], [2, 3], [3, 0]]),
+     ["m.npz: a degenerate closed curve: all its 4 vertices lie on a line"]),
+    ("curve-digit-separator", _write("c.txt", "0 0\n1_0 0\n0 1\n"),
+     ["c.txt:2: vertex coordinate: '1_0' is not a number (a '_' is not allowed in numbers)"]),
+    ("obj-digit-separator", _write("s.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0_5\nf 1 2 3\n"),
+     ["s.obj:3: vertex coordinate: '0_5' is not a number"]),
+    ("off-digit-separator", _write("s.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 0_2\n"),
+     ["s.off:6: face index: '0_2' is not a number"]),
     ("set-volume-far-from-the-mesh",
      lambda d: [*_saved(d, "e.obj", shapes.icosphere(3).vertices * [1.0, 1.0, 1.6], shapes.icosphere(3).simplices),
                 "--set", "volume=3", "--set", "area=initial"],
@@ -440,6 +457,17 @@ def test_tau_tilde_far_above_h2_warns(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     warn = [ln for ln in r.stderr.splitlines() if "warning" in ln]
     assert len(warn) == 1 and warn[0].startswith("willmore-nlp: warning: tau_tilde = ") and "10 h^2" in warn[0]
+
+
+def test_resume_of_a_file_outside_a_run_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Found by a new-user check (2026-12-01): ``run --resume in/ok.txt`` (a mesh file) said "(the run directory is
+    in)"; only a file inside a run directory (its config.json) names that directory."""
+    (tmp_path / "in").mkdir()
+    mesh = tmp_path / "in" / "ok.txt"
+    mesh.write_text(_circle_txt(12))
+    assert cli.main(["run", "--resume", str(mesh), "--quiet"]) == 2
+    assert capsys.readouterr().err.strip() == f"willmore-nlp: error: {mesh}: a file, not a run directory"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
 
 
 def test_several_components_allowed_on_request(tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import math
 import os
+import re
 import sys
 import traceback
 import warnings
@@ -110,13 +111,20 @@ def cmd_export(args: argparse.Namespace) -> int:
     """Export a run directory as VTU files with a PVD time index, or one state as a mesh file."""
     from willmore_nlp.export import MESH_FILE_FORMATS, export_run, export_state
 
-    if Path(args.out).suffix.lower() in MESH_FILE_FORMATS:
-        path = export_state(args.run_dir, args.out, args.step)
-        print(f"wrote {path} (step {'last' if args.step is None else args.step})")
+    suffix = Path(args.out).suffix.lower()
+    formats = ", ".join(MESH_FILE_FORMATS)
+    if suffix in MESH_FILE_FORMATS:
+        path, step = export_state(args.run_dir, args.out, args.step)
+        print(f"wrote {path} (step {step})")
         return 0
+    # any other file suffix is refused (--out x.csv made a folder x.csv); a folder may still end in a number
+    # (vtk_h0.5), in '/' or exist already
+    if re.fullmatch(r"\.[a-z][a-z0-9]*", suffix) and not args.out.endswith(os.sep) and not Path(args.out).is_dir():
+        raise UserInputError(f"--out {args.out}: {suffix} is not a mesh format: give a mesh file ({formats}) for one "
+                             "state, or a folder name without a suffix for the VTU files and run.pvd")
     if args.step is not None:
-        raise UserInputError(f"--step {args.step}: one state is exported to a mesh file (--out NAME.obj, .off, .ply, "
-                             ".stl, .npz or a curve's .txt); the folder export writes every state")
+        raise UserInputError(f"--step {args.step}: one state is exported to a mesh file (--out NAME with one of "
+                             f"{formats}); the folder export writes every state")
     pvd = export_run(args.run_dir, args.out)
     print(f"wrote {pvd}")
     return 0
@@ -215,8 +223,9 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("export", help="export a run as VTU files + a PVD time index (ParaView), or one state as a "
                                       "mesh file (OBJ, OFF, PLY, STL, npz)")
     e.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
-    e.add_argument("--out", required=True, help="output directory for the .vtu files and run.pvd, or a mesh file "
-                                                "(.obj, .off, .ply, .stl, .npz; a curve's .txt) for one state")
+    e.add_argument("--out", required=True, help="output directory (a name without a suffix) for the .vtu files and "
+                                                "run.pvd, or a mesh file (.obj, .off, .ply, .stl, .npz; a curve's "
+                                                ".txt) for one state")
     e.add_argument("--step", type=int, help="with a mesh file: the step whose state is written (default the last)")
     e.set_defaults(func=cmd_export)
 

@@ -81,13 +81,15 @@ def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> 
 
 
 MESH_FILE_FORMATS = (*SURFACE_FORMATS, *CURVE_FORMATS, ".npz")
-"""Suffixes of ``export --out`` that ask for one state as a mesh file (:func:`export_state`); any other is a folder."""
+"""Suffixes of ``export --out`` that ask for one state as a mesh file (:func:`export_state`); a name without a suffix
+is a folder (the command line refuses any other suffix, e.g. ``--out x.csv``, which made a folder ``x.csv``)."""
 
 
-def export_state(run_dir: str | os.PathLike[str], out: str | os.PathLike[str], step: int | None = None) -> Path:
+def export_state(run_dir: str | os.PathLike[str], out: str | os.PathLike[str],
+                 step: int | None = None) -> tuple[Path, int]:
     """Write the state of step ``step`` of a run (default: its last state) as the mesh file ``out``, its format
     from the suffix (:func:`willmore_nlp.mesh.io.save_mesh`: OBJ, OFF, npz and text curves round-trip exactly);
-    returns ``out``. A state after a remeshing is written with its own connectivity.
+    returns ``out`` and the step written. A state after a remeshing is written with its own connectivity.
 
     Raises
     ------
@@ -103,4 +105,4 @@ def export_state(run_dir: str | os.PathLike[str], out: str | os.PathLike[str], s
         raise RunError(f"{run_dir}: no state of step {step} (the run has steps {steps[0]} to {steps[-1]})")
     path = Path(out)
     save_mesh(run.states[k], path)
-    return path
+    return path, steps[k]

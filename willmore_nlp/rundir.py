@@ -126,10 +126,14 @@ class Checkpoint:
 
 
 def require_run_dir(d: Path) -> None:
-    """RunError unless ``d`` is a directory (naming a file given in its place, e.g. its config.json)."""
-    if not d.is_dir():
-        raise RunError(f"{d}: " + (f"a file, not a run directory (the run directory is {d.parent})" if d.is_file()
-                                    else "no such run directory"))
+    """RunError unless ``d`` is a directory (naming the run directory when a file of one is given in its place, e.g.
+    its config.json; a file elsewhere, e.g. a mesh file, is just not a run directory)."""
+    if d.is_dir():
+        return
+    if not d.is_file():
+        raise RunError(f"{d}: no such run directory")
+    inside = f" (the run directory is {d.parent})" if (d.parent / "config.json").is_file() else ""
+    raise RunError(f"{d}: a file, not a run directory{inside}")
 
 
 def load_solver_state(run_dir: Path, step: int) -> dict[str, Any]:

@@ -26,9 +26,16 @@ Formats
         x y                             (one vertex per line: 2 or 3 numbers)
         ...
 
-    Vertices are joined in file order; a closed curve also joins the last vertex to the
-    first (so the first vertex must not be repeated at the end). A file without the '# closed' / '# open' line
+    A comment whose first word is ``open`` or ``closed``, in any case and followed by the end of the line, white
+    space or punctuation (``# Open curve``, ``# open: clamped``), is the marker (``CURVE_MARKER``; ``# opened`` is
+    an ordinary comment); it must come before the first vertex, and a file with both an open and a closed marker is
+    refused. Vertices are joined in file order; a closed curve also joins the last vertex to the
+    first (so the first vertex must not be repeated at the end), and one whose vertices all lie on a line (zero
+    enclosed area and width) is refused. A file without a marker
     whose points do not look like a sampled curve (a point cloud) is refused (``POINT_CLOUD_TURN``).
+
+Numbers are read as Python reads them, except that a ``_`` in a number (``1_0``, read as 10 by Python) is refused in
+every text format.
 """
 
 from __future__ import annotations
@@ -118,7 +125,14 @@ def _sniff_trimesh(path: Path, ext: str) -> None:
                     f"is not ASCII STL ('solid ...')")
 
 
+def _no_separators(tok: str, path: Path, lineno: int, what: str) -> None:
+    """Refuse a number token with a '_' (Python's float and int read '1_0' as 10; no mesh format allows it)."""
+    if "_" in tok:
+        raise MeshError(f"{path}:{lineno}: {what}: {tok!r} is not a number (a '_' is not allowed in numbers)")
+
+
 def _number(tok: str, path: Path, lineno: int, what: str) -> float:
+    _no_separators(tok, path, lineno, what)
     try:
         v = float(tok)
     except ValueError as exc:
@@ -129,6 +143,7 @@ def _number(tok: str, path: Path, lineno: int, what: str) -> float:
 
 
 def _integer(tok: str, path: Path, lineno: int, what: str) -> int:
+    _no_separators(tok, path, lineno, what)
     try:
         return int(tok)
     except ValueError as exc:
@@ -194,7 +209,7 @@ def _mesh(V: object, S: object, path: Path, vlines: Sequence[int], slines: Seque
 # -- readers -------------------------------------------------------------------------------
 def _read_curve_text(path: Path) -> Mesh:
     closed = True
-    declared = False  # a '# open' or '# closed' line (save_mesh writes one)
+    marker: tuple[str, int] | None = None  # the '# open' or '# closed' line (save_mesh writes one), its line number
     rows: list[list[float]] = []
     lines: list[int] = []
     for lineno, line in enumerate(_read_text(path), start=1):
@@ -202,11 +217,15 @@ def _read_curve_text(path: Path) -> Mesh:
         if not s:
             continue
         if s.startswith("#"):
-            word = s[1:].strip().lower()
-            if word in ("open", "closed"):
+            found = CURVE_MARKER.match(s[1:])
+            if found:
+                word = found[1].lower()
                 if rows:
                     raise MeshError(f"{path}:{lineno}: '# {word}' must come before the first vertex")
-                closed, declared = word == "closed", True
+                if marker and marker[0] != word:
+                    raise MeshError(f"{path}:{lineno}: '# {word}' contradicts '# {marker[0]}' on line {marker[1]}: "
+                                    "a curve is either open or closed; keep one of the two lines")
+                closed, marker = word == "closed", (word, lineno)
             continue
         parts = s.replace(",", " ").split()
         vals = [_number(x, path, lineno, "vertex coordinate") for x in parts]
@@ -229,12 +248,18 @@ def _read_curve_text(path: Path) -> Mesh:
             f"{path}:{lines[-1]}: the last vertex repeats the first (line {lines[0]}); a closed curve is "
             f"closed automatically: remove the last vertex"
         )
-    if not declared:
+    if marker is None:
         _check_sampled(np.array(rows), closed, path)
     idx = np.arange(n)
     S = np.stack([idx, (idx + 1) % n], 1) if closed else np.stack([idx[:-1], idx[1:]], 1)
     seg_lines = lines if closed else lines[:-1]
     return _mesh(np.array(rows), S, path, lines, seg_lines)
+
+
+CURVE_MARKER = re.compile(r"\s*(open|closed)(?!\w)", re.IGNORECASE)
+"""A comment of a curve file whose first word is ``open`` or ``closed`` (any case; followed by the end of the line,
+white space or punctuation: ``# open``, ``# Open curve``, ``# closed: a cell``) declares the curve open or closed;
+``# opened``, ``# open_curve`` or ``# closedness`` are ordinary comments."""
 
 
 POINT_CLOUD_TURN = 60.0
@@ -263,6 +288,26 @@ def _check_sampled(P: np.ndarray, closed: bool, path: Path) -> None:
                         "median corner: not a sampled curve (a point cloud?). A curve file lists the vertices of one "
                         "polygon in order ('# closed' or '# open' before them reads it as it is); a surface needs "
                         "its triangles: .obj, .off, .ply, .stl or .npz")
+
+
+def _check_encloses(mesh: Mesh, path: Path) -> Mesh:
+    """``mesh``, unless it is a closed curve whose vertices all lie on a line (MeshError): back and forth along a
+    segment, it encloses nothing and has no width, so it has no outside to flow to (it was read, called clockwise with
+    "signed enclosed area 0" and failed in the solver). On a line means within the tolerance of duplicate vertices
+    (:data:`~willmore_nlp.mesh.validate.DUPLICATE_RTOL` times the bounding box's largest side); a thin ellipse is
+    read."""
+    from willmore_nlp.mesh.validate import DUPLICATE_RTOL
+
+    if mesh.d != 1 or not mesh.is_closed:
+        return mesh
+    P = mesh.vertices - mesh.vertices.mean(axis=0)
+    direction = np.linalg.svd(P, full_matrices=False)[2][0]  # of the best-fitting line through the centroid
+    width = float(np.linalg.norm(P - np.outer(P @ direction, direction), axis=1).max())
+    if width <= DUPLICATE_RTOL * float(np.ptp(mesh.vertices, axis=0).max()):
+        hint = " ('# open' before the vertices reads them as an open curve)" if path.suffix.lower() != ".npz" else ""
+        raise MeshError(f"{path}: a degenerate closed curve: all its {mesh.n_vertices} vertices lie on a line (zero "
+                        f"enclosed area and zero width); a closed curve must enclose a region{hint}")
+    return mesh
 
 
 def _read_obj(path: Path) -> Mesh:
@@ -482,9 +527,9 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
         raise MeshError(f"{p}: no such file")
     ext = p.suffix.lower()
     if ext == ".npz":
-        return _read_npz(p)
+        return _check_encloses(_read_npz(p), p)
     if ext in CURVE_FORMATS:
-        return _read_curve_text(p)
+        return _check_encloses(_read_curve_text(p), p)
     if ext == ".obj":
         return _read_obj(p)
     if ext == ".off":
