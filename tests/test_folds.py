@@ -18,7 +18,7 @@ from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import save_mesh
 from willmore_nlp.mesh.topology import edge_triangles
-from willmore_nlp.runner import last_reason
+from willmore_nlp.runner import fold_hint, last_reason
 
 
 @pytest.mark.parametrize("theta", [0.0, 30.0, 90.0, 150.0, 179.0])
@@ -136,6 +136,29 @@ def test_the_error_line_names_the_cause_when_the_step_size_floor_ends_a_step(tmp
     assert "; before it: tau=" in line and "mesh folds: the normals of the triangles at edge (" in line
     assert line.endswith(f"a finer mesh from the start resolves a narrower one, e.g. --set remesh_target="
                          f"{mesh.h / 2:.3g} (half the mean edge {mesh.h:.3g})")
+
+
+def test_the_fold_hint_turns_input_repair_on_where_it_is_off(tmp_path: Path) -> None:
+    """The vesicle problem flows its generated starts as given (input_repair = false), so the fold hint's
+    ``--set remesh_target=H`` alone gave the identical failure again (v = 0.3 on 162 vertices, a new-user check); it
+    now names ``--set input_repair=true`` with it (which remeshes that start to 496 vertices, v kept to 1e-14). The
+    step size of the last of the 5 default attempts, taken alone, folds at once. With the mesh control off
+    remesh_target does not touch the input at all, and the hint says so instead of naming it."""
+    from willmore_nlp.registry import build
+
+    h = build("vesicle", reduced_volume=0.3, subdivisions=2)[0].mesh.h
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "vesicle", "--out", str(tmp_path / "out"),
+                        "--quiet", "--set", "reduced_volume=0.3", "--set", "subdivisions=2", "--set", "tau=0.000273",
+                        "--set", "max_retries=0"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    assert "(last: tau=0.000273: mesh folds: " in line
+    assert line.endswith(f"a narrower one, e.g. --set input_repair=true --set remesh_target={h / 2:.3g} (half the "
+                         f"mean edge {h:.3g})")
+    assert fold_hint(0.33).endswith("e.g. --set remesh_target=0.165 (half the mean edge 0.33)")
+    off = fold_hint(0.33, remeshes_input=False, input_repair=False)
+    assert "--set" not in off and off.endswith("remesh_target remeshes the input only while mesh_control and remesh "
+                                               "are auto)")
 
 
 def test_last_reason_keeps_a_cause_that_is_the_last_entry() -> None:

@@ -73,12 +73,18 @@ def last_reason(rejected: list[str], message: str) -> str:
     return rejected[-1] if cause is None or cause == rejected[-1] else f"{rejected[-1]}; before it: {cause}"
 
 
-def fold_hint(h: float) -> str:
+def fold_hint(h: float, remeshes_input: bool = True, input_repair: bool = True) -> str:
     """What the one-line error of a run stopped by the fold check adds: why a mesh folds and what resolves it
-    (docs/guide/mesh_quality.md, "Folds"), with ``h`` the mean edge of the mesh it folded on."""
-    return (f"; a mesh folds where it no longer resolves the surface (a bar or tube about an edge wide): a finer mesh "
-            f"from the start resolves a narrower one, e.g. --set remesh_target={h / 2:.3g} (half the mean edge "
-            f"{h:.3g})")
+    (docs/guide/mesh_quality.md, "Folds"), with ``h`` the mean edge of the mesh it folded on. ``remesh_target``
+    remeshes the input only while the flow remeshes (``remeshes_input``: mesh_control and remesh auto, a surface in
+    R^3) and ``input_repair`` is on; the hint names what makes it act (the vesicle problem turns ``input_repair``
+    off: its ``--set remesh_target=H`` alone changed nothing, a new-user check)."""
+    why = ("; a mesh folds where it no longer resolves the surface (a bar or tube about an edge wide): a finer mesh "
+           "from the start resolves a narrower one")
+    if not remeshes_input:
+        return f"{why} (a finer input: remesh_target remeshes the input only while mesh_control and remesh are auto)"
+    repair = "" if input_repair else "--set input_repair=true "
+    return f"{why}, e.g. {repair}--set remesh_target={h / 2:.3g} (half the mean edge {h:.3g})"
 
 
 def thread_environment() -> dict[str, Any]:
@@ -259,7 +265,8 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
         why = last_reason(exc.rejected, str(exc))
         print(f"willmore-nlp: error: step {exc.step} at t = {exc.t:.6g} failed after {len(exc.rejected)} "
               f"attempts (last: {why}); all attempts are in {out / 'status.json'}; steps 0..{flow.k} are kept"
-              + (fold_hint(flow.mesh.h) if FOLD_REASON in why else ""), file=sys.stderr)
+              + (fold_hint(flow.mesh.h, flow.remesh, flow.settings.input_repair) if FOLD_REASON in why else ""),
+              file=sys.stderr)
         return EXIT_FAILED
     except Exception as exc:
         if isinstance(exc, OSError) and exc.errno in IO_ERRNOS:  # disk full, read-only: one line, exit 74
