@@ -334,7 +334,8 @@ class FlowSettings(Settings):
         target other than the initial value first moves the initial mesh onto it the same way, as after
         every mesh repair.
     area : "initial", float or None
-        Likewise for the total area (length of a closed curve).
+        Likewise for the total area (length of a closed curve). Both held: targets beyond the isoperimetric
+        inequality 36 pi V^2 <= A^3 (4 pi A <= L^2 of a closed curve), which no mesh reaches, are refused.
     tangential_control : str
         Tangential motion inside the step (:mod:`willmore_nlp.tangential`): "auto" (default), "off" (the paper's
         scheme) or "meanratio". "auto" is "meanratio" for surfaces in R^3 that are clamped, open or of genus 0,
