@@ -353,6 +353,12 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
      ["s.obj:3: vertex coordinate: '0_5' is not a number"]),
     ("off-digit-separator", _write("s.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 0_2\n"),
      ["s.off:6: face index: '0_2' is not a number"]),
+    # (the solver's own refusal ended "use volume=None", which --set cannot give and the problem refuses)
+    ("set-vesicle-solver-without-constraints", lambda d: ["vesicle", "--set", "solver=lbfgs"],
+     ["solver lbfgs cannot handle the problem's volume and area constraints (set by reduced_volume; it has no outer "
+      "equality constraints): use one of gd, ipopt, newton-krylov, sqp"]),
+    ("set-vesicle-fallback-solver-without-constraints", lambda d: ["vesicle", "--set", "fallback_solver=semi-implicit"],
+     ["fallback_solver semi-implicit cannot handle the problem's volume and area constraints"]),
     ("set-volume-far-from-the-mesh",
      lambda d: [*_saved(d, "e.obj", shapes.icosphere(3).vertices * [1.0, 1.0, 1.6], shapes.icosphere(3).simplices),
                 "--set", "volume=3", "--set", "area=initial"],

@@ -96,6 +96,7 @@ class Problem:
                            if self.mesh.n_vertices >= LARGE_SURFACE
                            else dict(large_solver="newton-krylov", large_vertices=LARGE_SURFACE))
         merged = {"lam": self.lam, **options, **overrides}
+        self._refuse_unconstrained_solvers(merged)
         moebius = moebius_invariant(merged["lam"], merged.get("c0", 0.0), merged.get("anisotropy"),
                                     merged.get("volume"), merged.get("area"))
         if not moebius and "conformal_gauge" not in overrides:
@@ -106,6 +107,25 @@ class Problem:
         if overrides.get("input_repair") is False and "remesh_target" not in overrides:
             options.pop("remesh_target", None)
         return {**options, **overrides}
+
+    def _refuse_unconstrained_solvers(self, merged: dict[str, Any]) -> None:
+        """Refuse a solver (or first-step, fallback or large solver) without outer equality constraints when the
+        problem holds ``volume`` or ``area`` through its parameters (:attr:`held`): the solver's own refusal ends
+        "use volume=None", which the command line cannot give and the problem refuses (``vesicle --set solver=lbfgs``,
+        a new-user check); this one names the solvers that can."""
+        held = [k for k in ("volume", "area") if k in self.held and merged.get(k) is not None]
+        if not held:
+            return
+        from willmore_nlp.solvers import solver_capabilities, solver_names
+
+        for key in ("solver", "first_step_solver", "fallback_solver", "large_solver"):
+            name = merged.get(key, "ipopt" if key == "solver" else "")
+            if name and "constraints" not in solver_capabilities(name):
+                able = [n for n in solver_names() if "constraints" in solver_capabilities(n)]
+                raise ProblemError(f"{self.description or 'this problem'}: {key} {name} cannot handle the problem's "
+                                   f"{' and '.join(held)} constraints (set by "
+                                   f"{', '.join(sorted({self.held[k] for k in held}))}; it has no outer equality "
+                                   f"constraints): use one of {', '.join(able)}")
 
 
 @dataclass(frozen=True)
