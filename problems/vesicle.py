@@ -55,11 +55,12 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     r root-found for the same exact v (:func:`willmore_nlp.mesh.shapes.cup_of_reduced_volume`). The
     cup breaks the up-down symmetry that the flow keeps from the oblate start (which therefore stays
     on the discocyte branch below v = 0.59, where the stomatocyte is lower); ``bend`` is used by the
-    cup only. Measured at v = 0.55, 642 vertices: bend = 1.2 (default) reaches the stomatocyte,
-    bend = 0.6 stops in an open bowl (w / 8 pi = 2.045, above the stomatocyte; Evolver from it reaches
-    the discocyte). The cup's flow differs from the spheroids' relaxation: it runs to t = ``CUP_T_END``
-    with ``tau`` = ``CUP_TAU`` (halved by ``adaptive`` where needed) and the mean-ratio tangential
-    control (the default light repair alone let the energy jump by 2-5 % at the neck from step to step).
+    cup only, and ``bend = 0`` is the oblate start's mesh (flowed with the cup's settings). Measured at v = 0.55,
+    642 vertices: bend = 1.2 (default) reaches the stomatocyte, bend = 0.6 stops in an open bowl (w / 8 pi = 2.045,
+    above the stomatocyte; Evolver from it reaches the discocyte). The cup's flow differs from the spheroids'
+    relaxation: it runs to t = ``CUP_T_END`` with ``tau`` = ``CUP_TAU`` (halved by ``adaptive`` where needed) and
+    the mean-ratio tangential control (the default light repair alone let the energy jump by 2-5 % at the neck from
+    step to step).
     Flow options: ``volume="initial"``, ``area="initial"``, ``c0`` (spontaneous curvature,
     h = k1 + k2 convention) and, for the spheroids, the equilibrium mode ``relax=True`` with
     ``relax_max_tau = 8 tau`` and ``relax_tol = 1e-5``. ``tangential_weight`` (beta of the distance term; 1 is
@@ -80,8 +81,8 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     if not 1 <= subdivisions <= 7:  # (0 made a 12-vertex icosahedron "vesicle", -1 the same: a new-user check)
         raise UserInputError(f"parameter subdivisions: must be in [1, 7] (42 to 163,842 vertices), got {subdivisions}")
     if start == "cup":
-        if not bend > 0:
-            raise UserInputError(f"parameter bend: must be > 0, got {bend}")
+        if not bend >= 0:  # (0: the oblate start's mesh, which the cup's shape generator allows and the docs name)
+            raise UserInputError(f"parameter bend: must be >= 0 (0: the oblate start's mesh), got {bend}")
         try:
             mesh = shapes.cup_of_reduced_volume(reduced_volume, subdivisions, bend)
         except MeshError as e:
