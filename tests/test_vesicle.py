@@ -84,6 +84,25 @@ def test_evolver_bad_target() -> None:
         evolver_equilibrium(shapes.icosphere(1), volume=-1.0)
 
 
+@pytest.mark.parametrize(("kw", "message"), [
+    ({"c0": float("nan")}, "c0 must be a finite number, got nan"),
+    ({"c0": "0.5"}, "c0 must be a finite number, got '0.5'"),
+    ({"tol": float("inf")}, "tol must be a finite number >= 0, got inf"),
+    ({"timeout": 0}, "timeout must be a finite number of seconds > 0, got 0"),
+    ({"volume": float("inf")}, "volume target must be positive and finite, got inf"),
+    ({"area": "all"}, "area must be a number, \"initial\" or None, got 'all'"),
+])
+def test_evolver_arguments_are_checked_before_it_runs(kw: dict[str, Any], message: str) -> None:
+    """Non-finite or mistyped numbers are refused by name before Evolver runs (and whether it is installed): c0 = nan
+    reached Evolver, and the RuntimeError carried its raw output."""
+    from willmore_nlp.errors import UserInputError
+    from willmore_nlp.evolver import evolver_equilibrium
+
+    with pytest.raises(UserInputError) as err:
+        evolver_equilibrium(shapes.icosphere(1), schedule=(), **kw)
+    assert str(err.value) == f"evolver_equilibrium: {message}"
+
+
 def test_spheroid_area_volume_closed_forms() -> None:
     """The closed-form spheroid area against a quadrature of 2 pi int x ds over the generating ellipse,
     for prolate and oblate; continuous through the sphere; V = 4/3 pi a^2 c."""

@@ -17,6 +17,7 @@ constraints by projection after every move, to about 1e-8 relative.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import shutil
@@ -27,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import Mesh
+from willmore_nlp.settings import is_number
 
 EVOLVER_TO_W = 2.0
 """Factor from Evolver's int ((k1 + k2)/2)^2 to w = 1/2 int (k1 + k2)^2."""
@@ -233,24 +236,35 @@ def evolver_equilibrium(mesh: Mesh, *, volume: float | str | None = "initial", a
     FileNotFoundError
         When Surface Evolver is not installed.
     ValueError
-        For a mesh that is not a closed surface in R^3 or a target that is not positive.
+        For a mesh that is not a closed surface in R^3; :class:`~willmore_nlp.errors.UserInputError` (a ValueError)
+        for a target that is not positive and finite, a c0 or tol that is not finite (tol >= 0), a timeout that is
+        not a positive finite number.
     RuntimeError
         When Evolver fails (its output tail is in the message).
     """
     from willmore_nlp.geometry import enclosed_volume, measure
 
-    prog = find_evolver()
-    if prog is None:
-        raise FileNotFoundError("Surface Evolver ('evolver', Debian package evolver-nox) is not installed")
+    # (c0 = nan reached Evolver, whose RuntimeError carried its raw output; a new-user check)
+    numbers = (("c0", c0, "a finite number", True),
+               ("tol", tol, "a finite number >= 0", is_number(tol) and tol >= 0),
+               ("timeout", timeout, "a finite number of seconds > 0", is_number(timeout) and timeout > 0))
+    for name, val, what, ok in numbers:
+        if not (ok and is_number(val) and math.isfinite(val)):
+            raise UserInputError(f"evolver_equilibrium: {name} must be {what}, got {val!r}")
     targets: dict[str, float | None] = {}
     for name, val, initial in (("volume", volume, enclosed_volume), ("area", area, measure)):
         if val is None:
             targets[name] = None
             continue
-        t = float(initial(mesh)) if isinstance(val, str) and val == "initial" else float(val)
-        if not t > 0:
-            raise ValueError(f"evolver_equilibrium: {name} target must be positive, got {val!r}")
+        if not (val == "initial" if isinstance(val, str) else is_number(val)):
+            raise UserInputError(f"evolver_equilibrium: {name} must be a number, \"initial\" or None, got {val!r}")
+        t = float(initial(mesh)) if isinstance(val, str) else float(val)
+        if not (t > 0 and math.isfinite(t)):
+            raise UserInputError(f"evolver_equilibrium: {name} target must be positive and finite, got {val!r}")
         targets[name] = t
+    prog = find_evolver()
+    if prog is None:
+        raise FileNotFoundError("Surface Evolver ('evolver', Debian package evolver-nox) is not installed")
     vol_expr = "body[1].volume" if targets["volume"] is not None else "0"
     area_expr = "area_q.value" if targets["area"] is not None else "total_area"
     report = f'printf "S %.17g %.17g %.17g\\n", willmore.value, {vol_expr}, {area_expr}'
