@@ -40,6 +40,20 @@ def test_report_artefacts(tmp_path, problem: str, sets: list[str]) -> None:
     assert "| run length | 3 steps |" in md and "| t_end |" not in md
 
 
+def test_a_parameter_that_is_a_flow_option_is_listed_once_as_the_flow_used_it(tmp_path) -> None:
+    """The vesicle problem's parameters c0 and tangential_weight are flow options too: the report listed both
+    (tangential_weight None, the parameter's "the start's default", and 10, the flow's); each is one row, the flow's."""
+    from willmore_nlp.apps.report import write_report
+
+    run = tmp_path / "run"
+    subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "vesicle", "--out", str(run), "--steps", "1",
+                    "--quiet", "--set", "subdivisions=1"], check=True, capture_output=True)
+    md = write_report(run).read_text()
+    rows = [ln for ln in md.splitlines() if ln.startswith(("| tangential_weight |", "| c0 |"))]
+    assert rows == ["| c0 | 0 |", "| tangential_weight | 10 |"]
+    assert "| reduced_volume | 0.65 |" in md and "| volume | initial |" in md
+
+
 def test_snapshot_indices_and_html() -> None:
     assert snapshot_indices(np.zeros(1)) == [0]
     assert snapshot_indices(np.arange(10.0)) == [0, 3, 6, 9]

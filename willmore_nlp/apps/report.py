@@ -227,8 +227,10 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     length = [f"{cfg['steps']} steps" if cfg.get("steps") is not None else "",
               f"t_end = {cfg['t_end']:g}" if cfg.get("t_end") is not None else ""]
     params += [["run length", " or ".join(x for x in length if x)]]  # (the run's, not the problem's default)
+    # a parameter that is also a flow option (the vesicle's c0, tangential_weight: None for "the start's default")
+    # is shown once, as the flow option the run used
     params += [[k, v] for k, v in sorted(cfg.get("params", {}).items())
-               if k not in ("tau", "tau_tilde", "lam", "steps", "t_end")]
+               if k not in ("tau", "tau_tilde", "lam", "steps", "t_end") and k not in flow_options]
     params += [[k, v] for k, v in sorted(flow_options.items())]
     params += [[f"mesh {k}", v] for k, v in cfg.get("mesh", {}).items()]
     steps = [r for r in run.history if int(r["step"]) > 0]
