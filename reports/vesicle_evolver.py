@@ -215,10 +215,14 @@ def flow_section(flows: list[dict[str, Any]]) -> list[str]:
     lines = ["## This library's flow (`willmore-nlp run vesicle`) on the same starts", "",
              "The registered `vesicle` problem with its defaults (V and A fixed as outer constraints, relax mode, "
              "mesh control on; from the cup: a run to t = 0.3 at tau = 2e-3, adaptive, with the mean-ratio "
-             "tangential control, see problems/vesicle.py). `ours of Evolver` = this library's discrete energy "
-             "of Evolver's final mesh: the "
-             "flow minimises that same discrete energy, so its value should not lie above it by more than the "
-             "mesh-repair noise. `vs ref` = flow / axisymmetric reference - 1 (the O(h^2) gap of this "
+             "tangential control, see problems/vesicle.py). `flow w` and `ours of Evolver` = this library's "
+             "Willmore energy (`geometry.willmore_energy`, lumped mass; history column `willmore_energy`) of the "
+             "flow's last state and of Evolver's final mesh. The flow does not minimise it but the scheme's "
+             "energy (history column `energy`), which differs from it by O(h^2): on the oblate v = 0.65 start at "
+             "642 vertices (7 steps, 532 v at the end; defaults of 2026-11-30) w / 8 pi = 1.7831 against the "
+             "scheme's energy / 8 pi = 1.8358 (+3.0%). So `flow / that - 1` compares two meshes by a quantity "
+             "neither run minimises, and may have either sign. `vs ref` = flow / axisymmetric reference - 1 (the "
+             "O(h^2) gap of this "
              "library's discretisation at 642 vertices; Evolver's discretisation has its own, above). "
              "dV, dA: largest relative constraint error over all accepted states.", "",
              "`w range` = smallest and largest w of the last 10 accepted states (the discrete energy's noise at a "
