@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from willmore_nlp.errors import UserInputError
+from willmore_nlp.geometry import quality
 from willmore_nlp.mesh import shapes
-from willmore_nlp.mesh.core import MeshError
+from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.registry import Problem, register
+from willmore_nlp.settings import FlowSettings
 
 STARTS = ("prolate", "oblate", "cup")
 CUP_TAU = 2e-3
@@ -37,6 +39,20 @@ INPUT_REPAIR = False
 are: the sheared cups have 12-17 deg (v = 0.50-0.65, 642 v), below the repair's 15 deg threshold, and
 reports/vesicle_evolver.md and the measured defaults above ran from them (the repair would replace the 642-v cup at
 v = 0.55 by a 631-v mesh)."""
+CUP_BEND = 1.2
+"""Default ``bend`` of the cup (docstring of :func:`vesicle`)."""
+MIN_REDUCED_VOLUME = {"oblate": (0.3, 0.161, 0.0817, 0.0411, 0.0215, 0.0215, 0.0215),
+                      "prolate": (0.126, 0.131, 0.132, 0.132, 0.132, 0.133, 0.133),
+                      "cup": (0.516, 0.294, 0.157, 0.0799, 0.0402, 0.022, 0.0192)}
+"""Smallest reduced volume of each start (the cup's at ``CUP_BEND``) at subdivisions 1..7: below it the start mesh
+has an edge whose triangles' normals turn by more than the flow's ``max_dihedral`` (120 deg: the oblate's rim and the
+cup's), or an angle below its ``min_angle`` (0.5 deg: the prolate needle's slivers, the oblate's from 2,562
+vertices on). Measured by bisection on the start meshes (to 0.5 %, rounded up). Below them a new-user check found:
+oblate v = 0.05 (162 v, folded at 160 deg) NaN in the first step's constraints and 'did not converge', prolate v = 0.05
+refused at the start (an angle of 0.07 deg), and v = 1e-9 a root finder's message ('f(a) and f(b) must have different
+signs'; the cup's a traceback): no start of that v can be built. At 642 vertices a cup of another bend lies between the
+oblate's (bend 0) and, from 1.2 on, above the cup's (0.102, 0.132, 0.146, 0.157 at bend 0.3, 0.6, 0.9, 1.2); from
+40,962 vertices on, where the smallest angle decides, the cup's lies below the oblate's."""
 CUP_T_END = 0.3
 """End time of the flow from the cup (the relaxation's stopping test ends it early: with the mean-ratio
 tangential control the Willmore energy rises by ~1e-4 per step while the neck still forms)."""
@@ -44,7 +60,7 @@ tangential control the Willmore energy rises by ~1e-4 per step while the neck st
 
 @register("vesicle")
 def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0, subdivisions: int = 3,
-            bend: float = 1.2, tau: float | None = None, tau_tilde: float | None = None, steps: int = 300,
+            bend: float = CUP_BEND, tau: float | None = None, tau_tilde: float | None = None, steps: int = 300,
             tangential_weight: float | None = None) -> Problem:
     """Vesicle of reduced volume v relaxing at fixed V and A: prolate ~0.85, discocyte ~0.65, stomatocyte below.
 
@@ -80,9 +96,10 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
         raise UserInputError(f"parameter reduced_volume: must be in (0, 1), got {reduced_volume}")
     if not 1 <= subdivisions <= 7:  # (0 made a 12-vertex icosahedron "vesicle", -1 the same: a new-user check)
         raise UserInputError(f"parameter subdivisions: must be in [1, 7] (42 to 163,842 vertices), got {subdivisions}")
+    if start == "cup" and not bend >= 0:  # (0: the oblate start's mesh, as the cup's shape generator and the docs say)
+        raise UserInputError(f"parameter bend: must be >= 0 (0: the oblate start's mesh), got {bend}")
+    _check_reduced_volume(reduced_volume, start, subdivisions, bend)
     if start == "cup":
-        if not bend >= 0:  # (0: the oblate start's mesh, which the cup's shape generator allows and the docs name)
-            raise UserInputError(f"parameter bend: must be >= 0 (0: the oblate start's mesh), got {bend}")
         try:
             mesh = shapes.cup_of_reduced_volume(reduced_volume, subdivisions, bend)
         except MeshError as e:
@@ -92,6 +109,7 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
             mesh = shapes.ellipsoid_of_reduced_volume(reduced_volume, start, subdivisions, exact="mesh")
         except MeshError as e:
             raise UserInputError(f"parameter reduced_volume: {e}") from None
+    _check_start(mesh, start, subdivisions, bend)
     h = mesh.h
     tt_ = 0.01 * h * h if tau_tilde is None else float(tau_tilde)
     if tangential_weight is None:  # (a value is a number: the registry reads it by its annotation)
@@ -109,3 +127,47 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
     return Problem(mesh, tau_, tt_, 0.0, steps=steps, t_end=t_end, flow_options=options,
                    description=f"{start} vesicle of reduced volume {reduced_volume} relaxing at fixed V and A",
                    held={"volume": "reduced_volume", "area": "reduced_volume"})
+
+
+def _start_name(start: str, subdivisions: int, bend: float) -> str:
+    """"the oblate start at subdivisions=3 (642 vertices)", with the cup's bend."""
+    return (f"the {start} start{f' (bend {bend:g})' if start == 'cup' else ''} at subdivisions={subdivisions} "
+            f"({10 * 4**subdivisions + 2:,} vertices)")
+
+
+def _check_reduced_volume(v: float, start: str, subdivisions: int, bend: float) -> None:
+    """Refuse a reduced volume below :data:`MIN_REDUCED_VOLUME` of the start, before it is built (the cup at a bend
+    other than ``CUP_BEND``: below the smaller of the oblate's, its bend-0 limit, and the cup's; :func:`_check_start`
+    sees the rest)."""
+    k = subdivisions - 1
+    lows, other = MIN_REDUCED_VOLUME[start], start == "cup" and bend != CUP_BEND
+    if other:  # (measured at CUP_BEND and at bend 0, the oblate start)
+        lows = tuple(map(min, lows, MIN_REDUCED_VOLUME["oblate"]))
+    if v >= lows[k]:
+        return
+    finer = [f"{x:g} at subdivisions={j}" for j, x in enumerate(lows, 1) if j > subdivisions and x < lows[k]]
+    flat = MIN_REDUCED_VOLUME["oblate"][k]
+    bound = " (the lower of bend 0's and 1.2's: another bend may need more)" if other else ""
+    raise UserInputError(
+        f"parameter reduced_volume: must be in [{lows[k]:g}, 1) for {_start_name(start, subdivisions, bend)}{bound}, "
+        f"got {v:g}: below it the start mesh folds (the normals of adjacent triangles turn by more than max_dihedral "
+        "= 120 deg) or has angles below min_angle = 0.5 deg"
+        + (f"; more subdivisions reach lower ({finer[0]})" if finer else "")
+        + (f"; a smaller bend reaches lower (bend 0, the oblate start's mesh: {flat:g})"
+           if start == "cup" and bend > 0 and flat < lows[k] else ""))
+
+
+def _check_start(mesh: Mesh, start: str, subdivisions: int, bend: float) -> None:
+    """Refuse a start mesh that folds or has slivers (the flow's ``max_dihedral`` and ``min_angle`` defaults): a cup
+    of a bend above the default folds at reduced volumes that :func:`_check_reduced_volume` lets pass (bend 2 at 642
+    vertices: at every v up to 0.7)."""
+    q = quality(mesh)
+    settings = FlowSettings()
+    if q["max_dihedral"] <= settings.max_dihedral and q["min_angle"] >= settings.min_angle:
+        return
+    what = (f"the normals of adjacent triangles turn by {q['max_dihedral']:.4g} deg > max_dihedral = "
+            f"{settings.max_dihedral:g}" if q["max_dihedral"] > settings.max_dihedral
+            else f"it has an angle of {q['min_angle']:.2g} deg < min_angle = {settings.min_angle:g}")
+    lower = "a smaller bend or more subdivisions reach" if start == "cup" else "more subdivisions reach"
+    raise UserInputError(f"parameter reduced_volume: {_start_name(start, subdivisions, bend)} is not a mesh the flow "
+                         f"takes at this reduced volume ({what}): {lower} lower reduced volumes")

@@ -331,7 +331,11 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("stl-truncated-ascii", _write("t.stl", "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"),
      ["t.stl: no triangles found (an ASCII STL without 'endsolid' at its end: truncated?)"]),
     ("set-vesicle-reduced-volume-tiny", lambda d: ["vesicle", "--set", "reduced_volume=0.01", "--set", "start=prolate"],
-     ["parameter reduced_volume: ellipsoid_of_reduced_volume: no prolate spheroid of reduced volume 0.01"]),
+     ["parameter reduced_volume: must be in [0.132, 1) for the prolate start at subdivisions=3 (642 vertices), "
+      "got 0.01"]),
+    ("set-vesicle-reduced-volume-below-the-root-finders-reach", lambda d: ["vesicle", "--set", "reduced_volume=1e-9"],
+     ["parameter reduced_volume: must be in [0.0817, 1) for the oblate start at subdivisions=3 (642 vertices), got "
+      "1e-09: below it the start mesh folds", "more subdivisions reach lower (0.0411 at subdivisions=4)"]),
     ("set-vesicle-subdivisions-zero", lambda d: ["vesicle", "--set", "subdivisions=0"],
      ["parameter subdivisions: must be in [1, 7]"]),
     ("set-vesicle-volume", lambda d: ["vesicle", "--set", "volume=3"],

@@ -265,6 +265,41 @@ def test_cup_start_has_the_requested_reduced_volume(v: float, bend: float) -> No
     assert pb.t_end is not None
 
 
+@pytest.mark.parametrize("start", ["oblate", "prolate", "cup"])
+def test_the_smallest_reduced_volume_of_each_start_is_measured(start: str) -> None:
+    """MIN_REDUCED_VOLUME at 42-642 vertices: at the table's value the start is a mesh the flow takes (no edge over
+    max_dihedral = 120 deg, no angle below min_angle = 0.5 deg); 2 % below it, it folds or has slivers (measured, not
+    merely safe). The problem refuses below it, before it builds the start, with the range: oblate v = 0.05 (folded)
+    NaN in the first step's constraints and v = 1e-9 leaked the root finder's message (the cup's a traceback)."""
+    from willmore_nlp._problems.vesicle import CUP_BEND, MIN_REDUCED_VOLUME
+
+    from willmore_nlp.errors import UserInputError
+    from willmore_nlp.geometry import quality
+    from willmore_nlp.registry import build
+
+    def takes(v: float, s: int) -> bool:
+        m = (shapes.cup_of_reduced_volume(v, s, CUP_BEND) if start == "cup"
+             else shapes.ellipsoid_of_reduced_volume(v, start, s, exact="mesh"))
+        q = quality(m)
+        return q["max_dihedral"] <= 120 and q["min_angle"] >= 0.5
+
+    for s in (1, 2, 3):
+        lo = MIN_REDUCED_VOLUME[start][s - 1]
+        assert takes(lo, s) and not takes(0.98 * lo, s)
+        assert build("vesicle", start=start, reduced_volume=lo, subdivisions=s)[0].mesh.n_vertices == 10 * 4**s + 2
+    for v in (1e-9, 0.05):
+        with pytest.raises(UserInputError) as err:
+            build("vesicle", start=start, reduced_volume=v)
+        lo = MIN_REDUCED_VOLUME[start][2]
+        assert str(err.value).startswith(f"parameter reduced_volume: must be in [{lo:g}, 1) for the {start} start")
+        assert f"at subdivisions=3 (642 vertices), got {v:g}: below it the start mesh folds" in str(err.value)
+    # a cup of a larger bend folds above the table's value: refused once built (at 642 v, bend 2 folds up to v = 0.7)
+    with pytest.raises(UserInputError, match=r"the cup start \(bend 2\) at subdivisions=3 \(642 vertices\) is not a "
+                                             r"mesh the flow takes at this reduced volume \(the normals of adjacent "
+                                             r"triangles turn by 12\d\.\d deg > max_dihedral = 120\)"):
+        build("vesicle", start="cup", reduced_volume=0.3, bend=2.0)
+
+
 def build_cup(v: float, bend: float, subdivisions: int = 2) -> tuple[Problem, dict[str, Any]]:
     from willmore_nlp.registry import build
 
@@ -278,6 +313,8 @@ def test_cup_start_bad_input() -> None:
         shapes.cup_of_reduced_volume(0.55, 2, -0.1)
     with pytest.raises(MeshError, match="v must be in"):
         shapes.cup_of_reduced_volume(0.99, 2, 1.2)
+    with pytest.raises(MeshError, match=r"no cup of reduced volume 1e-09 found for bend=1\.2"):  # (brentq's ValueError)
+        shapes.cup_of_reduced_volume(1e-9, 2, 1.2)
 
 
 def test_vesicle_flow_from_the_cup_deepens_toward_the_stomatocyte() -> None:

@@ -497,7 +497,11 @@ def cup_of_reduced_volume(v: float, subdivisions: int = 3, bend: float = 0.6, *,
     if not 0 < v < v_max:
         raise MeshError(f"cup_of_reduced_volume: v must be in (0, {v_max:.6f}) for bend={bend} at "
                         f"subdivisions={subdivisions}, got {v}")
-    ratio = float(np.exp(brentq(lambda t: v_of(t) - v, -12.0, 0.0, xtol=1e-14)))
+    try:  # (v = 1e-9: below the bracket's flattest cup, r = e^-12; brentq's ValueError was a traceback)
+        ratio = float(np.exp(brentq(lambda t: v_of(t) - v, -12.0, 0.0, xtol=1e-14)))
+    except (ValueError, ArithmeticError) as exc:
+        raise MeshError(f"cup_of_reduced_volume: no cup of reduced volume {v} found for bend={bend} at "
+                        f"subdivisions={subdivisions} (its aspect ratio would be extreme; {exc})") from None
     M = shaped(ratio)
     s = np.sqrt((4 * np.pi if area is None else area) / measure(M))
     return Mesh(s * M.vertices, ico.simplices,
