@@ -130,7 +130,8 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
 
 
 def _start_name(start: str, subdivisions: int, bend: float) -> str:
-    """"the oblate start at subdivisions=3 (642 vertices)", with the cup's bend."""
+    """The start's name in messages, e.g. "the oblate start at subdivisions=3 (642 vertices)" (the cup's with its
+    bend)."""
     return (f"the {start} start{f' (bend {bend:g})' if start == 'cup' else ''} at subdivisions={subdivisions} "
             f"({10 * 4**subdivisions + 2:,} vertices)")
 
