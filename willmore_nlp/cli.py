@@ -61,8 +61,7 @@ def default_run_dir(target: str, root: str | os.PathLike[str] = "runs") -> Path:
     """The run directory of ``run TARGET`` without ``--out``: ``runs/NAME``, NAME the problem's name or the file's
     stem, or the first of ``runs/NAME-2``, ``runs/NAME-3``, ... that does not exist (a run never lands in a
     directory that holds anything)."""
-    name = Path(target).stem if Path(target).suffix else Path(target).name
-    base = Path(root) / (name or "run")
+    base = Path(root) / (Path(target).stem or "run")
     out, k = base, 1
     while out.exists():
         k += 1

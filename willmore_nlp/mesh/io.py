@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.mesh.validate import DUPLICATE_RTOL
 
 SURFACE_FORMATS = (".obj", ".ply", ".off", ".stl")
 CURVE_FORMATS = (".txt", ".curve", ".xy", ".xyz")
@@ -296,8 +297,6 @@ def _check_encloses(mesh: Mesh, path: Path) -> Mesh:
     "signed enclosed area 0" and failed in the solver). On a line means within the tolerance of duplicate vertices
     (:data:`~willmore_nlp.mesh.validate.DUPLICATE_RTOL` times the bounding box's largest side); a thin ellipse is
     read."""
-    from willmore_nlp.mesh.validate import DUPLICATE_RTOL
-
     if mesh.d != 1 or not mesh.is_closed:
         return mesh
     P = mesh.vertices - mesh.vertices.mean(axis=0)
