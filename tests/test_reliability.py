@@ -351,11 +351,13 @@ def test_a_second_writer_is_refused(tmp_path: Path, capsys: pytest.CaptureFixtur
 # -- solver failures -------------------------------------------------------------------------
 def _ellipse_toml(tmp_path: Path, max_iter: int) -> Path:
     """An ellipse file flowed by IPOPT alone (no newton-krylov fallback, the curve files' default since 2026-11-30)
-    with at most ``max_iter`` iterations per attempt, at the curves' tau_tilde before that day (h^2 / 4)."""
+    with at most ``max_iter`` iterations per attempt, with the curves' settings before that day: tau_tilde = h^2 / 4,
+    a fixed tau and the flow's 4 retries (not the file problem's adaptive steps and 8 retries)."""
     mesh = shapes.ellipse(24, 2.0, 1.0)
     save_mesh(mesh, tmp_path / "e.txt")
     cfg = tmp_path / f"e{max_iter}.toml"
-    cfg.write_text(f'mesh = "e.txt"\ntau = 0.05\ntau_tilde = {0.25 * mesh.h**2!r}\nsolver = "ipopt"\n'
+    cfg.write_text(f'mesh = "e.txt"\ntau = 0.05\ntau_tilde = {0.25 * mesh.h**2!r}\nsolver = "ipopt"\nadaptive = false\n'
+                   'max_retries = 4\n'
                    f'[ipopt]\nmax_iter = {max_iter}\n')
     return cfg
 
