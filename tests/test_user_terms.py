@@ -90,6 +90,21 @@ def test_a_constraint_with_target_zero_holds() -> None:
     assert flow.constraint_violation(flow.X) < 1e-10
 
 
+
+def test_the_scale_of_a_target_zero_follows_a_new_connectivity() -> None:
+    """The scale |dh/dX| h of a target-0 constraint belongs to its connectivity: after the flow moves to a finer one
+    (here through ``restart``, as after a remeshing) the residual is the one a new flow on that mesh measures (the
+    scale of the first connectivity was kept: on 2,562 vertices the 642-vertex scale read 9.1e-8 for 3.6e-7)."""
+    coarse, fine = shapes.icosphere(3), shapes.icosphere(4)
+    stretch = np.array([1.0, 1.0, 1.4])
+    X = np.array(fine.vertices) * stretch + np.array([1e-9, 0.0, 0.0])  # (a residual of 1e-9 of the moment's size)
+    flow = WillmoreFlow(coarse.with_vertices(np.array(coarse.vertices) * stretch), 0.01, coarse.h**2 / 100,
+                        terms=[FirstMoment(0.0)])
+    assert flow.constraint_violation(flow.X) < 1e-12
+    new = WillmoreFlow(fine.with_vertices(X), 0.01, fine.h**2 / 100, terms=[FirstMoment(0.0)])
+    flow.restart(X, new.Y, 0.0, 0, simplices=fine.simplices)
+    assert flow.constraint_violation(X) == pytest.approx(new.constraint_violation(X), rel=1e-12)
+
 def test_the_mistakes_in_a_term_are_named() -> None:
     m = shapes.icosphere(1)
     tau, tt = 0.01, m.h**2 / 100

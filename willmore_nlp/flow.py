@@ -519,7 +519,6 @@ class WillmoreFlow:
             raise UserInputError(f"mesh must be a willmore_nlp.mesh.Mesh (Mesh(vertices, simplices) or "
                                  f"willmore_nlp.mesh.io.load_mesh(path)), got {type(mesh).__name__}")
         self._extra_terms = tuple(terms)
-        self._h_scale: np.ndarray | None = None  # the outer constraints' own scales (constraint_violation)
         for t in self._extra_terms:
             if not isinstance(t, Term):
                 raise UserInputError(f"terms: each must be a willmore_nlp.model.terms.Term instance, got "
@@ -642,6 +641,7 @@ class WillmoreFlow:
         """
         self.mesh = mesh
         self.boundary = boundary
+        self._h_scale: np.ndarray | None = None  # the outer constraints' own scales on it (constraint_violation)
         self.setup = build_step(mesh, boundary=boundary, anisotropy=self.settings.anisotropy,
                                 tangential_weight=self.settings.tangential_weight, tangential_control=self._control,
                                 c0=self.settings.c0, extra_terms=self._extra_terms, **self._targets)
@@ -729,8 +729,8 @@ class WillmoreFlow:
     def constraint_violation(self, X: np.ndarray) -> float:
         """Largest relative residual |h_i| / s_i of the outer constraints at X (0 without any): s_i = |target_i|, or
         where that is smaller the change of h_i when every vertex moves by the mean edge h, ``|dh_i/dX| h`` at the
-        first X asked (a target 0, e.g. a fixed centroid, had no scale: every residual was inf, and a target of
-        round-off size 4e-16 made 1e-16 a relative 0.29)."""
+        first X asked on the current connectivity (a target 0, e.g. a fixed centroid, had no scale: every residual
+        was inf, and a target of round-off size 4e-16 made 1e-16 a relative 0.29; a remeshing sets it anew)."""
         P = self.problem
         if not P.nh:
             return 0.0
