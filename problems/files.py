@@ -236,4 +236,5 @@ def _refine_if_coarse(mesh: Mesh, chi: int, options: dict[str, object], path: st
         options["remesh_target"] = size / target
         warnings.warn(f"{path}: a closed surface of {mesh.n_vertices} vertices only {size / h:.2g} edges in size "
                       f"({what} = {size:.3g}): {why}, so remesh_target = {size / target:.3g} refines it "
-                      "(--set remesh_target=H for another, --set input_repair=false flows it as given)", stacklevel=3)
+                      "before the first step unless input_repair is false (--set remesh_target=H for another, --set "
+                      "input_repair=false flows it as given)", stacklevel=3)
