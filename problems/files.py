@@ -86,12 +86,13 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     -> 30.63 where the unit one became a sphere, 24.97; scaled by 0.01 its first step was taken at 6e-8 of its tau after
     2 retries; with tau = h L^3 the three flows agree step for step, W to 1e-9). ``length = 1`` is tau = h in the file's
     units, this problem's default before 2026-11-29 (night), at which the measurements quoted below were taken. A
-    curve or surface narrower than :data:`~willmore_nlp.flow.SMALL_MESH_SIZE`, wider than
-    :data:`~willmore_nlp.flow.LARGE_MESH_SIZE` or farther from the origin than :data:`~willmore_nlp.flow.OFF_CENTRE`
-    widths gets ``solver = "newton-krylov"`` alone (:func:`~willmore_nlp.flow.ipopt_scale_trouble`): IPOPT's absolute
-    ``tol`` is met there by steps that do not move (a 162-v ellipsoid 4e-5 wide: 0 iterations) or fails (the same
-    ellipsoid 28,000 wide or moved 1e4 from the origin), newton-krylov's tolerance is relative (the same steps as at
-    unit size and at the origin, W to 1e-9; a 40-gon ellipse 4e-5 wide, closed or clamped: W to 1e-11).
+    curve or surface farther from the origin than :data:`~willmore_nlp.flow.OFF_CENTRE` widths gets ``solver =
+    "newton-krylov"`` alone (:func:`~willmore_nlp.flow.ipopt_scale_trouble`): IPOPT's absolute tolerances fail there
+    (the 162-v ellipsoid moved 1e4 from the origin), newton-krylov's tolerance is relative (the same steps as at the
+    origin, W to 1e-9). Its width does not: IPOPT solves a mesh narrower than 0.1 or wider than 1,000 in the unit
+    of length in which it is 2 wide (:func:`~willmore_nlp.solvers.ipopt.length_unit`; until 2026-11-30 such meshes
+    got newton-krylov too, as IPOPT's ``tol`` was met by steps that did not move, a 162-v ellipsoid 4e-5 wide, or
+    failed, the same ellipsoid 28,000 wide).
 
     Surfaces get the surface defaults of the other surface problems: tau_tilde = h^2 / 100 (the
     scheme shrinks spheres at rate 16 tau_tilde / R^5, see README) and the mesh control of
@@ -173,7 +174,7 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     if not 0 <= length < math.inf:
         raise ProblemError(f"problem 'file': length must be a positive number (0: the mesh's own), got {length!r}")
     mesh = _outward(load_mesh(path), path)
-    check_scale(mesh, warn=False)  # (a mesh too wide is refused before L^3 can overflow; the flow warns)
+    check_scale(mesh)  # (a mesh too wide is refused before L^3 can overflow; the flow warns)
     parts = components(mesh)[0]
     options: dict[str, object] = {"adaptive": True, "max_retries": 8, "first_step_budget": FIRST_STEP_BUDGET}
     chi = euler_characteristic(mesh.simplices) if mesh.d == 2 else None

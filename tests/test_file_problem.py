@@ -465,14 +465,15 @@ def test_a_run_written_before_the_length_parameter_resumes_with_tau_h(tmp_path) 
     _resume_equals(cut, ref)
 
 
-def test_a_tiny_surface_file_flows_with_newton_krylov(tmp_path) -> None:
-    """A surface narrower than ``SMALL_MESH_SIZE`` (the 162-v ellipsoid in metres of a 10-micrometre shape, 4e-5
-    wide) gets newton-krylov alone, whose tolerance is relative, and no warning: its steps repeat the unit-size
-    ones (W to 1e-9, vertices to 1e-6 h, Newton iterations to one in all: the scaled flow agrees to 1e-11, not
-    bit for bit, and one stopping test may fall on the other side; before the inner solve's test was relative, it
-    took 1-3 more per step, 20 / 10 / 7 against 19 / 8 / 5). IPOPT's absolute ``tol`` is met there at the start
-    point: it takes 0 iterations and the surface does not move (measured: W 29.87 after 6 such steps), so with it the
-    flow warns."""
+def test_a_tiny_surface_file_flows_at_unit_size(tmp_path) -> None:
+    """A surface narrower than ``SMALL_MESH_SIZE`` (the 162-v ellipsoid 1:1:2, 2 wide, in metres of a 10-micrometre
+    shape, 2^-17 of it: 1.5e-5 wide) gets the defaults and no warning. IPOPT solves its steps in the unit of length
+    in which it is 2 wide (``length_unit``), as the unit one: the same iterations and states to 1e-12 h (before,
+    IPOPT's absolute ``tol`` was met at the start point: 0 iterations, the surface did not move, W 29.87 after 6
+    such steps, and the file problem gave such meshes newton-krylov alone). newton-krylov, whose tolerance is
+    relative, repeats the unit steps too (W to 1e-9, vertices to 1e-6 h, Newton iterations to one in all: before the
+    inner solve's test was relative, it took 1-3 more per step, 20 / 10 / 7 against 19 / 8 / 5), with volume and
+    area constraints as well."""
     import warnings
 
     from willmore_nlp.flow import SMALL_MESH_SIZE
@@ -481,19 +482,24 @@ def test_a_tiny_surface_file_flows_with_newton_krylov(tmp_path) -> None:
     from willmore_nlp.mesh.io import save_mesh
 
     base = shapes.icosphere(2)
-    V = base.vertices * [1.0, 1.0, 2.0]
-    runs = []
-    for s in (1.0, 1e-5):
-        save_mesh(base.with_vertices(s * V), tmp_path / f"e{s:g}.npz")
-        pb, _ = registry.build("file", path=str(tmp_path / f"e{s:g}.npz"))
-        runs.append((s, pb))
-    (_, unit), (s, tiny) = runs
+    V = base.vertices * [0.5, 0.5, 1.0]
+    s = 2.0**-17
+    for name, W in (("unit", V), ("tiny", s * V)):
+        save_mesh(base.with_vertices(W), tmp_path / f"{name}.npz")
+    unit, tiny = (registry.build("file", path=str(tmp_path / f"{name}.npz"))[0] for name in ("unit", "tiny"))
     assert float(np.ptp(tiny.mesh.vertices, axis=0).max()) < SMALL_MESH_SIZE
-    assert tiny.flow_options["solver"] == "newton-krylov" and "fallback_solver" not in tiny.flow_options
+    assert tiny.flow_options == unit.flow_options
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         flow = tiny.make_flow()
-    ref = unit.make_flow(solver="newton-krylov", large_solver="")
+    ref = unit.make_flow()
+    for _ in range(3):
+        a, b = ref.step(), flow.step()
+        assert b.stats["solver"] == a.stats["solver"] == "ipopt" and b.iterations == a.iterations > 0
+        assert b.retries == a.retries
+        assert b.willmore == pytest.approx(a.willmore, rel=1e-13)  # (the energy's rounding at each size)
+        np.testing.assert_allclose(b.vertices / s, a.vertices, rtol=0, atol=1e-12 * unit.mesh.h)
+    ref, flow = unit.make_flow(solver="newton-krylov", large_solver=""), tiny.make_flow(solver="newton-krylov")
     iterations = np.zeros(2, int)
     for _ in range(3):
         a, b = ref.step(), flow.step()
@@ -504,22 +510,19 @@ def test_a_tiny_surface_file_flows_with_newton_krylov(tmp_path) -> None:
     # with volume and area constraints (before, newton-krylov pulled onto them to 1e-13 absolute: every attempt of
     # step 1 ended 1.3e-6 off the volume at this size and was rejected)
     kw = {"volume": "initial", "area": "initial"}
-    ref, flow = unit.make_flow(solver="newton-krylov", large_solver="", **kw), tiny.make_flow(**kw)
+    ref, flow = unit.make_flow(solver="newton-krylov", large_solver="", **kw), tiny.make_flow(solver="newton-krylov",
+                                                                                               **kw)
     for _ in range(2):
         a, b = ref.step(), flow.step()
         assert b.retries == a.retries and b.willmore == pytest.approx(a.willmore, rel=1e-9)
         assert abs(b.volume / enclosed_volume(tiny.mesh) - 1) < 1e-10
         assert abs(b.measure / measure(tiny.mesh) - 1) < 1e-10
-    with pytest.warns(UserWarning, match="absolute tolerance"):
-        ipopt = tiny.make_flow(solver="ipopt")
-    w0 = ipopt.discrete_energy(ipopt.X)
-    first = ipopt.step()
-    assert first.iterations == 0 and first.energy == pytest.approx(w0, rel=1e-12)
 
 
 @pytest.mark.parametrize("closed", [True, False])
 def test_a_tiny_curve_file_flows_with_newton_krylov(tmp_path, closed: bool) -> None:
-    """A curve 1e-5 wide (closed, and open with its ends clamped) gets newton-krylov alone, as a tiny surface does, and
+    """A curve 1e-5 wide (closed, and open with its ends clamped) gets the unit curve's options (IPOPT solves at unit
+    size, ``length_unit``; until 2026-11-30 such a curve got newton-krylov alone), and with newton-krylov it
     repeats the unit curve's steps: W / s^-1 to 1e-9, vertices / s to 1e-6 h, the same Newton iterations. Before the
     inner solve's test was relative (``max(1, |J_Y| |Y|)`` was its scale), Y[X] of so small a curve was X itself (the
     residual at Y = X already met 1e-12 absolute): every step started from a gradient of exactly 0 and newton-krylov
@@ -543,10 +546,10 @@ def test_a_tiny_curve_file_flows_with_newton_krylov(tmp_path, closed: bool) -> N
         runs.append(registry.build("file", path=str(tmp_path / f"c{s:g}.npz"), clamp=clamp,  # unit one's 20)
                                    tau_tilde=0.25 * Mesh(s * V, S).h ** 2)[0])
     unit, tiny = runs
-    assert tiny.flow_options["solver"] == "newton-krylov" and unit.flow_options.get("solver", "ipopt") == "ipopt"
+    assert "solver" not in tiny.flow_options and "solver" not in unit.flow_options  # (IPOPT at any width)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        flow = tiny.make_flow()
+        flow = tiny.make_flow(solver="newton-krylov")
     Y = flow.evaluator.solve_y(flow.X, flow._x_params(flow.X, flow.tau))
     assert float(np.abs(Y - flow.X).max()) > 1e-3 * tiny.mesh.h  # Y[X] is the curvature step, not X
     ref = unit.make_flow(solver="newton-krylov")
@@ -578,13 +581,15 @@ def test_curve_files_get_tau_tilde_h2_over_100(tmp_path) -> None:
         assert edges.max() / edges.min() < 10, name  # (the collapse: 200-800; the ellipses at h^2/100: <= 6.2)
 
 
-def test_meshes_far_from_the_origin_or_wide_flow_with_newton_krylov(tmp_path) -> None:
-    """IPOPT's absolute tolerances do not suit every placement and size (found by a new-user check): the 162-v
-    ellipsoid moved 1e3 from the origin needed a retry and fell behind, 1e4 crawled, 1e5 failed step 1; scaled
-    28,000 wide it took 6 retries and ended 2 % off. The ``file`` problem gives such meshes newton-krylov alone
-    (``ipopt_scale_trouble``), which repeats the centred unit steps (W to 1e-9; vertices to 1e-6 of the width);
-    IPOPT run on them warns; a mesh 1e4 widths from the origin or farther is refused (its coordinates keep too few
-    digits of its shape)."""
+def test_meshes_far_from_the_origin_flow_with_newton_krylov_and_wide_ones_with_ipopt(tmp_path) -> None:
+    """IPOPT's absolute tolerances do not suit every placement (found by a new-user check): the 162-v ellipsoid moved
+    1e3 from the origin needed a retry and fell behind, 1e4 crawled, 1e5 failed step 1. The ``file`` problem gives
+    such meshes newton-krylov alone (``ipopt_scale_trouble``), which repeats the centred unit steps (W to 1e-9;
+    vertices to 1e-6 of the width); IPOPT run on them warns; a mesh 1e4 widths from the origin or farther is refused
+    (its coordinates keep too few digits of its shape). Scaled 84,000 wide it took 6 retries with IPOPT and ended 2 %
+    off; IPOPT now solves in a unit of length (``length_unit``) and repeats the unit steps, with no warning."""
+    import warnings
+
     from willmore_nlp.flow import ipopt_scale_trouble
     from willmore_nlp.mesh import shapes
     from willmore_nlp.mesh.core import MeshError
@@ -598,19 +603,24 @@ def test_meshes_far_from_the_origin_or_wide_flow_with_newton_krylov(tmp_path) ->
         problems[name] = registry.build("file", path=str(tmp_path / f"{name}.obj"))[0]
     unit = problems.pop("unit")
     assert not ipopt_scale_trouble(unit.mesh.vertices) and "solver" not in unit.flow_options
-    ref = unit.make_flow(solver="newton-krylov", large_solver="")
-    steps = [ref.step() for _ in range(2)]
     for name, pb in problems.items():
-        assert pb.flow_options["solver"] == "newton-krylov" and "fallback_solver" not in pb.flow_options, name
+        if name == "far":
+            assert pb.flow_options["solver"] == "newton-krylov" and "fallback_solver" not in pb.flow_options
+            ref, flow = unit.make_flow(solver="newton-krylov", large_solver=""), pb.make_flow()
+        else:  # (IPOPT solves in a unit of length, ``length_unit``: the width does not matter)
+            assert pb.flow_options == unit.flow_options
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                ref, flow = unit.make_flow(), pb.make_flow()
         scale = 3e4 if name == "wide" else 1.0
         shift = 1e3 if name == "far" else 0.0
-        flow = pb.make_flow()
-        for a in steps:
-            b = flow.step()
+        for _ in range(2):
+            a, b = ref.step(), flow.step()
+            assert b.stats["solver"] == a.stats["solver"], name
             assert b.retries == a.retries == 0 and b.willmore == pytest.approx(a.willmore, rel=1e-9), name
             np.testing.assert_allclose((b.vertices - shift) / scale, a.vertices, rtol=0, atol=1e-6 * 2.8)
-        with pytest.warns(UserWarning, match="IPOPT's absolute tolerances are then too tight"):
-            pb.make_flow(solver="ipopt")
+    with pytest.warns(UserWarning, match="IPOPT's absolute tolerances are then too tight"):
+        problems["far"].make_flow(solver="ipopt")
     save_mesh(base.with_vertices(V + 3e4), tmp_path / "farther.obj")
     with pytest.raises(MeshError, match=r"times its width 2\.8: its coordinates keep too few digits"):
         registry.build("file", path=str(tmp_path / "farther.obj"))

@@ -166,3 +166,34 @@ def test_reduced_energy_is_exact_at_tiny_steps_in_every_reduced_solver(method: s
     diff = (solver._at(x + eps * d, p, flow.Y).f - solver._at(x - eps * d, p, flow.Y).f) / (2 * eps)
     predicted = solver._at(x, p, flow.Y).grad @ d
     assert abs(diff - predicted) <= 1e-3 * abs(predicted)
+
+
+@pytest.mark.parametrize(("mesh", "extra"), [
+    pytest.param(shapes.ellipse(32, 1.0, 0.5), {}, id="curve"),
+    pytest.param(shapes.icosphere(2).with_vertices(shapes.icosphere(2).vertices * [2 / 3, 2 / 3, 1.0]),
+                 {"volume": "initial"}, id="surface-volume"),
+])
+def test_ipopt_takes_the_same_steps_at_every_size(mesh, extra) -> None:
+    """IPOPT solves the steps of a mesh narrower than 1 or wider than 4 in the unit of length in which it is 2 wide
+    (``length_unit``, set once per flow): a mesh 2 wide scaled by 1e-4, 2^-12 or 2^12 (t by s^4) takes the unit
+    one's iterations, and its states, scaled, agree
+    to IPOPT's tolerance (measured: 1e-10 h for the curve, whose rounding differs with the size, 1e-13 h for the
+    surface; the steps' terms are homogeneous in the length; before, IPOPT's absolute tol = 1e-9 was met at the
+    start point by the small one, 0 iterations, and the large one needed retries). The outer volume constraint keeps
+    its relative residual at every size."""
+    from willmore_nlp.solvers.ipopt import length_unit
+
+    assert float(np.ptp(mesh.vertices, axis=0).max()) == pytest.approx(2.0, rel=1e-12)
+    tau, tt = 0.05 * mesh.h, mesh.h**2 / 100
+    runs = []
+    for s in (1.0, 1e-4, 2.0**-12, 2.0**12):
+        flow = WillmoreFlow(mesh.with_vertices(s * mesh.vertices), s**4 * tau, s**2 * tt, solver="ipopt",
+                            adaptive=False, max_retries=0, **extra)
+        assert flow.solver.length == length_unit(flow.X) == pytest.approx(s, rel=1e-12)
+        runs.append((s, [flow.step() for _ in range(3)], flow))
+    (_, ref, _), *others = runs
+    for s, steps, flow in others:
+        for a, b in zip(ref, steps, strict=True):
+            assert b.iterations == a.iterations > 0 and b.retries == 0
+            np.testing.assert_allclose(b.vertices / s, a.vertices, rtol=0, atol=1e-9 * mesh.h)
+        assert flow.constraint_violation(flow.X) < 1e-10

@@ -25,6 +25,7 @@ from willmore_nlp.model.terms.base import Term
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
 from willmore_nlp.settings import FlowSettings, check_run_value, is_number
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
+from willmore_nlp.solvers.ipopt import UNIT_WIDTHS, length_unit
 from willmore_nlp.tangential import TangentialControl, default_weight, resolve_method
 
 
@@ -116,16 +117,13 @@ MAX_MESH_SIZE = 1e5
 an ellipse or ellipsoid scaled by 1e4 with tau ~ L^4 reproduces the unit-size steps to 3e-12,
 scaled by 1e6 every step fails)."""
 
-SMALL_MESH_SIZE = 0.1
-"""WillmoreFlow warns for meshes narrower than this: IPOPT's absolute tolerance tol = 1e-9 is then
-met by iterates that barely move (measured: the unit-size steps are reproduced to 2e-7 (ellipse) and
-2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4)."""
-
-LARGE_MESH_SIZE = 1e3
-"""WillmoreFlow warns when IPOPT may run on a mesh wider than this (and the ``file`` problem gives it newton-krylov):
-IPOPT's absolute tolerances are then too tight for the coordinates. Measured (``file`` problem, 10 steps of the 162-v
-ellipsoid 1:1:1.4 scaled to width w): w = 280 repeats the unit steps (W to 1e-9); w = 2,800 needs a retry and ends
-1.5e-5 off, w = 28,000 6 retries and 2 % off, w = 84,000 fails; newton-krylov repeats them at every width."""
+SMALL_MESH_SIZE, LARGE_MESH_SIZE = UNIT_WIDTHS
+"""WillmoreFlow warns when ``sqp`` or a reduced solver (absolute tolerances) may run on a mesh narrower or wider than
+these. IPOPT solves the steps of such a mesh in the unit of length in which it is 2 wide
+(:func:`willmore_nlp.solvers.ipopt.length_unit`; before, measured: the unit-size steps were reproduced to 2e-7
+(ellipse) and 2e-3 (ellipsoid) at scale 1e-2, and not at all, 0 iterations, at 1e-4; on 10 steps of the 162-v
+ellipsoid 1:1:1.4 scaled to width w: w = 280 repeated the unit steps, W to 1e-9; w = 2,800 needed a retry and ended
+1.5e-5 off, w = 28,000 6 retries and 2 % off, w = 84,000 failed); newton-krylov's tolerance is relative."""
 
 OFF_CENTRE = 100.0
 """WillmoreFlow warns when IPOPT may run on a mesh whose farthest coordinate exceeds this many of its widths (and the
@@ -146,6 +144,7 @@ BUDGET_WINDOW = 20
 
 RELAX_WINDOW = 3
 """The relax test looks at the Willmore energy over this many last steps (:meth:`WillmoreFlow.step`)."""
+
 
 DRIFT_SHARE = 0.5
 """A step whose normal motion lies this much (squared lumped L^2 norm) in the span of the ten conformal fields,
@@ -331,11 +330,13 @@ class StepResult:
         return r
 
 
-def check_scale(mesh: Mesh, warn: bool = True) -> float:
+def check_scale(mesh: Mesh, solvers: Collection[str] = ()) -> float:
     """Refuse an initial mesh too wide (:data:`MAX_MESH_SIZE`) or too far from the origin (:data:`MAX_OFF_CENTRE`)
-    for float64 and the solvers' tolerances (MeshError); with ``warn`` (a solver other than newton-krylov may run),
-    warn when IPOPT's absolute tolerances do not suit its coordinates (:func:`ipopt_scale_trouble`). Returns its width
-    (the largest extent of its bounding box)."""
+    for float64 and the solvers' tolerances (MeshError); warn when the absolute tolerances of one of ``solvers`` (the
+    names of those that may run) do not suit its coordinates: IPOPT's far from the origin
+    (:func:`ipopt_scale_trouble`), those of ``sqp`` and the reduced solvers also for widths below
+    :data:`SMALL_MESH_SIZE` or above :data:`LARGE_MESH_SIZE`. Returns its width (the largest extent of its bounding
+    box)."""
     V = mesh.vertices
     size = float(np.ptp(V, axis=0).max())
     if size > MAX_MESH_SIZE:
@@ -347,8 +348,14 @@ def check_scale(mesh: Mesh, warn: bool = True) -> float:
         raise MeshError(f"{mesh.source}: the mesh lies {far:.3g} from the origin, {far / size:.3g} times its width "
                         f"{size:.3g}: its coordinates keep too few digits of its shape for the steps; move it to the "
                         "origin (Willmore flow is translation invariant)")
-    trouble = ipopt_scale_trouble(V)
-    if warn and trouble:
+    absolute = set(solvers) - {"newton-krylov", "ipopt"}
+    trouble = ipopt_scale_trouble(V) if set(solvers) - {"newton-krylov"} else ""
+    if absolute and not trouble:
+        trouble = (f"only {size:.3g} wide: the absolute tolerance of {', '.join(sorted(absolute))} is then met by "
+                   "steps that barely move" if size < SMALL_MESH_SIZE else
+                   f"{size:.3g} wide: the absolute tolerances of {', '.join(sorted(absolute))} are then too tight for "
+                   "its coordinates" if size > LARGE_MESH_SIZE else "")
+    if trouble:
         warnings.warn(f"{mesh.source}: the mesh is {trouble}; move it to the origin and rescale it to a size about 1 "
                       f"(Willmore flow is translation and scale invariant: X -> (X - c)/L takes t -> t/L^4) or set "
                       f"solver=newton-krylov (its tolerance is relative)", stacklevel=3)
@@ -356,15 +363,12 @@ def check_scale(mesh: Mesh, warn: bool = True) -> float:
 
 
 def ipopt_scale_trouble(V: np.ndarray) -> str:
-    """Why IPOPT's absolute tolerances do not suit the coordinates ``V`` (N, m) of a mesh ("" when they do): narrower
-    than :data:`SMALL_MESH_SIZE`, wider than :data:`LARGE_MESH_SIZE`, or farther from the origin than
-    :data:`OFF_CENTRE` widths."""
+    """Why IPOPT's absolute tolerances do not suit the coordinates ``V`` (N, m) of a mesh ("" when they do): farther
+    from the origin than :data:`OFF_CENTRE` widths (its width does not matter: IPOPT solves the steps of a mesh narrower
+    or wider than :data:`SMALL_MESH_SIZE` and :data:`LARGE_MESH_SIZE` in the unit of length in which it is 2 wide,
+    :func:`willmore_nlp.solvers.ipopt.length_unit`)."""
     size = float(np.ptp(V, axis=0).max())
     far = float(np.abs(V).max())
-    if size < SMALL_MESH_SIZE:
-        return f"only {size:.3g} wide: IPOPT's absolute tolerance (tol) is then met by steps that barely move"
-    if size > LARGE_MESH_SIZE:
-        return f"{size:.3g} wide: IPOPT's absolute tolerances are then too tight for its coordinates"
     if far > OFF_CENTRE * size:
         return (f"{far:.3g} from the origin, {far / size:.3g} times its width: IPOPT's absolute tolerances are then "
                 "too tight for its coordinates")
@@ -530,7 +534,7 @@ class WillmoreFlow:
             from willmore_nlp.mesh.topology import check_connected
 
             check_connected(mesh, "set allow_components=true to flow them together")
-        check_scale(mesh, warn=self._solver_names() != {"newton-krylov"})
+        check_scale(mesh, self._solver_names())
         self.mesh = mesh
         self.tau, self.tau_tilde, self.lam = tau, tau_tilde, lam
         t0 = time.perf_counter()
@@ -584,6 +588,7 @@ class WillmoreFlow:
         self._compiled: dict[str, Any] | None = None
         self.stop_requested: Callable[[], bool] = _never
         self.on_retry: Callable[[str], None] = _ignore
+        self._length_unit = length_unit(mesh.vertices)  # (IPOPT's, for every step: a scaled mesh scales it)
         self._build(mesh, boundary)
         for other in self._solver_names() - {self.solver.name}:  # their errors now, not at their first step
             check_solver(other, self.problem, self._solver_options(other))
@@ -714,6 +719,8 @@ class WillmoreFlow:
         self.solver.should_stop = lambda: self.stop_requested()
         if hasattr(self.solver, "stall_iterations"):
             self.solver.stall_iterations = self.settings.stall_iterations
+        if hasattr(self.solver, "length"):
+            self.solver.length = self._length_unit
 
     @property
     def tangential_control(self) -> TangentialControl:

@@ -31,6 +31,29 @@ IPOPT_DEFAULTS: dict[str, Any] = {
 }
 """IPOPT options used unless overridden (keys without the ``ipopt.`` prefix)."""
 
+UNIT_WIDTHS = (0.1, 1e3)
+"""Widths of a mesh (its bounding box's largest extent) whose steps IPOPT solves as given (:func:`length_unit`):
+the range in which its absolute tolerances were found to work (a 162-vertex ellipsoid 280 wide repeats the unit
+steps, W to 1e-9; 2,800 wide it needed a retry and ended 1.5e-5 off; an ellipsoid scaled by 1e-2, 0.04 wide,
+repeated them only to 2e-3)."""
+
+
+def length_unit(V: np.ndarray) -> float:
+    """The unit of length in which IPOPT solves the steps of a flow whose initial mesh has the vertices ``V`` (N, m):
+    1 for widths in :data:`UNIT_WIDTHS`, else width / 2, the unit in which the mesh is 2 wide (the flow sets it once,
+    :attr:`IpoptSolver.length`). IPOPT's tolerances and safeguards are absolute (tol 1e-9 on the KKT residual, the
+    Hessian regularisation, the line search's thresholds) while the step's terms are homogeneous in the length: a
+    162-vertex ellipsoid 4e-5 wide took 0 iterations and did not move, one 28,000 wide needed 6 retries and ended 2 %
+    off (measured 2026-11-29). In this unit a mesh 2 wide scaled beyond :data:`UNIT_WIDTHS` takes its unit-size IPOPT
+    iterates, scaled, up to rounding. Inside them the unit stays 1: IPOPT's path depends on the width there too (a
+    0.45-wide ellipsoid needs 2 retries for a first step the 3-wide one takes at once), but no width is best for
+    every problem (the 7-wide bunny curve of the paper's Fig. 11 with gamma1 fails its first step when solved 2
+    wide), and unit-size runs stay as they were."""
+    width = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    if not np.isfinite(width) or width <= 0 or UNIT_WIDTHS[0] <= width <= UNIT_WIDTHS[1]:
+        return 1.0
+    return width / 2
+
 OPTIONS_FILE = Path(__file__).with_name("ipopt_options.json")
 """IPOPT's options with their types and ranges, as IPOPT documents them (``print_options_mode=doxygen``;
 tests/test_settings.py checks it against the installed IPOPT): ``[type, lo, lo_open, hi, hi_open]`` for
@@ -251,6 +274,10 @@ class IpoptSolver:
         Stall test of every solve (:class:`SolveMonitor`); a solve cut by it ends with status
         ``"Stalled"``. 0 (the solver's default) turns it off; the flow sets its own option
         (default 15).
+    length : float
+        The unit of length of the solves (default 1): the NLP is solved in z / length, with its objective and
+        constraints divided by the powers of ``length`` they scale with (:meth:`_scaled_solver`); the flow sets
+        :func:`length_unit` of its initial mesh.
     """
 
     name = "ipopt"
@@ -273,26 +300,47 @@ class IpoptSolver:
         self._evaluator = evaluator
         self._p = np.zeros(0)
         self._hook = _StopHook(fn["z"].numel(), fn["g_expr"].numel(), self._poll)
-        self._solver = ca.nlpsol(
-            "willmore_step",
-            "ipopt",
-            nlp,
-            {
-                "grad_f": fn["grad_f"],
-                "jac_g": fn["jac_c"],
-                "hess_lag": fn["hess_lag"],
-                "print_time": False,
-                "record_time": True,
-                "error_on_fail": False,
-                "iteration_callback": self._hook,
-                "ipopt": opts,
-            },
-        )
+        self._solver = ca.nlpsol("willmore_step", "ipopt", nlp, self._nlpsol_options(
+            fn["grad_f"], fn["jac_c"], fn["hess_lag"]))
+        self._scaled: ca.Function | None = None  # the same NLP in a unit of length (built on first need)
+        self._unit = (1.0, 1.0, 1.0)  # (L, a, b) of the solve under way: z = L z', f' = a f, c' = b c
+        self.length = 1.0
         self.ng = evaluator.problem.nc
 
+    def _nlpsol_options(self, grad_f: ca.Function, jac_g: ca.Function, hess_lag: ca.Function) -> dict[str, Any]:
+        return {"grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag, "print_time": False, "record_time": True,
+                "error_on_fail": False, "iteration_callback": self._hook, "ipopt": self.options}
+
+    def _scaled_solver(self) -> ca.Function:
+        """The step's NLP in the unit of length L = :attr:`length`: unknowns z' = z / L, objective a f and
+        constraints b c with a = L^-(d+2) and b = L^-(d+1), the degrees of the step's objective (tau / tt^2 |Y - X|^2_M,
+        |X - X^k|^2_M, 2 tau W, with tau ~ L^4 and tt ~ L^2) and of its inner constraint dE/dY in the length (outer
+        constraints take b too: exact for a volume, one power of L apart for an area). The parameters carry (L, a, b)
+        after the step's own. Its multipliers are lam' = a lam / b."""
+        if self._scaled is None:
+            fn = self._evaluator.fn
+            z, p = fn["z"], fn["p"]
+            zs, lam_f, lam_c = ca.MX.sym("zs", z.numel()), ca.MX.sym("lam_f"), ca.MX.sym("lam_c", self.ng)
+            L, a, b = ca.MX.sym("L"), ca.MX.sym("a"), ca.MX.sym("b")
+            ps = ca.vertcat(p, L, a, b)
+            f, grad = fn["grad_f"](L * zs, p)
+            c, J = fn["jac_c"](L * zs, p)
+            H = fn["hess_lag"](L * zs, p, a * lam_f, b * lam_c)
+            io = ["x", "p"]
+            grad_f = ca.Function("nlp_grad_f", [zs, ps], [a * f, (a * L) * grad], io, ["f", "grad"])
+            jac_g = ca.Function("nlp_jac_c", [zs, ps], [b * c, (b * L) * J], io, ["g", "jac"])
+            hess = ca.Function("nlp_hess_l", [zs, ps, lam_f, lam_c], [(L * L) * H],
+                               ["x", "p", "lam_f", "lam_g"], ["hess"])
+            fc = ca.Function("nlp_fc", [z, p], [fn["f_expr"], fn["g_expr"]])(L * zs, p)
+            nlp = {"x": zs, "p": ps, "f": a * fc[0], "g": b * fc[1]}
+            self._scaled = ca.nlpsol("willmore_step_scaled", "ipopt", nlp, self._nlpsol_options(grad_f, jac_g, hess))
+        return self._scaled
+
     def _poll(self, f: float, g: np.ndarray, x: np.ndarray, lam_g: np.ndarray) -> bool:
-        """The hook's test: a requested stop (signal) first, then the budget and stall test."""
-        return bool(self.should_stop()) or self._monitor(f, g, x, lam_g)
+        """The hook's test: a requested stop (signal) first, then the budget and stall test (on the step's own
+        unknowns and multipliers: the scaled solve's are z / L and a lam / b)."""
+        L, a, b = self._unit
+        return bool(self.should_stop()) or self._monitor(f, g, L * x, b / a * lam_g)
 
     def _dual_residual(self, x: np.ndarray, lam_g: np.ndarray) -> float:
         """max |grad f + J_g^T lam_g| at ``x`` with the parameters of the solve under way."""
@@ -308,11 +356,17 @@ class IpoptSolver:
         """
         self._p = p
         self._monitor = SolveMonitor(self.iteration_limit, self.stall_iterations, dual_residual=self._dual_residual)
-        args: dict[str, Any] = {"x0": z0, "p": p, "lbg": 0.0, "ubg": 0.0}
+        P = self._evaluator.problem
+        L = self.length
+        a, b = L ** -(P.d + 2), L ** -(P.d + 1)
+        self._unit = (L, a, b)
+        solver = self._solver if L == 1 else self._scaled_solver()
+        args: dict[str, Any] = {"x0": z0 / L, "p": p if L == 1 else np.concatenate([p, [L, a, b]]),
+                                "lbg": 0.0, "ubg": 0.0}
         if self.warm_start and lam_g0 is not None:
-            args["lam_g0"] = lam_g0
-        r = self._solver(**args)
-        st = self._solver.stats()
+            args["lam_g0"] = a / b * lam_g0
+        r = solver(**args)
+        st = solver.stats()
         status = self._monitor.cut or str(st.get("return_status", "unknown"))
         it = st.get("iterations", {})
         stats = {
@@ -330,13 +384,13 @@ class IpoptSolver:
         }
         stats["t_wall_solver"] = stats["t_wall_total"] - stats["t_wall_eval"]
         stats["kkt_residual"] = max(stats["inf_pr"], stats["inf_du"])
-        z = np.asarray(r["x"]).ravel()
-        f = float(r["f"])
+        z = L * np.asarray(r["x"]).ravel()
+        f = float(r["f"]) / a
         converged = bool(st.get("success", False)) and status == "Solve_Succeeded" and np.all(np.isfinite(z))
         return SolveResult(
             z=z,
             f=f,
-            lam_g=np.asarray(r["lam_g"]).ravel(),
+            lam_g=b / a * np.asarray(r["lam_g"]).ravel(),
             converged=converged,
             status=status,
             iterations=int(st.get("iter_count", 0)),

@@ -396,7 +396,7 @@ class NewtonKrylovSolver(ReducedSolver):
         s = self._precondition(pt, r)
         d = s.copy()
         rs = float(r @ s)
-        gnorm = float(np.linalg.norm(g)) if pt.C is None else np.sqrt(rs)
+        gnorm = float(np.linalg.norm(g)) if pt.C is None else np.sqrt(max(rs, 0.0))  # (rs < 0: round-off at rest)
         for k in range(max_iter):
             Ad = self._hessp(pt, p, d)
             if delta:
