@@ -124,3 +124,30 @@ def test_a_resting_sphere_is_stable_through_a_halving_of_tau_tilde(tmp_path) -> 
     halved = [k for k in range(1, len(tt)) if tt[k] < tt[k - 1]]
     assert rec["status"] == "ok" and halved and e[halved[0]] > e[halved[0] - 1]  # the recorded energy jumps there
     assert _energy_rise(rec) <= 1e-8
+
+
+def test_a_rerun_of_another_length_runs_its_cases_anew(tmp_path, capsys) -> None:
+    """A rerun with another --steps reused the finished cases of the old length ("1 cases, 1 already finished", the
+    summary at the old step count: found by a new-user check). The length is part of the case's key: the new length
+    runs, the old file stays and a rerun with the old length finds it again, also under the name of the studies
+    written before (the key without the length) when the length it records matches."""
+    out = tmp_path / "s"
+    one, two = (make_grid("circle", ["ipopt"], ["h"], params={"n": 16}, steps=k) for k in (1, 2))
+    run_case(one[0], str(out))  # (finished without a cluster)
+    (out / STUDY_FILE).write_text('{"cases": []}', encoding="utf-8")
+    run_study(one, out, n_workers=1)
+    assert "1 cases, 1 already finished" in capsys.readouterr().err
+    md = run_study(two, out, n_workers=1)
+    assert "1 cases, 0 already finished" in capsys.readouterr().err
+    assert "| off | ok | 2 |" in md.read_text()
+    from willmore_nlp.apps.study import case_file
+
+    path = case_file(out, one[0])
+    assert path is not None and path != case_file(out, two[0])  # the old length's file is kept
+    path.rename(out / "cases" / f"{one[0].key_without_length}.json")  # as a study written up to 2026-11-30
+    assert case_file(out, one[0]) == out / "cases" / f"{one[0].key_without_length}.json"
+    md = run_study(one, out, n_workers=1)
+    assert "1 cases, 1 already finished" in capsys.readouterr().err
+    assert "| off | ok | 1 |" in md.read_text()
+    (out / "cases" / f"{two[0].key}.json").unlink()
+    assert case_file(out, two[0]) is None  # an old-named file of another length does not count

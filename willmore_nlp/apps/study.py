@@ -3,7 +3,8 @@
 ``run_study`` submits every case of the grid to a ``dask.distributed`` cluster (a LocalCluster on
 this machine by default, or an existing scheduler), each case writing ``cases/<key>.json`` when
 it ends (atomically: a crashed worker never leaves a partial file). A failed case is recorded with
-its error and does not stop the others; a rerun skips cases whose file exists. ``write_study``
+its error and does not stop the others; a rerun skips finished cases (same problem, solver, tau, parameters,
+options and length: a rerun with another ``--steps`` or ``--t-end`` runs its cases anew). ``write_study``
 turns the case files into the study's artefacts:
 
     study.csv      tidy table, one row per case and step (step 0 = initial state)
@@ -62,10 +63,46 @@ class Case:
 
     @property
     def key(self) -> str:
-        """File-name-safe identifier."""
+        """File-name-safe identifier: problem, solver, tau, parameters, options and the length (``steps``, ``t_end``
+        when given), so that a rerun with another ``--steps`` or ``--t-end`` runs its cases anew."""
+        length = "".join(f"__{k}-{v}" for k, v in (("steps", self.steps), ("t_end", self.t_end)) if v is not None)
+        return self.key_without_length + _file_safe(length)
+
+    @property
+    def key_without_length(self) -> str:
+        """:attr:`key` without the length: the name of a case's file in studies written up to 2026-11-30."""
         par = "_".join(f"{k}-{v}" for k, v in sorted({**self.params, **self.options}.items()))
-        raw = f"{self.problem}__{self.solver}__tau-{self.tau}" + (f"__{par}" if par else "")
-        return "".join(c if c.isalnum() or c in "-_." else "-" for c in raw)
+        return _file_safe(f"{self.problem}__{self.solver}__tau-{self.tau}" + (f"__{par}" if par else ""))
+
+
+def _file_safe(raw: str) -> str:
+    """``raw`` with every character other than letters, digits and ``-_.`` replaced by ``-``."""
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in raw)
+
+
+def case_file(out: Path, case: Case) -> Path | None:
+    """The file of ``case`` if it has finished in the study directory ``out``, else None.
+
+    Parameters
+    ----------
+    out : study directory
+    case : a case of its grid
+
+    Returns
+    -------
+    ``out/cases/<key>.json``, or, in a study written before the length was part of :attr:`Case.key`, the file named
+    by :attr:`Case.key_without_length` when the length it records is the case's (a case of another length has not
+    finished: it runs anew, and the old file stays).
+    """
+    path = out / "cases" / f"{case.key}.json"
+    if path.exists():
+        return path
+    old = out / "cases" / f"{case.key_without_length}.json"
+    if old.exists():
+        rec = json.loads(old.read_text(encoding="utf-8"))["case"]
+        if (rec["steps"], rec["t_end"]) == (case.steps, case.t_end):
+            return old
+    return None
 
 
 def parse_tau(spec: str, h: float) -> float:
@@ -226,7 +263,7 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
             for r in rows:
                 print(f"Surface Evolver reference {r['params'] or ''}: "
                       f"{r.get('skipped') or format(r['final'], '.6g')}", file=sys.stderr)
-    todo = [c for c in cases if not (out / "cases" / f"{c.key}.json").exists()]
+    todo = [c for c in cases if case_file(out, c) is None]
     if progress:
         print(f"study {out}: {len(cases)} cases, {len(cases) - len(todo)} already finished", file=sys.stderr)
     if todo:
@@ -260,8 +297,8 @@ def _load(out: Path) -> list[dict[str, Any]]:
     spec = json.loads((out / STUDY_FILE).read_text(encoding="utf-8"))
     recs = []
     for c in spec["cases"]:
-        path = out / "cases" / f"{Case(**c).key}.json"
-        if path.exists():
+        path = case_file(out, Case(**c))
+        if path is not None:
             recs.append(json.loads(path.read_text(encoding="utf-8")))
     return recs
 
