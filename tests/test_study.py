@@ -151,3 +151,20 @@ def test_a_rerun_of_another_length_runs_its_cases_anew(tmp_path, capsys) -> None
     assert "| off | ok | 1 |" in md.read_text()
     (out / "cases" / f"{two[0].key}.json").unlink()
     assert case_file(out, two[0]) is None  # an old-named file of another length does not count
+
+
+def test_compare_refuses_a_case_that_can_never_run_before_writing(tmp_path, capsys) -> None:
+    """``compare sphere --solvers semi-implicit --option volume=initial`` exited 0 with its one case failed (and a
+    figure without artists) where ``run`` refuses the combination (new-user check); the refusal ended "use volume=None",
+    which the command line cannot give. Now every case's flow is built first: exit 2, the case named, nothing written,
+    and the message says what a user of the command line can do."""
+    from willmore_nlp.cli import main
+
+    out = tmp_path / "b6"
+    assert main(["compare", "sphere", "--solvers", "ipopt,semi-implicit", "--option", "volume=initial", "--set",
+                 "subdivisions=1", "--steps", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("willmore-nlp: error: case semi-implicit tau=h subdivisions=1: solver semi-implicit: the "
+                          "baseline has no volume constraint") and len(err.splitlines()) == 1
+    assert "leave volume out (no --set/--option volume" in err and "use volume=None" not in err
+    assert "solvers that can: gd, ipopt, newton-krylov, sqp" in err and not out.exists()

@@ -192,6 +192,37 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
             for t in taus]
 
 
+def check_cases(cases: list[Case]) -> None:
+    """Build the flow of every case as :func:`run_case` does, without a step, so that a case that can never run is
+    refused before a study writes anything (as ``willmore-nlp run`` refuses it).
+
+    One flow per solver and parameter set: the step size does not change what can run (:func:`make_grid` has checked
+    it). A flow that fails later, in a step, is the study's to record (:func:`run_case`).
+
+    Parameters
+    ----------
+    cases : from :func:`make_grid`
+
+    Raises
+    ------
+    StudyError
+        naming the first case that cannot run and why (``--solvers semi-implicit --option volume=initial``: the
+        solver has no outer equality constraints).
+    """
+    from willmore_nlp import registry
+
+    built: list[tuple[str, dict[str, Any]]] = []
+    for case in cases:
+        if (case.solver, case.params) in built:
+            continue
+        built.append((case.solver, case.params))
+        try:
+            pb, _ = registry.build(case.problem, **case.params)
+            pb.make_flow(tau=parse_tau(case.tau, pb.mesh.h), **case.options, solver=case.solver)
+        except UserInputError as exc:
+            raise StudyError(f"case {_label({'case': asdict(case)})}: {exc}") from exc
+
+
 PATH_OPTIONS = {"tangential_weight", "remesh_repair", "conformal_gauge"}
 """Flow options of a problem that change the path of its flow (the tangential motion, the mesh repair, the Moebius
 gauge), not the energy that :func:`evolver_rows`' reference minimises."""
