@@ -168,3 +168,15 @@ def test_compare_refuses_a_case_that_can_never_run_before_writing(tmp_path, caps
                           "baseline has no volume constraint") and len(err.splitlines()) == 1
     assert "leave volume out (no --set/--option volume" in err and "use volume=None" not in err
     assert "solvers that can: gd, ipopt, newton-krylov, sqp" in err and not out.exists()
+
+
+def test_compare_refuses_a_parameter_both_varied_and_fixed(tmp_path, capsys) -> None:
+    """``compare circle --grid n=32,64 --set n=16`` exited 0 and ran n = 32 and 64, silently dropping --set n
+    (new-user check): exit 2 naming n, nothing written."""
+    from willmore_nlp.cli import main
+
+    out = tmp_path / "s"
+    assert main(["compare", "circle", "--grid", "n=32,64", "--set", "n=16", "--steps", "2", "--out", str(out)]) == 2
+    assert capsys.readouterr().err == ("willmore-nlp: error: --grid and --set both give n: a parameter is either "
+                                       "varied (--grid) or fixed (--set), not both\n")
+    assert not out.exists()

@@ -165,7 +165,14 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
 def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str, list[Any]] | None = None,
               params: dict[str, Any] | None = None, steps: int | None = None,
               t_end: float | None = None, options: dict[str, Any] | None = None) -> list[Case]:
-    """All cases of a study (solver x tau x grid values), checked before anything runs."""
+    """All cases of a study (solver x tau x grid values), checked before anything runs.
+
+    Raises
+    ------
+    StudyError
+        an unknown solver, a solver option it does not take, no solver or no tau, a tau that is not a positive number
+        or multiple of h, or a parameter both in ``grid`` and ``params``.
+    """
     from willmore_nlp import registry
     from willmore_nlp.settings import FlowSettings
     from willmore_nlp.solvers import solver_names, solver_settings
@@ -185,6 +192,10 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
     for t in taus:
         parse_tau(t, 1.0)
     grid = grid or {}
+    both = sorted(set(grid) & set(params or {}))
+    if both:  # (the grid's values replaced the fixed one silently)
+        raise StudyError(f"--grid and --set both give {', '.join(both)}: a parameter is either varied (--grid) or "
+                         "fixed (--set), not both")
     combos: list[dict[str, Any]] = [dict(params or {})]
     for k, vals in grid.items():
         combos = [{**c, k: v} for c in combos for v in vals]
