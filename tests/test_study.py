@@ -180,3 +180,19 @@ def test_compare_refuses_a_parameter_both_varied_and_fixed(tmp_path, capsys) -> 
     assert capsys.readouterr().err == ("willmore-nlp: error: --grid and --set both give n: a parameter is either "
                                        "varied (--grid) or fixed (--set), not both\n")
     assert not out.exists()
+
+
+def test_a_study_without_a_state_writes_its_figures_without_warnings(tmp_path) -> None:
+    """A study whose cases all failed before their first state (a 2-gon) warned "No artists with labels found to put
+    in legend" from the energy figure (new-user check): the figure has no legend then, and no warning."""
+    import warnings
+    from dataclasses import asdict
+
+    case = Case("circle", "ipopt", "h", {"n": 2}, 1)
+    rec = run_case(case, str(tmp_path))
+    assert rec["status"] == "failed" and rec["rows"] == []
+    (tmp_path / STUDY_FILE).write_text(json.dumps({"cases": [asdict(case)]}), encoding="utf-8")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        md = write_study(tmp_path)
+    assert "| failed | 0 |" in md.read_text() and (tmp_path / "figures" / "energy.png").exists()
