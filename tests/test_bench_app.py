@@ -4,6 +4,7 @@ any step (the subprocess runner is replaced by a fake that returns rows)."""
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from willmore_nlp.apps import bench
 
@@ -76,3 +77,33 @@ def test_the_header_names_the_blas_threads_openblas_reads(monkeypatch) -> None:
     monkeypatch.delenv("OPENBLAS_NUM_THREADS")
     monkeypatch.delenv("OMP_NUM_THREADS")
     assert _blas_threads() == "unset (one per core)"
+
+
+def test_a_case_that_times_out_becomes_a_row_and_the_benchmark_goes_on(monkeypatch, tmp_path: Path) -> None:
+    """``--timeout 2`` on the 162-vertex sphere ended in a traceback (subprocess.TimeoutExpired), exit 1, and no .md or
+    .csv: the rows measured were lost (found by a new-user check). A case stopped at its timeout is a row saying so;
+    the rows before it and the cases after it are kept (here a fake row, then a real subprocess given 0.01 s)."""
+    calls: list[tuple[str, str]] = []
+    fake, real = _fake_subprocess(calls), bench._subprocess
+
+    def run(case: str, codegen: bool, timeout: float, solver: str = "ipopt", save: str | None = None) -> dict:
+        return fake(case, codegen, timeout, solver, save) if case == "sphere:1" else real(case, codegen, 0.01, solver)
+
+    monkeypatch.setattr(bench, "_subprocess", run)
+    out = tmp_path / "b"
+    assert bench.main(["--spheres", "1", "2", "--torus", "8x4", "--vm-max", "0", "--solvers", "ipopt",
+                       "--out", str(out)]) == 0
+    lines = out.with_suffix(".md").read_text().splitlines()
+    assert any(line.startswith("| sphere:1 | 42 | True |") for line in lines)
+    for case in ("sphere:2", "torus:8x4"):
+        assert f"| {case} | | True | failed: ['timed out after 0.01 s (--timeout), stopped'] |" in lines
+    assert len(out.with_suffix(".csv").read_text().splitlines()) == 1 + 3
+
+
+def test_help_says_the_default_torus_runs_and_how_to_skip_it(capsys) -> None:
+    """``--spheres 2`` alone also ran the 4,608-vertex default torus, which --help did not say (new-user check)."""
+    with pytest.raises(SystemExit):
+        bench.main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "default 96x48, 4,608 vertices, also when only --spheres is given" in text
+    assert "none: --torus with no grid" in text

@@ -124,3 +124,75 @@ def test_a_resting_sphere_is_stable_through_a_halving_of_tau_tilde(tmp_path) -> 
     halved = [k for k in range(1, len(tt)) if tt[k] < tt[k - 1]]
     assert rec["status"] == "ok" and halved and e[halved[0]] > e[halved[0] - 1]  # the recorded energy jumps there
     assert _energy_rise(rec) <= 1e-8
+
+
+def test_a_rerun_of_another_length_runs_its_cases_anew(tmp_path, capsys) -> None:
+    """A rerun with another --steps reused the finished cases of the old length ("1 cases, 1 already finished", the
+    summary at the old step count: found by a new-user check). The length is part of the case's key: the new length
+    runs, the old file stays and a rerun with the old length finds it again, also under the name of the studies
+    written before (the key without the length) when the length it records matches."""
+    out = tmp_path / "s"
+    one, two = (make_grid("circle", ["ipopt"], ["h"], params={"n": 16}, steps=k) for k in (1, 2))
+    run_case(one[0], str(out))  # (finished without a cluster)
+    (out / STUDY_FILE).write_text('{"cases": []}', encoding="utf-8")
+    run_study(one, out, n_workers=1)
+    assert "1 cases, 1 already finished" in capsys.readouterr().err
+    md = run_study(two, out, n_workers=1)
+    assert "1 cases, 0 already finished" in capsys.readouterr().err
+    assert "| off | ok | 2 |" in md.read_text()
+    from willmore_nlp.apps.study import case_file
+
+    path = case_file(out, one[0])
+    assert path is not None and path != case_file(out, two[0])  # the old length's file is kept
+    path.rename(out / "cases" / f"{one[0].key_without_length}.json")  # as a study written up to 2026-11-30
+    assert case_file(out, one[0]) == out / "cases" / f"{one[0].key_without_length}.json"
+    md = run_study(one, out, n_workers=1)
+    assert "1 cases, 1 already finished" in capsys.readouterr().err
+    assert "| off | ok | 1 |" in md.read_text()
+    (out / "cases" / f"{two[0].key}.json").unlink()
+    assert case_file(out, two[0]) is None  # an old-named file of another length does not count
+
+
+def test_compare_refuses_a_case_that_can_never_run_before_writing(tmp_path, capsys) -> None:
+    """``compare sphere --solvers semi-implicit --option volume=initial`` exited 0 with its one case failed (and a
+    figure without artists) where ``run`` refuses the combination (new-user check); the refusal ended "use volume=None",
+    which the command line cannot give. Now every case's flow is built first: exit 2, the case named, nothing written,
+    and the message says what a user of the command line can do."""
+    from willmore_nlp.cli import main
+
+    out = tmp_path / "b6"
+    assert main(["compare", "sphere", "--solvers", "ipopt,semi-implicit", "--option", "volume=initial", "--set",
+                 "subdivisions=1", "--steps", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("willmore-nlp: error: case semi-implicit tau=h subdivisions=1: solver semi-implicit: the "
+                          "baseline has no volume constraint") and len(err.splitlines()) == 1
+    assert "leave volume out (no --set/--option volume" in err and "use volume=None" not in err
+    assert "solvers that can: gd, ipopt, newton-krylov, sqp" in err and not out.exists()
+
+
+def test_compare_refuses_a_parameter_both_varied_and_fixed(tmp_path, capsys) -> None:
+    """``compare circle --grid n=32,64 --set n=16`` exited 0 and ran n = 32 and 64, silently dropping --set n
+    (new-user check): exit 2 naming n, nothing written."""
+    from willmore_nlp.cli import main
+
+    out = tmp_path / "s"
+    assert main(["compare", "circle", "--grid", "n=32,64", "--set", "n=16", "--steps", "2", "--out", str(out)]) == 2
+    assert capsys.readouterr().err == ("willmore-nlp: error: --grid and --set both give n: a parameter is either "
+                                       "varied (--grid) or fixed (--set), not both\n")
+    assert not out.exists()
+
+
+def test_a_study_without_a_state_writes_its_figures_without_warnings(tmp_path) -> None:
+    """A study whose cases all failed before their first state (a 2-gon) warned "No artists with labels found to put
+    in legend" from the energy figure (new-user check): the figure has no legend then, and no warning."""
+    import warnings
+    from dataclasses import asdict
+
+    case = Case("circle", "ipopt", "h", {"n": 2}, 1)
+    rec = run_case(case, str(tmp_path))
+    assert rec["status"] == "failed" and rec["rows"] == []
+    (tmp_path / STUDY_FILE).write_text(json.dumps({"cases": [asdict(case)]}), encoding="utf-8")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        md = write_study(tmp_path)
+    assert "| failed | 0 |" in md.read_text() and (tmp_path / "figures" / "energy.png").exists()

@@ -161,7 +161,7 @@ def _flow_options(items: dict[str, str]) -> dict[str, Any]:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Run a solver-comparison study on Dask and write its artefacts."""
-    from willmore_nlp.apps.study import make_grid, run_study
+    from willmore_nlp.apps.study import check_cases, make_grid, run_study
     from willmore_nlp.registry import check_params
 
     _check_length(args)
@@ -173,6 +173,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     cases = make_grid(args.problem, [s.strip() for s in args.solvers.split(",") if s.strip()],
                       [t.strip() for t in args.taus.split(",") if t.strip()], grid, params, args.steps, args.t_end,
                       _flow_options(parse_overrides(args.option or [])))
+    check_cases(cases)
     md = run_study(cases, args.out, scheduler=args.scheduler, n_workers=args.workers, progress=not args.quiet,
                    evolver=args.evolver)
     print(f"wrote {md}")

@@ -1,6 +1,6 @@
 """Scale benchmark of one time step (outside the test suite).
 
-    python -m willmore_nlp.bench [--spheres 3 4 5 6] [--torus 96x48] [--vm-max 10242] [--out reports/benchmark_scale]
+    python -m willmore_nlp.bench [--spheres 3 4 5 6] [--torus [96x48]] [--vm-max 10242] [--out reports/benchmark_scale]
                                  [--solvers ipopt newton-krylov] [--ipopt-max 40962] [--control-steps K]
 
 Every case runs in its own subprocess (so peak memory is per case) and measures: build time of the
@@ -15,7 +15,8 @@ Every other solver of ``--solvers`` (default: ``newton-krylov``) runs the same s
 in its own subprocess of the same run; a second table compares it with IPOPT: step time and speed-up,
 its iterations, CG iterations, factorisations and time split, peak memory of both, and the largest
 difference of X^{k+1} from IPOPT's, in units of the mean edge length h. Cases above ``--ipopt-max``
-vertices run the other solvers alone. ``--control-steps K`` adds, per case and solver, K steps of the flow with
+vertices run the other solvers alone. A case that fails or runs longer than ``--timeout`` seconds (stopped) becomes
+a row saying so, and the others go on. ``--control-steps K`` adds, per case and solver, K steps of the flow with
 the surface defaults and the mesh control's share of a step (the light repair, flips and remeshing between
 steps). Every row records the machine's 1-minute load average at the start
 and end of its case (the machine is shared).
@@ -196,10 +197,21 @@ def _load() -> str:
 
 def _subprocess(case: str, codegen: bool, timeout: float, solver: str = "ipopt",
                 save: str | None = None, control_steps: int = 0) -> dict[str, Any]:
+    """Measure one case in a subprocess (:func:`run_case`, or :func:`run_control_case` with ``control_steps``).
+
+    Returns
+    -------
+    The case's row, or a row with ``error`` (the last line of the subprocess's stderr, or that it timed out after
+    ``timeout`` seconds and was stopped) and ``total_s``: a failing case does not stop the benchmark.
+    """
     cmd = [sys.executable, "-m", "willmore_nlp.apps.bench", "--one", case, "--codegen", str(int(codegen)),
            "--solver", solver, "--control-steps", str(control_steps)] + (["--save", save] if save else [])
     t0 = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
+    except subprocess.TimeoutExpired:
+        return {"case": case, "codegen": codegen, "solver": solver,
+                "error": [f"timed out after {timeout:g} s (--timeout), stopped"], "total_s": time.perf_counter() - t0}
     if r.returncode != 0:
         return {"case": case, "codegen": codegen, "solver": solver, "error": r.stderr.strip().splitlines()[-1:],
                 "total_s": time.perf_counter() - t0}
@@ -346,7 +358,9 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--spheres", type=int, nargs="*", default=[3, 4, 5, 6],
                     help="icosphere subdivisions (3: 642, 4: 2562, 5: 10242, 6: 40962 vertices)")
-    ap.add_argument("--torus", nargs="*", default=["96x48"], help="torus grids n_major x n_minor")
+    ap.add_argument("--torus", nargs="*", default=["96x48"],
+                    help="torus grids n_major x n_minor (default 96x48, 4,608 vertices, also when only --spheres is "
+                         "given; a small one: --torus 24x12; none: --torus with no grid)")
     ap.add_argument("--vm-max", type=int, default=10242, help="largest N also run without codegen")
     ap.add_argument("--ipopt-max", type=int, default=40962,
                     help="largest N run with IPOPT (larger cases: the other solvers alone, without comparison)")

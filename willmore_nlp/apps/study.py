@@ -3,7 +3,8 @@
 ``run_study`` submits every case of the grid to a ``dask.distributed`` cluster (a LocalCluster on
 this machine by default, or an existing scheduler), each case writing ``cases/<key>.json`` when
 it ends (atomically: a crashed worker never leaves a partial file). A failed case is recorded with
-its error and does not stop the others; a rerun skips cases whose file exists. ``write_study``
+its error and does not stop the others; a rerun skips finished cases (same problem, solver, tau, parameters,
+options and length: a rerun with another ``--steps`` or ``--t-end`` runs its cases anew). ``write_study``
 turns the case files into the study's artefacts:
 
     study.csv      tidy table, one row per case and step (step 0 = initial state)
@@ -62,10 +63,46 @@ class Case:
 
     @property
     def key(self) -> str:
-        """File-name-safe identifier."""
+        """File-name-safe identifier: problem, solver, tau, parameters, options and the length (``steps``, ``t_end``
+        when given), so that a rerun with another ``--steps`` or ``--t-end`` runs its cases anew."""
+        length = "".join(f"__{k}-{v}" for k, v in (("steps", self.steps), ("t_end", self.t_end)) if v is not None)
+        return self.key_without_length + _file_safe(length)
+
+    @property
+    def key_without_length(self) -> str:
+        """:attr:`key` without the length: the name of a case's file in studies written up to 2026-11-30."""
         par = "_".join(f"{k}-{v}" for k, v in sorted({**self.params, **self.options}.items()))
-        raw = f"{self.problem}__{self.solver}__tau-{self.tau}" + (f"__{par}" if par else "")
-        return "".join(c if c.isalnum() or c in "-_." else "-" for c in raw)
+        return _file_safe(f"{self.problem}__{self.solver}__tau-{self.tau}" + (f"__{par}" if par else ""))
+
+
+def _file_safe(raw: str) -> str:
+    """``raw`` with every character other than letters, digits and ``-_.`` replaced by ``-``."""
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in raw)
+
+
+def case_file(out: Path, case: Case) -> Path | None:
+    """The file of ``case`` if it has finished in the study directory ``out``, else None.
+
+    Parameters
+    ----------
+    out : study directory
+    case : a case of its grid
+
+    Returns
+    -------
+    ``out/cases/<key>.json``, or, in a study written before the length was part of :attr:`Case.key`, the file named
+    by :attr:`Case.key_without_length` when the length it records is the case's (a case of another length has not
+    finished: it runs anew, and the old file stays).
+    """
+    path = out / "cases" / f"{case.key}.json"
+    if path.exists():
+        return path
+    old = out / "cases" / f"{case.key_without_length}.json"
+    if old.exists():
+        rec = json.loads(old.read_text(encoding="utf-8"))["case"]
+        if (rec["steps"], rec["t_end"]) == (case.steps, case.t_end):
+            return old
+    return None
 
 
 def parse_tau(spec: str, h: float) -> float:
@@ -128,7 +165,14 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
 def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str, list[Any]] | None = None,
               params: dict[str, Any] | None = None, steps: int | None = None,
               t_end: float | None = None, options: dict[str, Any] | None = None) -> list[Case]:
-    """All cases of a study (solver x tau x grid values), checked before anything runs."""
+    """All cases of a study (solver x tau x grid values), checked before anything runs.
+
+    Raises
+    ------
+    StudyError
+        an unknown solver, a solver option it does not take, no solver or no tau, a tau that is not a positive number
+        or multiple of h, or a parameter both in ``grid`` and ``params``.
+    """
     from willmore_nlp import registry
     from willmore_nlp.settings import FlowSettings
     from willmore_nlp.solvers import solver_names, solver_settings
@@ -148,11 +192,46 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
     for t in taus:
         parse_tau(t, 1.0)
     grid = grid or {}
+    both = sorted(set(grid) & set(params or {}))
+    if both:  # (the grid's values replaced the fixed one silently)
+        raise StudyError(f"--grid and --set both give {', '.join(both)}: a parameter is either varied (--grid) or "
+                         "fixed (--set), not both")
     combos: list[dict[str, Any]] = [dict(params or {})]
     for k, vals in grid.items():
         combos = [{**c, k: v} for c in combos for v in vals]
     return [Case(problem, s, str(t), c, steps, t_end, dict(options or {})) for c in combos for s in solvers
             for t in taus]
+
+
+def check_cases(cases: list[Case]) -> None:
+    """Build the flow of every case as :func:`run_case` does, without a step, so that a case that can never run is
+    refused before a study writes anything (as ``willmore-nlp run`` refuses it).
+
+    One flow per solver and parameter set: the step size does not change what can run (:func:`make_grid` has checked
+    it). A flow that fails later, in a step, is the study's to record (:func:`run_case`).
+
+    Parameters
+    ----------
+    cases : from :func:`make_grid`
+
+    Raises
+    ------
+    StudyError
+        naming the first case that cannot run and why (``--solvers semi-implicit --option volume=initial``: the
+        solver has no outer equality constraints).
+    """
+    from willmore_nlp import registry
+
+    built: list[tuple[str, dict[str, Any]]] = []
+    for case in cases:
+        if (case.solver, case.params) in built:
+            continue
+        built.append((case.solver, case.params))
+        try:
+            pb, _ = registry.build(case.problem, **case.params)
+            pb.make_flow(tau=parse_tau(case.tau, pb.mesh.h), **case.options, solver=case.solver)
+        except UserInputError as exc:
+            raise StudyError(f"case {_label({'case': asdict(case)})}: {exc}") from exc
 
 
 PATH_OPTIONS = {"tangential_weight", "remesh_repair", "conformal_gauge"}
@@ -226,7 +305,7 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
             for r in rows:
                 print(f"Surface Evolver reference {r['params'] or ''}: "
                       f"{r.get('skipped') or format(r['final'], '.6g')}", file=sys.stderr)
-    todo = [c for c in cases if not (out / "cases" / f"{c.key}.json").exists()]
+    todo = [c for c in cases if case_file(out, c) is None]
     if progress:
         print(f"study {out}: {len(cases)} cases, {len(cases) - len(todo)} already finished", file=sys.stderr)
     if todo:
@@ -260,8 +339,8 @@ def _load(out: Path) -> list[dict[str, Any]]:
     spec = json.loads((out / STUDY_FILE).read_text(encoding="utf-8"))
     recs = []
     for c in spec["cases"]:
-        path = out / "cases" / f"{Case(**c).key}.json"
-        if path.exists():
+        path = case_file(out, Case(**c))
+        if path is not None:
             recs.append(json.loads(path.read_text(encoding="utf-8")))
     return recs
 
@@ -373,7 +452,8 @@ def _figures(recs: list[dict[str, Any]], stable: dict[tuple[str, float], float],
             ax.plot([r["t"] for r in rec["rows"]], [r["energy"] for r in rec["rows"]], "o-", ms=2, label=_label(rec))
     ax.set_xlabel("t")
     ax.set_ylabel("discrete energy")
-    ax.legend(fontsize=6)
+    if ax.lines:  # (no case with a state: matplotlib warns of a legend without artists)
+        ax.legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(figs / "energy.png", dpi=90)
     fig = Figure(figsize=(9, 3.6))

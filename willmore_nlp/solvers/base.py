@@ -101,13 +101,16 @@ def check_solver(name: str, problem: Any, options: dict[str, Any] | None = None)
     Raises
     ------
     UserInputError
-        An unknown solver or option, or a problem term the solver cannot handle (``solver NAME: ... has no ...``).
+        An unknown solver or option, or a problem term the solver cannot handle (``solver NAME: ... has no ...``,
+        how to leave the term out and the solvers that can handle it).
     """
     settings = solver_settings(name).from_options(dict(options or {}))
     capabilities, noun = _CAPABILITIES[name]
     for cap, term in problem.requires().items():
         if cap not in capabilities:
-            raise UserInputError(f"solver {name}: {noun} has no {term.label} ({_WHY[cap]}); {term.hint}")
+            able = ", ".join(n for n in solver_names() if cap in _CAPABILITIES[n][0])
+            parts = [f"solver {name}: {noun} has no {term.label} ({_WHY[cap]})", term.hint, f"solvers that can: {able}"]
+            raise UserInputError("; ".join(p for p in parts if p))  # (a user's term has no hint)
     return settings
 
 

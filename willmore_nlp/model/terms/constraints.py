@@ -45,7 +45,7 @@ class VolumeConstraint(_Constraint):
     name = "vol"
     label = "volume constraint"
     moebius_invariant = True
-    hint = "use volume=None"
+    hint = "leave volume out (no --set/--option volume or config key; volume=None in Python)"
     what = "volume"
     scalars = ("volume0",)
     constraint_targets = ("volume0",)
@@ -69,7 +69,7 @@ class AreaConstraint(_Constraint):
     name = "are"
     label = "area constraint"
     moebius_invariant = True
-    hint = "use area=None"
+    hint = "leave area out (no --set/--option area or config key; area=None in Python)"
     what = "area"
     scalars = ("area0",)
     constraint_targets = ("area0",)
