@@ -341,6 +341,30 @@ def check_new_run_dir(d: Path, *, keep_foreign: bool = False) -> None:
                        f"another --out")
 
 
+def run_record(path: str | os.PathLike[str]) -> Path | None:
+    """The run directory whose record ``path`` is part of, else None.
+
+    The record of a run directory (a folder holding config.json, as for :func:`check_new_run_dir`) is the directory
+    itself, its :data:`RUN_FILES` and its ``states/`` folder with everything in it; other paths in it, e.g.
+    ``RUN/vtk`` or ``RUN/final.obj``, are not (``export`` writes there). Symbolic links and ``..`` are resolved.
+
+    Parameters
+    ----------
+    path : a file or folder, existing or not
+
+    Returns
+    -------
+    the run directory, or None when ``path`` is not part of a run's record
+    """
+    p = Path(path).resolve()
+    if (p / "config.json").is_file():
+        return p
+    if p.name in RUN_FILES and (p.parent / "config.json").is_file():
+        return p.parent
+    return next((a.parent for a in (p, *p.parents) if a.name == "states" and (a.parent / "config.json").is_file()),
+                None)
+
+
 def clear_run_dir(d: Path) -> list[Path]:
     """Delete the files the program wrote in the run directory ``d`` (for ``run --overwrite``).
 
