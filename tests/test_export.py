@@ -169,3 +169,26 @@ def test_export_replaces_nothing_unless_asked_and_never_a_runs_record(tmp_path, 
         2, f"willmore-nlp: error: --out {others}: folder is not empty and holds no earlier export (no run.pvd), so "
            "even --overwrite does not write into it; choose a new or empty folder")
     assert [p.name for p in others.iterdir()] == ["run.txt"]
+
+
+def test_a_state_in_a_format_of_the_other_kind_names_the_formats_it_has(tmp_path, capsys) -> None:
+    """Found by a new-user check (2026-12-01): ``export CURVE_RUN --out c.obj`` said only ".obj holds triangle
+    surfaces only", not what a curve exports to. The line now names the curve formats (text curves and npz), and a
+    surface to a text curve names the surface formats; exit 2 and nothing written."""
+    from willmore_nlp import cli
+
+    curve, surface = tmp_path / "curve", tmp_path / "surface"
+    assert cli.main(["run", "circle", "--set", "n=12", "--out", str(curve), "--steps", "1", "--quiet"]) == 0
+    assert cli.main(["run", "sphere", "--set", "subdivisions=1", "--out", str(surface), "--steps", "1",
+                     "--quiet"]) == 0
+    capsys.readouterr()
+    for run_dir, name, text in (
+            (curve, "c.obj", ".obj holds triangle surfaces only; a curve is written as .txt, .curve, .xy, .xyz (a text "
+                             "curve) or .npz"),
+            (curve, "c.stl", ".stl holds triangle surfaces only; a curve is written as .txt, .curve, .xy, .xyz (a text "
+                             "curve) or .npz"),
+            (surface, "s.txt", "the text curve format holds curves only; a surface is written as .obj, .ply, .off, "
+                               ".stl or .npz")):
+        assert cli.main(["export", str(run_dir), "--out", str(tmp_path / name)]) == 2
+        assert capsys.readouterr().err.strip() == f"willmore-nlp: error: {tmp_path / name}: {text}"
+        assert not (tmp_path / name).exists()

@@ -220,11 +220,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_cache)
 
     e = sub.add_parser("export", help="export a run as VTU files + a PVD time index (ParaView), or one state as a "
-                                      "mesh file (OBJ, OFF, PLY, STL, npz)")
+                                      "mesh file (a surface: OBJ, OFF, PLY, STL, npz; a curve: text, npz)")
     e.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
     e.add_argument("--out", required=True, help="output directory (a name without a suffix) for the .vtu files and "
-                                                "run.pvd, or a mesh file (.obj, .off, .ply, .stl, .npz; a curve's "
-                                                ".txt) for one state")
+                                                "run.pvd, or a mesh file for one state (a surface: .obj, .off, .ply, "
+                                                ".stl, .npz; a curve: .txt, .curve, .xy, .xyz, .npz)")
     e.add_argument("--step", type=int, help="with a mesh file: the step whose state is written (default the last)")
     e.add_argument("--overwrite", action="store_true", help="replace an existing mesh file; for a folder, replace "
                    "the run.pvd and state_*.vtu files of an earlier export there (deleting the state files its run.pvd "
