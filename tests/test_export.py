@@ -13,6 +13,7 @@ from willmore_nlp import load_run
 from willmore_nlp.export import vertex_normals
 from willmore_nlp.geometry import mean_curvature_vector
 from willmore_nlp.mesh import shapes
+from willmore_nlp.mesh.io import load_mesh
 
 
 @pytest.mark.parametrize(("problem", "sets"), [("circle", ["n=16"]), ("sphere", ["subdivisions=1"])])
@@ -58,8 +59,6 @@ def test_one_state_exports_to_a_mesh_file(tmp_path) -> None:
     ``--step`` names another (found by a new-user check: ``--out x.obj`` made a folder named x.obj holding VTU files).
     OBJ, npz and the text curve read back bit for bit; a step the run does not have, or --step with a folder, is one
     line and exit 2."""
-    from willmore_nlp.mesh.io import load_mesh
-
     cli = [sys.executable, "-m", "willmore_nlp.cli"]
     for problem, sets, files in (("sphere", ["subdivisions=1"], ("s.obj", "s.npz", "s.ply")),
                                  ("circle", ["n=16"], ("c.txt",))):
@@ -109,3 +108,87 @@ def test_export_to_a_suffix_that_is_no_mesh_format_is_refused(tmp_path, capsys) 
     for name in ("vtk", "vtk_h0.5", "made.d"):
         assert cli.main(["export", str(run_dir), "--out", str(tmp_path / name)]) == 0
         assert (tmp_path / name / "run.pvd").is_file()
+
+
+def test_export_replaces_nothing_unless_asked_and_never_a_runs_record(tmp_path, capsys) -> None:
+    """Found by a new-user check (2026-12-01): ``export RUN --out FILE`` replaced any existing file (a user's
+    precious.obj, another run's states/state_000001.npz), and the folder export wrote into any folder (replacing
+    another export's run.pvd and leaving its later state_*.vtu beside the new ones). An existing file, or a folder that
+    is not empty, is now one line and exit 2 naming it and --overwrite; --overwrite replaces a file, and in a folder
+    only an earlier export (its run.pvd and the state_*.vtu its run.pvd lists, other files staying); a run's own
+    files, its states/ folder and the run directory itself are refused even with --overwrite."""
+    from willmore_nlp import cli
+
+    long_run, short = tmp_path / "long", tmp_path / "short"
+    assert cli.main(["run", "circle", "--set", "n=12", "--out", str(long_run), "--steps", "4", "--quiet"]) == 0
+    assert cli.main(["run", "circle", "--set", "n=12", "--out", str(short), "--steps", "1", "--quiet"]) == 0
+    capsys.readouterr()
+
+    def export(*argv: str) -> tuple[int, str]:
+        rc = cli.main(["export", *argv])
+        return rc, capsys.readouterr().err.strip()
+
+    mine = tmp_path / "precious.txt"
+    mine.write_text("mine\n")
+    assert export(str(short), "--out", str(mine)) == (
+        2, f"willmore-nlp: error: --out {mine}: exists; --overwrite replaces it, or choose another name")
+    assert mine.read_text() == "mine\n"
+    assert export(str(short), "--out", str(mine), "--overwrite") == (0, "")
+    np.testing.assert_array_equal(load_mesh(mine).vertices, load_run(short).states[-1].vertices)
+
+    record = {p: p.read_bytes() for p in long_run.rglob("*") if p.is_file()}
+    for out, overwrite in ((long_run / "states" / "state_000001.npz", True), (long_run / "states" / "state_000009.npz",
+                           False), (long_run / "mesh.npz", True), (long_run / "solver_state.npz", False),
+                           (long_run / "states", True), (long_run, True), (long_run / "states" / "vtk", False),
+                           (long_run / "states" / ".." / "states" / "x.txt", False)):
+        rc, err = export(str(short), "--out", str(out), *(["--overwrite"] if overwrite else []))
+        assert rc == 2 and err.startswith(f"willmore-nlp: error: --out {out}: is part of the run directory "
+                                          f"{long_run} (its record of the run, which export never writes, even with "
+                                          "--overwrite)") and "\n" not in err, err
+    assert {p: p.read_bytes() for p in long_run.rglob("*") if p.is_file()} == record
+    assert export(str(short), "--out", str(long_run / "final.txt"))[0] == 0  # beside the record: allowed
+
+    vtk = tmp_path / "vtk"
+    assert export(str(long_run), "--out", str(vtk)) == (0, "")
+    (vtk / "notes.txt").write_text("mine")
+    (vtk / "state_000099.vtu").write_text("mine, not listed in run.pvd")
+    before = {p.name: p.read_bytes() for p in vtk.iterdir()}
+    assert export(str(short), "--out", str(vtk)) == (
+        2, f"willmore-nlp: error: --out {vtk}: folder exists and is not empty; --overwrite replaces the run.pvd and "
+           "state_*.vtu files of an earlier export there (other files stay), or choose another --out")
+    assert {p.name: p.read_bytes() for p in vtk.iterdir()} == before
+    assert export(str(short), "--out", str(vtk), "--overwrite") == (0, "")
+    assert sorted(p.name for p in vtk.iterdir()) == ["notes.txt", "run.pvd", "state_000000.vtu", "state_000001.vtu",
+                                                     "state_000099.vtu"]
+    assert [ds.get("file") for ds in ET.parse(vtk / "run.pvd").getroot().iter("DataSet")] == [
+        "state_000000.vtu", "state_000001.vtu"]
+    others = tmp_path / "others"
+    others.mkdir()
+    (others / "run.txt").write_text("mine")
+    assert export(str(short), "--out", str(others), "--overwrite") == (
+        2, f"willmore-nlp: error: --out {others}: folder is not empty and holds no earlier export (no run.pvd), so "
+           "even --overwrite does not write into it; choose a new or empty folder")
+    assert [p.name for p in others.iterdir()] == ["run.txt"]
+
+
+def test_a_state_in_a_format_of_the_other_kind_names_the_formats_it_has(tmp_path, capsys) -> None:
+    """Found by a new-user check (2026-12-01): ``export CURVE_RUN --out c.obj`` said only ".obj holds triangle
+    surfaces only", not what a curve exports to. The line now names the curve formats (text curves and npz), and a
+    surface to a text curve names the surface formats; exit 2 and nothing written."""
+    from willmore_nlp import cli
+
+    curve, surface = tmp_path / "curve", tmp_path / "surface"
+    assert cli.main(["run", "circle", "--set", "n=12", "--out", str(curve), "--steps", "1", "--quiet"]) == 0
+    assert cli.main(["run", "sphere", "--set", "subdivisions=1", "--out", str(surface), "--steps", "1",
+                     "--quiet"]) == 0
+    capsys.readouterr()
+    for run_dir, name, text in (
+            (curve, "c.obj", ".obj holds triangle surfaces only; a curve is written as .txt, .curve, .xy, .xyz (a text "
+                             "curve) or .npz"),
+            (curve, "c.stl", ".stl holds triangle surfaces only; a curve is written as .txt, .curve, .xy, .xyz (a text "
+                             "curve) or .npz"),
+            (surface, "s.txt", "the text curve format holds curves only; a surface is written as .obj, .ply, .off, "
+                               ".stl or .npz")):
+        assert cli.main(["export", str(run_dir), "--out", str(tmp_path / name)]) == 2
+        assert capsys.readouterr().err.strip() == f"willmore-nlp: error: {tmp_path / name}: {text}"
+        assert not (tmp_path / name).exists()

@@ -211,17 +211,17 @@ def test_sigkill_with_write_debris_then_resume_is_bit_identical(tmp_path: Path, 
     (sdir / f".state_{k + 1:06d}.npz.x7f3q.npz").write_bytes(b"PK\x03\x04 partial")  # stray temporary file
     (out / ".history.csv.abc12.csv").write_text("step,t\n")
     good = (sdir / f"state_{k:06d}.npz").read_bytes()
-    (sdir / f"state_{k + 1:06d}.npz").write_bytes(good[: len(good) // 2])  # truncated state
-    (sdir / f"state_{k + 2:06d}.npz").write_bytes(good)  # a state after the damaged one
+    (sdir / f"state_{k + 1:06d}.npz").write_bytes(good[: len(good) // 2])  # truncated last state
     with open(out / "history.csv", "a") as fh:
         fh.write(f"{k + 1},0.5,0.0")  # partial last line
     run = load_run(out)
-    assert len(run.states) == k + 1  # the damaged state and what follows are not trusted
-    assert len(run.ignored) == left + 4 and sorted(h["step"] for h in run.history) == list(range(k + 1))
+    assert len(run.states) == k + 1  # the truncated state is not trusted
+    assert len(run.ignored) == left + 3 and sorted(h["step"] for h in run.history) == list(range(k + 1))
     r = run_cli("run", "--resume", out, "--quiet")
     assert r.returncode == 0, r.stderr
     notes = [ln for ln in r.stderr.splitlines() if ln.startswith("willmore-nlp: note: removed")]
-    assert len(notes) == left + 4 and any("unreadable state" in n for n in notes), r.stderr
+    assert len(notes) == left + 3 and any("unreadable state" in n and "a write cut short" in n for n in notes), \
+        r.stderr
     assert_same_run(reference, out)
     sessions = json.loads((out / "status.json").read_text())["sessions"]
     assert [s["state"] for s in sessions] == ["died (no clean exit)", "completed"]
@@ -512,6 +512,58 @@ def test_resume_and_overwrite_keep_user_files_and_leave_no_lock(tmp_path: Path,
     run = load_run(out)
     assert len(run.states) == 4 and run.config["steps"] == 3 and not (out / "run.lock").exists()
     assert json.loads((out / "status.json").read_text())["sessions"][0]["from_step"] == 0
+
+
+def test_resume_never_deletes_finished_states_after_one_that_is_not_the_runs(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Found by a new-user check (2026-12-01): after ``export OTHER --out RUN/states/state_000001.npz`` replaced a
+    state of a 60-step run, ``run --resume RUN --steps 61`` exited 0 after printing 60 notes ``removed
+    .../state_0000NN.npz (after the damaged state 1)``: the finished states were deleted and the run started again from
+    step 0. A state file that is no write of the run cut short (a mesh file or another run's state in its place, an
+    unreadable one with states after it, a gap) is now refused: one line, exit 2, naming the file, the later states
+    and what to do, and the directory unchanged; moving the file and the later states out lets the resume go on from
+    the states before them. An unreadable last state is still removed (tests/test_reliability.py, kill -9 debris)."""
+    out, other = tmp_path / "run", tmp_path / "other"
+    assert cli.main(["run", "circle", "--set", "n=12", "--out", str(out), "--steps", "6", "--quiet"]) == 0
+    assert cli.main(["run", "circle", "--set", "n=16", "--out", str(other), "--steps", "1", "--quiet"]) == 0
+    capsys.readouterr()
+    sdir = out / "states"
+    first = sdir / "state_000001.npz"
+    own = first.read_bytes()
+    save_mesh(shapes.icosphere(1), tmp_path / "sphere.npz")  # what 'export SPHERE_RUN --out X.npz' writes
+
+    def refused(state: Path, text: str) -> str:
+        before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+        assert cli.main(["run", "--resume", str(out), "--steps", "7", "--quiet"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and err.startswith(f"willmore-nlp: error: {out}: cannot resume: ") and text in err
+        assert err.endswith(f"then resume again (from step {int(state.stem[6:]) - 1}); nothing was changed"), err
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+        return err
+
+    later = "and 5 later state files follow it (finished work); the program deletes only writes of this run cut short"
+    for data, why in (((tmp_path / "sphere.npz").read_bytes(), "not a state of a run (KeyError: 'Y"),
+                      ((other / "states" / "state_000001.npz").read_bytes(),
+                       "vertices have shape (16, 2), the mesh has (12, 2)"),
+                      (own[: len(own) // 2], "unreadable state")):
+        first.write_bytes(data)
+        err = refused(first, f"{first}: {why}")
+        assert later in err and f"put the run's own state_000001.npz back, or move it and the later states out of " \
+                                f"{sdir}" in err
+    first.unlink()
+    refused(first, f"state 1 is missing from {sdir} but 5 later state files are there (finished work")
+    last = sdir / "state_000006.npz"
+    first.write_bytes(own)
+    kept = last.read_bytes()
+    last.write_bytes((tmp_path / "sphere.npz").read_bytes())  # a readable foreign last state: not cut short either
+    assert "follow it" not in refused(last, f"put the run's own state_000006.npz back, or move it out of {sdir}")
+    last.write_bytes(kept)
+    assert cli.main(["run", "--resume", str(out), "--steps", "7", "--quiet"]) == 0
+    assert len(load_run(out).states) == 8 and "note:" not in capsys.readouterr().err
+    for k in range(2, 8):  # moved out: the resume continues from state 1
+        (sdir / f"state_{k:06d}.npz").rename(tmp_path / f"state_{k:06d}.npz")
+    assert cli.main(["run", "--resume", str(out), "--steps", "7", "--quiet"]) == 0
+    assert len(load_run(out).states) == 8 and "note:" not in capsys.readouterr().err
 
 
 def test_run_files_respect_the_umask(tmp_path: Path) -> None:

@@ -113,7 +113,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     suffix = Path(args.out).suffix.lower()
     formats = ", ".join(MESH_FILE_FORMATS)
     if suffix in MESH_FILE_FORMATS:
-        path, step = export_state(args.run_dir, args.out, args.step)
+        path, step = export_state(args.run_dir, args.out, args.step, overwrite=args.overwrite)
         print(f"wrote {path} (step {step})")
         return 0
     # any other file suffix is refused (--out x.csv made a folder x.csv); a folder may still end in a number
@@ -124,7 +124,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.step is not None:
         raise UserInputError(f"--step {args.step}: one state is exported to a mesh file (--out NAME with one of "
                              f"{formats}); the folder export writes every state")
-    pvd = export_run(args.run_dir, args.out)
+    pvd = export_run(args.run_dir, args.out, overwrite=args.overwrite)
     print(f"wrote {pvd}")
     return 0
 
@@ -221,12 +221,16 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_cache)
 
     e = sub.add_parser("export", help="export a run as VTU files + a PVD time index (ParaView), or one state as a "
-                                      "mesh file (OBJ, OFF, PLY, STL, npz)")
+                                      "mesh file (a surface: OBJ, OFF, PLY, STL, npz; a curve: text, npz)")
     e.add_argument("run_dir", help="run directory written by 'willmore-nlp run'")
     e.add_argument("--out", required=True, help="output directory (a name without a suffix) for the .vtu files and "
-                                                "run.pvd, or a mesh file (.obj, .off, .ply, .stl, .npz; a curve's "
-                                                ".txt) for one state")
+                                                "run.pvd, or a mesh file for one state (a surface: .obj, .off, .ply, "
+                                                ".stl, .npz; a curve: .txt, .curve, .xy, .xyz, .npz)")
     e.add_argument("--step", type=int, help="with a mesh file: the step whose state is written (default the last)")
+    e.add_argument("--overwrite", action="store_true", help="replace an existing mesh file; for a folder, replace "
+                   "the run.pvd and state_*.vtu files of an earlier export there (deleting the state files its run.pvd "
+                   "lists that the new export does not write; other files stay). A run's own files and states/ "
+                   "folder are never written")
     e.set_defaults(func=cmd_export)
 
     rp = sub.add_parser("report", help="write a report (Markdown, HTML, PNG figures) of a run or study directory")

@@ -15,22 +15,36 @@ grid of lines (curves) or triangles (surfaces), 3-D points (curves in R^2 get z 
 The .pvd index (a small VTK XML file listing the .vtu files with their times) is written with the
 standard library's XML writer. :func:`export_state` writes one state as a mesh file instead (OBJ, OFF, PLY, STL,
 npz or a text curve), for other tools.
+
+Neither replaces a file unless asked to (``overwrite``): a mesh file that exists, or a folder that is not empty, is
+refused. With ``overwrite`` a mesh file is replaced, and in a folder only what an earlier export wrote there:
+run.pvd and the state_KKKKKK.vtu files, those the new export does not write again being deleted when the old run.pvd
+lists them; any other file stays. A run's own record (the run directory, its config.json, mesh.npz, history.csv,
+status.json, solver_state.npz and its ``states/`` folder: :func:`willmore_nlp.rundir.run_record`) is never written.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import meshio
 import numpy as np
 
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.flow import NEW_VERTICES
 from willmore_nlp.geometry import mean_curvature_vector, vertex_normals
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.mesh.io import CURVE_FORMATS, SURFACE_FORMATS, atomic_write, save_mesh
-from willmore_nlp.rundir import load_run
+from willmore_nlp.rundir import RunError, load_run, run_record
+
+PVD = "run.pvd"
+"""The time index of a folder export."""
+
+VTU_RE = re.compile(r"^state_\d{6,}\.vtu$")
+"""File names of the states of a folder export."""
 
 
 def _points3(V: np.ndarray) -> np.ndarray:
@@ -57,14 +71,79 @@ def state_mesh(mesh: Mesh, Y: np.ndarray, prev: np.ndarray | None, dt: float) ->
     )
 
 
-def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> Path:
-    """Write ``out/state_KKKKKK.vtu`` for every state of a run and ``out/run.pvd``; returns the .pvd path."""
+def check_target(out: str | os.PathLike[str], *, folder: bool, overwrite: bool) -> None:
+    """Refuse an export target that would replace what export may not (see the module docstring).
+
+    Parameters
+    ----------
+    out : the mesh file (``folder`` False) or the folder of the VTU files and run.pvd (``folder`` True)
+    folder : whether ``out`` is a folder export's
+    overwrite : replace an existing mesh file, or the run.pvd and state_KKKKKK.vtu of an earlier export in the folder
+
+    Raises
+    ------
+    UserInputError
+        ``out`` is part of a run's record (also with ``overwrite``); is a folder where a mesh file is asked for;
+        exists (a file), or is a folder that is not empty, without ``overwrite``; or, with ``overwrite``, is a
+        non-empty folder holding no earlier export (no run.pvd). The message names ``out``.
+    """
+    p = Path(out)
+    run = run_record(p)
+    if run is not None:
+        example = run / ("vtk" if folder else f"final{p.suffix}")
+        raise UserInputError(f"--out {p}: is part of the run directory {run} (its record of the run, which export "
+                             f"never writes, even with --overwrite); choose another path, e.g. {example}")
+    if folder:
+        if not (p.is_dir() and any(p.iterdir())):
+            return
+        if not overwrite:
+            raise UserInputError(f"--out {p}: folder exists and is not empty; --overwrite replaces the {PVD} and "
+                                 "state_*.vtu files of an earlier export there (other files stay), or choose another "
+                                 "--out")
+        if not (p / PVD).is_file():
+            raise UserInputError(f"--out {p}: folder is not empty and holds no earlier export (no {PVD}), so even "
+                                 "--overwrite does not write into it; choose a new or empty folder")
+    elif p.is_dir():
+        raise UserInputError(f"--out {p}: is a folder, not a mesh file; choose another name")
+    elif p.exists() and not overwrite:
+        raise UserInputError(f"--out {p}: exists; --overwrite replaces it, or choose another name")
+
+
+def _listed_states(pvd: Path) -> set[str]:
+    """The state_KKKKKK.vtu names that the run.pvd ``pvd`` lists (none when it is missing or not a .pvd)."""
+    try:
+        root = ET.parse(pvd).getroot()
+    except (OSError, ET.ParseError):
+        return set()
+    return {name for ds in root.iter("DataSet") if VTU_RE.match(name := ds.get("file") or "")}
+
+
+def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str], overwrite: bool = False) -> Path:
+    """Write ``out/state_KKKKKK.vtu`` for every state of a run and ``out/run.pvd``; returns the .pvd path.
+
+    Parameters
+    ----------
+    run_dir : the run directory
+    out : the folder to write: new or empty, or with ``overwrite`` one holding an earlier export (see the module
+        docstring; :func:`check_target`)
+    overwrite : replace the earlier export's run.pvd and state files, deleting those of its states that the new
+        export does not write (those its run.pvd lists)
+
+    Raises
+    ------
+    UserInputError
+        ``out`` refused by :func:`check_target`, or ``run_dir`` not a readable run directory.
+    """
+    check_target(out, folder=True, overwrite=overwrite)
     run = load_run(run_dir)
     d = Path(out)
+    pvd = d / PVD
+    earlier = _listed_states(pvd)
     d.mkdir(parents=True, exist_ok=True)
     root = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
     coll = ET.SubElement(root, "Collection")
     prev, t_prev = None, 0.0
+    written: set[str] = set()
     for row, mesh, Y, t in zip(run.history, run.states, run.Y, run.times, strict=True):
         action = str(row.get("remesh_action") or "")
         if int(row.get("remeshed") or 0) and (not action or NEW_VERTICES & set(action.split("+"))):
@@ -73,10 +152,12 @@ def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str]) -> 
         m = state_mesh(mesh, Y, prev, float(t) - t_prev)
         atomic_write(d / name, lambda p, m=m: meshio.write(p, m, file_format="vtu"))
         ET.SubElement(coll, "DataSet", timestep=repr(float(t)), group="", part="0", file=name)
+        written.add(name)
         prev, t_prev = mesh.vertices, float(t)
-    pvd = d / "run.pvd"
     ET.indent(root)
     atomic_write(pvd, lambda p: ET.ElementTree(root).write(p, xml_declaration=True, encoding="utf-8"))
+    for name in sorted(earlier - written):  # the earlier export's states that this one has not (a longer run's)
+        (d / name).unlink(missing_ok=True)
     return pvd
 
 
@@ -86,18 +167,27 @@ is a folder (the command line refuses any other suffix, e.g. ``--out x.csv``, wh
 
 
 def export_state(run_dir: str | os.PathLike[str], out: str | os.PathLike[str],
-                 step: int | None = None) -> tuple[Path, int]:
+                 step: int | None = None, overwrite: bool = False) -> tuple[Path, int]:
     """Write the state of step ``step`` of a run (default: its last state) as the mesh file ``out``, its format
     from the suffix (:func:`willmore_nlp.mesh.io.save_mesh`: OBJ, OFF, npz and text curves round-trip exactly);
     returns ``out`` and the step written. A state after a remeshing is written with its own connectivity.
+
+    Parameters
+    ----------
+    run_dir : the run directory
+    out : the mesh file to write (an existing one only with ``overwrite``; never a run's own file:
+        :func:`check_target`)
+    step : the step whose state is written (default the last)
+    overwrite : replace ``out`` if it exists
 
     Raises
     ------
     RunError
         No state of that step in the run (the message names the steps there are).
+    UserInputError
+        ``out`` refused by :func:`check_target`.
     """
-    from willmore_nlp.rundir import RunError
-
+    check_target(out, folder=False, overwrite=overwrite)
     run = load_run(run_dir)
     steps = [int(r["step"]) for r in run.history]
     k = len(steps) - 1 if step is None else next((i for i, s in enumerate(steps) if s == step), None)

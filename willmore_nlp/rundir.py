@@ -21,7 +21,11 @@ old or the new version of a file, plus perhaps a stray temporary file. The state
 record: each holds its own history row, and history.csv (appended one line per state, since
 rewriting it would cost O(steps) per step) is rebuilt from them when a run is resumed. A reader
 (:func:`load_run`, :meth:`RunWriter.resume`) trusts the states ``0, 1, ..., k`` that load and
-match the mesh, stopping at the first gap or damaged file, and ignores temporary files.
+match the mesh, stopping at the first gap or untrusted file, and ignores temporary files. A resume
+deletes only what a write cut short leaves (temporary files and an unreadable last state) and
+refuses to go on while other state files are untrusted: a state file put in place of one (say,
+another run's) with the run's finished states after it is no write of the program, and deleting
+those states would lose finished work (:func:`scan_states`).
 """
 
 from __future__ import annotations
@@ -61,6 +65,14 @@ files; only these, the state files and :data:`RUN_FILES` are ever deleted from a
 
 class RunError(UserInputError):
     """A run directory is missing, incomplete or inconsistent."""
+
+
+class UnreadableStateError(RunError):
+    """A state file that cannot be read as an npz archive (what a write cut short may leave)."""
+
+
+ZIP_MAGIC = b"PK\x03\x04"
+"""The first bytes of an npz file (a zip archive)."""
 
 
 def write_text_atomic(path: Path, text: str) -> None:
@@ -183,19 +195,31 @@ def read_history_csv(path: Path) -> dict[int, dict[str, Any]]:
 
 
 def _load_state(f: Path, step: int, shape: tuple[int, ...]) -> Checkpoint:
-    """Read and check one state file; RunError when it cannot be trusted."""
+    """Read and check one state file.
+
+    Raises
+    ------
+    UnreadableStateError
+        The file is no readable npz archive.
+    RunError
+        It is one, but not a state of step ``step`` of this run (keys, shapes, step, values).
+    """
     try:
         with np.load(f, allow_pickle=False) as s:
-            V = np.array(s["vertices"], dtype=float)
-            Y = np.array(s["Y"], dtype=float)
-            t = float(s["t"])
-            k = int(s["step"])
-            lam_g = np.array(s["lam_g"], dtype=float) if "lam_g" in s.files else None
-            row = json.loads(str(s["row"])) if "row" in s.files else None
-            S = np.array(s["simplices"], dtype=np.int64) if "simplices" in s.files else None
-            free = np.array(s["free"], dtype=bool) if "free" in s.files else None
+            a = {name: s[name] for name in s.files}
     except Exception as exc:  # np.load/zipfile raise many types for damaged archives
-        raise RunError(f"{f}: unreadable state ({type(exc).__name__}: {exc})") from exc
+        raise UnreadableStateError(f"{f}: unreadable state ({type(exc).__name__}: {exc})") from exc
+    try:
+        V = np.array(a["vertices"], dtype=float)
+        Y = np.array(a["Y"], dtype=float)
+        t = float(a["t"])
+        k = int(a["step"])
+        lam_g = np.array(a["lam_g"], dtype=float) if "lam_g" in a else None
+        row = json.loads(str(a["row"])) if "row" in a else None
+        S = np.array(a["simplices"], dtype=np.int64) if "simplices" in a else None
+        free = np.array(a["free"], dtype=bool) if "free" in a else None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RunError(f"{f}: not a state of a run ({type(exc).__name__}: {exc})") from exc
     if k != step:
         raise RunError(f"{f}: holds step {k}, expected {step}")
     if S is not None:  # remeshed: its own connectivity
@@ -213,45 +237,67 @@ def _load_state(f: Path, step: int, shape: tuple[int, ...]) -> Checkpoint:
     return Checkpoint(k, t, V, Y, lam_g, row if isinstance(row, dict) else {}, S, free)
 
 
-def scan_states(run_dir: Path, shape: tuple[int, ...]) -> tuple[list[Checkpoint], list[tuple[Path, str]]]:
+def _cut_short(f: Path) -> bool:
+    """Whether the file ``f`` begins as the program's npz files do (or is empty, or begins with zeros, as a file
+    whose data a crash did not reach): an unreadable such file is a write cut short, not another program's file."""
+    with open(f, "rb") as fh:
+        head = fh.read(len(ZIP_MAGIC))
+    return ZIP_MAGIC.startswith(head) or not head.strip(b"\0")
+
+
+def scan_states(run_dir: Path, shape: tuple[int, ...]) -> tuple[list[Checkpoint], list[tuple[Path, str]],
+                                                                 list[tuple[Path, str]]]:
     """Trusted states 0..k of a run directory and the files that cannot be trusted.
 
     Returns
     -------
     trusted : list of Checkpoint, step 0 first, without gaps
-    untrusted : list of (file, reason): damaged states, states after a gap or a damaged one,
-        and stray temporary files left by a crash (all files the program wrote and recognises;
-        any other file, e.g. the user's notes, is neither listed nor ever removed)
+    cut_short : list of (file, reason): what a write cut short leaves and a resume deletes: stray temporary files,
+        and an unreadable state file (:func:`_cut_short`) that is the last one and follows the trusted states
+    other : list of (file, reason): the other untrusted state files (one that is unreadable and not the last, or
+        readable but not a state of this run, e.g. another run's put in its place, and every state file after a gap
+        or after such a file), which may be finished work: a resume refuses to go on while there are any
+
+    Notes
+    -----
+    Both lists hold only files the program writes and recognises by name; any other file, e.g. the user's notes, is
+    neither listed nor ever removed.
     """
     sdir = run_dir / "states"
     files: dict[int, Path] = {}
-    untrusted: list[tuple[Path, str]] = []
+    temporary: list[tuple[Path, str]] = []
     if sdir.is_dir():
         for f in sorted(sdir.iterdir()):
             m = STATE_RE.match(f.name)
             if m and f.is_file():
                 files[int(m[1])] = f
             elif TEMP_RE.match(f.name) and f.is_file():
-                untrusted.append((f, "temporary file left by an interrupted write"))
+                temporary.append((f, "temporary file left by an interrupted write"))
+    temporary += [(f, "temporary file left by an interrupted write") for f in sorted(run_dir.iterdir())
+                  if TEMP_RE.match(f.name) and f.is_file()]
     trusted: list[Checkpoint] = []
-    broken: str | None = None
+    cut_short: list[tuple[Path, str]] = []
+    other: list[tuple[Path, str]] = []
+    after: str | None = None
     for step in sorted(files):
         f = files[step]
-        if broken is None and step != len(trusted):
-            broken = f"after the missing state {len(trusted)}"
-        if broken is None:
+        if after is None and step != len(trusted):
+            after = f"after the missing state {len(trusted)}"
+        if after is None:
             try:
                 trusted.append(_load_state(f, step, shape))
-                continue
+            except UnreadableStateError as exc:
+                if step == max(files) and _cut_short(f):
+                    cut_short.append((f, f"{exc}: a write cut short"))
+                else:
+                    other.append((f, str(exc)))
+                    after = f"after the untrusted state {step}"
             except RunError as exc:
-                broken = f"after the damaged state {step}"
-                untrusted.append((f, str(exc)))
-                continue
-        untrusted.append((f, broken))
-    for f in sorted(run_dir.iterdir()):
-        if TEMP_RE.match(f.name) and f.is_file():
-            untrusted.append((f, "temporary file left by an interrupted write"))
-    return trusted, untrusted
+                other.append((f, str(exc)))
+                after = f"after the untrusted state {step}"
+            continue
+        other.append((f, after))
+    return trusted, cut_short + temporary, other
 
 
 def read_mesh_npz(d: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -341,6 +387,30 @@ def check_new_run_dir(d: Path, *, keep_foreign: bool = False) -> None:
                        f"another --out")
 
 
+def run_record(path: str | os.PathLike[str]) -> Path | None:
+    """The run directory whose record ``path`` is part of, else None.
+
+    The record of a run directory (a folder holding config.json, as for :func:`check_new_run_dir`) is the directory
+    itself, its :data:`RUN_FILES` and its ``states/`` folder with everything in it; other paths in it, e.g.
+    ``RUN/vtk`` or ``RUN/final.obj``, are not (``export`` writes there). Symbolic links and ``..`` are resolved.
+
+    Parameters
+    ----------
+    path : a file or folder, existing or not
+
+    Returns
+    -------
+    the run directory, or None when ``path`` is not part of a run's record
+    """
+    p = Path(path).resolve()
+    if (p / "config.json").is_file():
+        return p
+    if p.name in RUN_FILES and (p.parent / "config.json").is_file():
+        return p.parent
+    return next((a.parent for a in (p, *p.parents) if a.name == "states" and (a.parent / "config.json").is_file()),
+                None)
+
+
 def clear_run_dir(d: Path) -> list[Path]:
     """Delete the files the program wrote in the run directory ``d`` (for ``run --overwrite``).
 
@@ -368,6 +438,20 @@ def clear_run_dir(d: Path) -> list[Path]:
     finally:
         unlock_run_dir(d, lock)
     return removed
+
+
+def _refusal(d: Path, j: int, other: list[tuple[Path, str]]) -> str:
+    """The one-line refusal of a resume whose run directory ``d`` has the trusted states 0..j-1 and the untrusted
+    state files ``other`` (:func:`scan_states`) that are no write cut short."""
+    sdir, (f, why) = d / "states", other[0]
+    then = f"then resume again (from step {max(j - 1, 0)}); nothing was changed"
+    if f.name != f"state_{j:06d}.npz":
+        return (f"{d}: cannot resume: state {j} is missing from {sdir} but {len(other)} later state files are there "
+                f"(finished work, which the program does not delete); put state_{j:06d}.npz back, or move the later "
+                f"states out of {sdir}, {then}")
+    later = f", and {len(other) - 1} later state files follow it (finished work)" if len(other) > 1 else ""
+    return (f"{d}: cannot resume: {why}{later}; the program deletes only writes of this run cut short: put the "
+            f"run's own {f.name} back, or move it{' and the later states' if later else ''} out of {sdir}, {then}")
 
 
 class RunWriter:
@@ -403,9 +487,8 @@ class RunWriter:
         """Open an existing run directory to continue it.
 
         Trusts the states 0..k that load and match the mesh (see :func:`scan_states`),
-        deletes the untrusted files (damaged or stray temporary files, and states after
-        them, which the resumed run writes again), and rewrites history.csv from the
-        trusted states.
+        deletes what writes cut short left (stray temporary files, an unreadable last
+        state), and rewrites history.csv from the trusted states.
 
         Returns
         -------
@@ -413,15 +496,25 @@ class RunWriter:
         config : the stored configuration
         checkpoint : the last trusted state, or None when not even step 0 was written
         notes : one line per removed file
+
+        Raises
+        ------
+        RunError
+            Another process writes the directory, or a state file is untrusted and no write cut short (a gap in the
+            states, or a state file that is not the run's, with state files after it: finished work the program
+            does not delete); nothing is changed then, and the message says what the user can do.
         """
         d = Path(out)
         require_run_dir(d)
         config = read_config(d)
         V0, S0 = read_mesh_npz(d)
         lock = lock_run_dir(d)
-        trusted, untrusted = scan_states(d, V0.shape)
+        trusted, cut_short, other = scan_states(d, V0.shape)
+        if other:
+            unlock_run_dir(d, lock)
+            raise RunError(_refusal(d, len(trusted), other))
         notes = []
-        for f, why in untrusted:
+        for f, why in cut_short:
             if f.is_file():
                 f.unlink()
                 notes.append(f"removed {f} ({why})")
@@ -538,7 +631,8 @@ class Run:
     times : (len(states),) times of the states
     Y : list of (N, m) inner steps Y of the states
     status : content of status.json (empty for runs written before it existed)
-    ignored : files that were not trusted (damaged or temporary files, states after a gap)
+    ignored : files that were not trusted (unreadable or temporary files, states of another run, states after a
+        gap or after an untrusted one)
     """
 
     path: Path
@@ -566,7 +660,8 @@ def load_run(run_dir: str | os.PathLike[str]) -> Run:
     d = Path(run_dir)
     config = read_config(d)
     V0, simplices = read_mesh_npz(d)
-    trusted, untrusted = scan_states(d, V0.shape)
+    trusted, cut_short, other = scan_states(d, V0.shape)
+    untrusted = other + cut_short
     if not trusted:
         reason = f" ({untrusted[0][0]}: {untrusted[0][1]})" if untrusted else ""
         raise RunError(f"{d}: no readable state in {d / 'states'}{reason}")

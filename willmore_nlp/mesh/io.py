@@ -629,13 +629,15 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike[str]) -> None:
         atomic_write(p, w_npz)
     elif ext in CURVE_FORMATS:
         if mesh.d != 1:
-            raise MeshError(f"{p}: the text curve format holds curves only")
+            raise MeshError(f"{p}: the text curve format holds curves only; a surface is written as "
+                            f"{', '.join(SURFACE_FORMATS)} or .npz")
         order = _curve_order(mesh)
         header = "# willmore_nlp curve\n# " + ("closed" if mesh.is_closed else "open") + "\n"
         atomic_write(p, _text_writer(header + _fmt_rows(mesh.vertices[order])))
     elif ext in SURFACE_FORMATS:
         if mesh.d != 2:
-            raise MeshError(f"{p}: {ext} holds triangle surfaces only")
+            raise MeshError(f"{p}: {ext} holds triangle surfaces only; a curve is written as "
+                            f"{', '.join(CURVE_FORMATS)} (a text curve) or .npz")
         if ext == ".obj":
             text = ("# willmore_nlp\n" + _fmt_rows(mesh.vertices, "v ")
                     + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.simplices))
