@@ -136,8 +136,10 @@ def test_solver_options_are_the_solvers_own() -> None:
     """``armijo`` and ``cholesky`` are settable from a config, checked by the chosen solver only."""
     spec = resolve("circle", {"solver": "newton-krylov", "cholesky": "scipy", "armijo": "1e-3"})
     assert spec.flow_options == {"solver": "newton-krylov", "cholesky": "scipy", "armijo": 1e-3}
-    with pytest.raises(ConfigError, match="--set: solver sqp: unknown option\\(s\\) cholesky; known: tol, max_iter"):
+    with pytest.raises(ConfigError, match="--set: cholesky is an option of solver newton-krylov, not of sqp"):
         resolve("circle", {"solver": "sqp", "cholesky": "scipy"})
+    with pytest.raises(UserInputError, match="solver sqp: unknown option\\(s\\) cholesky_x; known: tol, max_iter"):
+        solver_settings("sqp").from_options({"cholesky_x": 1})
     with pytest.raises(ConfigError, match="solver newton-krylov: option cg_rebuild must be an integer >= 1, got 0"):
         resolve("circle", {"solver": "newton-krylov", "cg_rebuild": "0"})
     with pytest.raises(ConfigError, match="IPOPT option mu_strategy = 'x': not a valid setting"):
@@ -218,3 +220,28 @@ def test_a_misspelt_flow_option_is_named_as_such() -> None:
         WillmoreFlow(m, 0.1, 0.01, tangential_wieght=3)
     with pytest.raises(UserInputError, match="did you mean 'max_iter'"):
         WillmoreFlow(m, 0.1, 0.01, max_itr=3)
+
+
+def test_an_option_of_another_solver_names_that_solver(tmp_path, capsys) -> None:
+    """Found by a new-user check: ``--set cholesky=scipy`` (the default solver ipopt) said "neither a flow option nor an
+    IPOPT option" and ``--set cg_max_iter=5`` "did you mean 'max_iter'?", though both are newton-krylov's options:
+    every solver's check now names the solver(s) whose option it is, on the command line and in the API."""
+    out = ["--steps", "1", "--out", str(tmp_path / "r")]
+    assert _last_line(capsys, ["run", "circle", "--set", "cholesky=scipy", *out]) == (
+        "willmore-nlp: error: --set: cholesky is an option of solver newton-krylov, not of ipopt: add --set "
+        "solver=newton-krylov (solver='newton-krylov' in Python)")
+    assert "cg_max_iter is an option of solver newton-krylov, not of ipopt" in _last_line(
+        capsys, ["run", "circle", "--set", "cg_max_iter=5", *out])
+    assert "armijo is an option of solvers gd, lbfgs, newton, newton-krylov, not of ipopt: add --set solver=NAME " \
+           "with one of them" in _last_line(capsys, ["run", "circle", "--set", "armijo=1e-3", *out])
+    assert "mu_strategy is an option of solver ipopt, not of sqp: add --set solver=ipopt" in _last_line(
+        capsys, ["run", "circle", "--set", "solver=sqp", "--set", "ipopt.mu_strategy=adaptive", *out])
+    assert "--option: cholesky is an option of solver newton-krylov, not of lbfgs" in _last_line(
+        capsys, ["compare", "circle", "--solvers", "lbfgs", "--option", "cholesky=scipy", "--out", str(tmp_path / "s"),
+                 "--quiet"])
+    m = shapes.regular_polygon(12)
+    with pytest.raises(UserInputError, match="cholesky is an option of solver newton-krylov, not of ipopt"):
+        WillmoreFlow(m, 0.1, 1e-3, cholesky="scipy")
+    with pytest.raises(UserInputError, match="warm_start_init_point is an option of solver ipopt, not of gd"):
+        WillmoreFlow(m, 0.1, 1e-3, solver="gd", warm_start_init_point="yes")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -190,6 +190,30 @@ class SolverSettings(Settings):
         return tuple(cls.kinds())
 
     @classmethod
+    def owns(cls, key: str) -> bool:
+        """Whether ``key`` (or its old name) is an option of this solver."""
+        return cls.renamed.get(key, key) in cls.kinds()
+
+    @classmethod
+    def refuse_others(cls, keys: Iterable[str]) -> None:
+        """Refuse the first of ``keys`` (not options of this solver) that is an option of another solver.
+
+        Raises
+        ------
+        UserInputError
+            ``KEY is an option of solver OTHER, not of NAME: add --set solver=OTHER ...``.
+        """
+        from willmore_nlp.solvers import solver_names, solver_settings  # (the solvers' registry imports this module)
+
+        for key in keys:
+            owners = [n for n in solver_names() if n != cls.solver and solver_settings(n).owns(key)]
+            if owners:
+                one = len(owners) == 1
+                which, name = (f"solver {owners[0]}", owners[0]) if one else (f"solvers {', '.join(owners)}", "NAME")
+                raise UserInputError(f"{key} is an option of {which}, not of {cls.solver}: add --set solver={name}"
+                                     f"{'' if one else ' with one of them'} (solver={name!r} in Python)")
+
+    @classmethod
     def from_options(cls, options: dict[str, Any]) -> SolverSettings:
         """Validated settings from a dict of options.
 
@@ -198,10 +222,12 @@ class SolverSettings(Settings):
         Raises
         ------
         UserInputError
-            ``solver NAME: unknown option(s) ...; known: ...`` or ``solver NAME: option KEY must be ...``.
+            ``KEY is an option of solver OTHER, not of NAME ...``, ``solver NAME: unknown option(s) ...; known:
+            ...`` or ``solver NAME: option KEY must be ...``.
         """
         mine, other = cls.split({k.removeprefix("ipopt."): v for k, v in options.items()})
         unknown = sorted(set(other) - set(cls.ignores))
+        cls.refuse_others(unknown)
         if unknown:
             known = ", ".join(cls.kinds()) or "none"
             raise UserInputError(f"solver {cls.solver}: unknown option(s) {', '.join(unknown)}; known: {known}")

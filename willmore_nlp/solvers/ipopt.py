@@ -111,9 +111,15 @@ class IpoptSettings(SolverSettings):
         return ("warm_start", "tol", "max_iter", "print_level")
 
     @classmethod
+    def owns(cls, key: str) -> bool:
+        """``warm_start`` and IPOPT's options, with or without the ``ipopt.`` prefix."""
+        return key in cls.kinds() or key.removeprefix("ipopt.") in ipopt_kinds()
+
+    @classmethod
     def from_options(cls, options: dict[str, Any]) -> IpoptSettings:
         """``warm_start`` and IPOPT options (with or without the ``ipopt.`` prefix)."""
         mine, other = cls.split(options)
+        cls.refuse_others(k for k in other if not k.startswith("ipopt.") and k not in ipopt_kinds())
         for k, v in other.items():
             if not k.startswith("ipopt.") and k not in ipopt_kinds():  # (a typo of a flow option lands here)
                 close = difflib.get_close_matches(k, [*FlowSettings.kinds(), *ipopt_kinds()], n=1)
