@@ -103,8 +103,9 @@ def flow_options_markdown() -> str:
         if name == "ipopt":
             parts += ["### `ipopt`", "", "`warm_start` (default `False`): start each step from the previous "
                       "step's multipliers. Any IPOPT option as `ipopt.NAME` (`tol`, `max_iter`, `print_level` "
-                      "also without the prefix), checked against IPOPT's documented type and range before "
-                      "anything runs. Defaults differing from IPOPT's:", "", "| IPOPT option | default |", "|---|---|",
+                      "also without the prefix; in Python also as one mapping, `ipopt={\"max_iter\": 10}`), "
+                      "checked against IPOPT's documented type and range before anything runs. Defaults "
+                      "differing from IPOPT's:", "", "| IPOPT option | default |", "|---|---|",
                       *(f"| `{k}` | `{v!r}` |" for k, v in IPOPT_DEFAULTS.items()), ""]
         elif cls.kinds():
             parts += [f"### `{name}`", "", *_settings_rows(cls), ""]

@@ -245,3 +245,19 @@ def test_an_option_of_another_solver_names_that_solver(tmp_path, capsys) -> None
     with pytest.raises(UserInputError, match="warm_start_init_point is an option of solver ipopt, not of gd"):
         WillmoreFlow(m, 0.1, 1e-3, solver="gd", warm_start_init_point="yes")
     assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()
+
+
+def test_ipopt_options_as_one_mapping() -> None:
+    """Found by a new-user check: a TOML config takes an ``[ipopt]`` table, so users try
+    ``WillmoreFlow(m, ..., ipopt={"max_iter": 10})``, which raised a raw ``TypeError: IpoptSettings() got multiple
+    values for keyword argument 'ipopt'``: the mapping's entries are now IPOPT options, checked like the flat ones."""
+    m = shapes.regular_polygon(12)
+    flow = WillmoreFlow(m, 0.1, 1e-3, ipopt={"max_iter": 10, "mu_strategy": "adaptive"})
+    assert flow.solver.options["max_iter"] == 10 and flow.solver.options["mu_strategy"] == "adaptive"
+    for kwargs, text in [({"ipopt": {"max_iter": 10}, "max_iter": 5},
+                          "ipopt: option max_iter is given twice, in the ipopt mapping and as max_iter"),
+                         ({"ipopt": {"max_iter": 10}, "ipopt.max_iter": 5}, "and as ipopt.max_iter"),
+                         ({"ipopt": {"mu_strategy": "x"}}, "IPOPT option mu_strategy = 'x': not a valid setting"),
+                         ({"ipopt": 3}, "ipopt must be a mapping of IPOPT options (name: value), got 3")]:
+        with pytest.raises(UserInputError, match=re.escape(text)):
+            WillmoreFlow(m, 0.1, 1e-3, **kwargs)

@@ -23,7 +23,7 @@ from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms.base import Term
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
-from willmore_nlp.settings import FlowSettings, check_run_value, is_number
+from willmore_nlp.settings import FlowSettings, check_run_value, flatten_ipopt, is_number
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
 from willmore_nlp.solvers.ipopt import UNIT_WIDTHS, length_unit
 from willmore_nlp.tangential import TangentialControl, default_weight, resolve_method
@@ -501,7 +501,9 @@ class WillmoreFlow:
         Flow options, the fields of :class:`~willmore_nlp.settings.FlowSettings` (``solver``,
         ``max_retries``, ``anisotropy``, ``tangential_weight``, ``relax``, ``remesh`` ...: see there
         or docs/reference/options.md), and the solver's options (``tol``, ``max_iter``, ``warm_start``,
-        IPOPT options: :func:`willmore_nlp.solvers.solver_settings`). Each is validated when given.
+        IPOPT options: :func:`willmore_nlp.solvers.solver_settings`). Each is validated when given. IPOPT's
+        options may also come as one mapping, like a config's ``[ipopt]`` table: ``ipopt={"max_iter": 10}`` is
+        ``max_iter=10`` (an option both in it and given flat is refused).
 
     Attributes
     ----------
@@ -527,7 +529,8 @@ class WillmoreFlow:
             if not isinstance(t, Term):
                 raise UserInputError(f"terms: each must be a willmore_nlp.model.terms.Term instance, got "
                                      f"{type(t).__name__}")
-        flow_options, self._options = FlowSettings.split(options)
+        flow_options, solver_options = FlowSettings.split(options)
+        self._options = flatten_ipopt(solver_options)
         s = self.settings = dataclasses.replace(settings or FlowSettings(), **flow_options)  # validates them
         tau, tau_tilde, lam = (check_run_value(k, v) for k, v in (("tau", tau), ("tau_tilde", tau_tilde), ("lam", lam)))
         if not s.allow_components:

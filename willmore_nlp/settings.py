@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -171,6 +171,29 @@ class Settings:
 
 SOLVER_IGNORED = ("warm_start", "print_level")
 """Options meant for IPOPT that every other solver accepts and ignores (a config may switch solvers)."""
+
+
+def flatten_ipopt(options: dict[str, Any]) -> dict[str, Any]:
+    """``options`` with an ``ipopt`` mapping (the API's counterpart of a config's ``[ipopt]`` table) given as
+    ``ipopt.NAME`` entries, which the solvers check as IPOPT options.
+
+    Raises
+    ------
+    UserInputError
+        ``ipopt`` is not a mapping, or one of its entries is given flat too (``NAME`` or ``ipopt.NAME``).
+    """
+    if "ipopt" not in options:
+        return options
+    table = options["ipopt"]
+    if not isinstance(table, Mapping):
+        raise UserInputError(f"ipopt must be a mapping of IPOPT options (name: value), got {table!r}")
+    flat = {k: v for k, v in options.items() if k != "ipopt"}
+    for k, v in table.items():
+        twice = [f for f in (k, f"ipopt.{k}") if f in flat]
+        if twice:
+            raise UserInputError(f"ipopt: option {k} is given twice, in the ipopt mapping and as {twice[0]}")
+        flat[f"ipopt.{k}"] = v
+    return flat
 
 
 class SolverSettings(Settings):
