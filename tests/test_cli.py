@@ -242,3 +242,16 @@ def test_every_problem_refuses_bad_parameters_in_one_line() -> None:
                     warnings.simplefilter("ignore")
                     registry.build(name, **{key: value})
     assert tried > 100
+
+
+@pytest.mark.parametrize("command", [["run", "circle", "--steps", "1"], ["export", "RUN", "--out", "x.obj"],
+                                     ["report", "RUN"], ["problems"], ["cache", "info"]])
+def test_debug_goes_before_or_after_the_command(command: list[str]) -> None:
+    """Found by a new-user check: ``willmore-nlp --debug run circle ...`` worked but ``run circle --debug ...`` said
+    "unrecognized arguments": every command takes --debug after it too, and without it debug stays off."""
+    from willmore_nlp.cli import build_parser
+
+    parser = build_parser()
+    assert parser.parse_args([*command, "--debug"]).debug
+    assert parser.parse_args(["--debug", *command]).debug
+    assert not parser.parse_args(command).debug

@@ -260,6 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
     rr.add_argument("--out", default="reports", help="output directory (default: reports)")
     rr.add_argument("--only", action="append", help="run only this section (e.g. 'Fig. 2'); repeatable")
     rr.set_defaults(func=cmd_reproduce)
+    for cmd in sub.choices.values():  # --debug after the command too (SUPPRESS: one given before it is kept)
+        cmd.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks on errors")
     return ap
 
 
