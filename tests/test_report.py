@@ -52,6 +52,7 @@ def test_a_parameter_that_is_a_flow_option_is_listed_once_as_the_flow_used_it(tm
     rows = [ln for ln in md.splitlines() if ln.startswith(("| tangential_weight |", "| c0 |"))]
     assert rows == ["| c0 | 0 |", "| tangential_weight | 10 |"]
     assert "| reduced_volume | 0.65 |" in md and "| volume | initial |" in md
+    assert "(input: " not in md and "The input mesh was repaired" not in md  # (the vesicle's input is not repaired)
 
 
 def test_snapshot_indices_and_html() -> None:
@@ -220,3 +221,35 @@ def test_a_surface_reports_the_mesh_matched_value_of_the_mesh_it_ended_on(tmp_pa
     assert abs(matched[1] - matched[0]) > 1e-4
     row = next(ln for ln in write_report(run).read_text().splitlines() if ln.startswith("| willmore_energy |"))
     assert f"{matched[1]:.6g}" in row and f"{matched[0]:.6g}" not in row
+
+
+def test_parameters_are_those_the_flow_ran_with_after_an_input_repair(tmp_path) -> None:
+    """Found by a new-user check: the Parameters table showed the input's tau, tau_tilde and mesh (a capsule repaired
+    from 1026 to 996 vertices: tau 0.0389524, 1026 v) where the run used others (0.0378047 on 996 v). A stretched
+    trimesh capsule with slivers (290 v, repaired to fewer before step 1; the file problem's step sizes follow h):
+    the rows show config.json's flow_steps and the first state's mesh, with the input's in parentheses."""
+    import json
+
+    import trimesh
+
+    from willmore_nlp import load_run
+    from willmore_nlp.apps.report import write_report
+
+    cap = trimesh.creation.capsule(height=2, radius=0.5, count=[24, 12])
+    v = cap.vertices * [1.4, 1.0, 1.0]
+    v[:, 2] = 1.3 * np.sign(v[:, 2]) * np.abs(v[:, 2]) ** 1.5
+    trimesh.Trimesh(v, cap.faces, process=False).export(tmp_path / "cap.obj")
+    run = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", str(tmp_path / "cap.obj"), "--out",
+                           str(run), "--steps", "1", "--quiet"], check=True, capture_output=True, text=True)
+    assert "repaired before the first step" in proc.stderr
+    cfg = json.loads((run / "config.json").read_text())
+    start = load_run(run).states[0]
+    assert start.n_vertices < cfg["mesh"]["n_vertices"] and cfg["flow_steps"]["tau"] != cfg["tau"]
+    md = write_report(run).read_text()
+    rows = dict(re.findall(r"^\| (tau|tau_tilde|mesh n_vertices|mesh h) \| (.*) \|$", md, re.M))
+    assert rows == {"tau": f"{cfg['flow_steps']['tau']:.6g} (input: {cfg['tau']:.6g})",
+                    "tau_tilde": f"{cfg['flow_steps']['tau_tilde']:.6g} (input: {cfg['tau_tilde']:.6g})",
+                    "mesh n_vertices": f"{start.n_vertices} (input: {cfg['mesh']['n_vertices']})",
+                    "mesh h": f"{cfg['flow_steps']['h']:.6g} (input: {cfg['mesh']['h']:.6g})"}
+    assert "The input mesh was repaired before the first step" in md

@@ -151,6 +151,11 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def _ran_with(ran: Any, given: Any) -> Any:
+    """A parameter's value the flow ran with, followed by ``(input: GIVEN)`` where the input's differs as shown."""
+    return ran if _fmt(ran) == _fmt(given) else f"{_fmt(ran)} (input: {_fmt(given)})"
+
+
 FAILED_STATES = ("failed", "interrupted", "abandoned", "crashed")
 """Run states whose report opens with the failure message and the rejected attempts."""
 
@@ -222,8 +227,14 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     idx = _snapshots(run, d / "fig_snapshots.png")
     figs.append(("Shape at t = " + ", ".join(f"{run.times[k]:.4g}" for k in idx), "fig_snapshots.png"))
 
-    params = [["problem", cfg.get("problem", "")], ["tau", cfg.get("tau", "")], ["tau_tilde", cfg.get("tau_tilde", "")],
-              ["lam", cfg.get("lam", "")]]
+    # what the flow ran with: input_repair may have remeshed the input and rescaled the step sizes chosen from its
+    # edge (config.json's flow_steps; older runs lack it); the input's values follow where they differ
+    ran = {"tau": cfg.get("tau", ""), "tau_tilde": cfg.get("tau_tilde", ""), **cfg.get("flow_steps", {})}
+    start = run.states[0]
+    ran_mesh = {"n_vertices": start.n_vertices, "n_simplices": start.n_simplices, "d": start.d, "m": start.m,
+                "h": ran.get("h", start.h)}
+    params = [["problem", cfg.get("problem", "")],
+              *([k, _ran_with(ran[k], cfg.get(k, ""))] for k in ("tau", "tau_tilde")), ["lam", cfg.get("lam", "")]]
     length = [f"{cfg['steps']} steps" if cfg.get("steps") is not None else "",
               f"t_end = {cfg['t_end']:g}" if cfg.get("t_end") is not None else ""]
     params += [["run length", " or ".join(x for x in length if x)]]  # (the run's, not the problem's default)
@@ -232,7 +243,7 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     params += [[k, v] for k, v in sorted(cfg.get("params", {}).items())
                if k not in ("tau", "tau_tilde", "lam", "steps", "t_end") and k not in flow_options]
     params += [[k, v] for k, v in sorted(flow_options.items())]
-    params += [[f"mesh {k}", v] for k, v in cfg.get("mesh", {}).items()]
+    params += [[f"mesh {k}", _ran_with(ran_mesh.get(k, v), v)] for k, v in cfg.get("mesh", {}).items()]
     steps = [r for r in run.history if int(r["step"]) > 0]
     first, last = run.history[0], run.history[-1]
     summary: list[list[Any]] = [
@@ -276,6 +287,9 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
                "The mesh-matched value is the discrete energy of the exact target shape at this run's resolution: "
                "the gap between it and the smooth value is discretisation bias, not an error.", ""]
     md += ["## Parameters", "", _table(params, ["parameter", "value"]), ""]
+    if cfg.get("input_repair"):
+        md += [f"The input mesh was repaired before the first step ({cfg['input_repair']}): "
+               "the values are those the flow ran with, the input's in parentheses.", ""]
     for title, f in figs:
         md += [f"## {title}", "", f"![{title}]({f})", ""]
     versions = cfg.get("versions", {})
