@@ -617,7 +617,7 @@ def _fmt_rows(A: np.ndarray, prefix: str = "") -> str:
 def save_mesh(mesh: Mesh, path: str | os.PathLike[str]) -> None:
     """Write a mesh atomically: npz for anything, text for curves, OBJ/OFF/PLY/STL for surfaces.
 
-    npz, text curves, OBJ and OFF round-trip exactly through :func:`load_mesh`.
+    npz, text curves, OBJ, OFF and PLY (binary, double precision) round-trip exactly through :func:`load_mesh`.
     """
     p = Path(path)
     ext = p.suffix.lower()
@@ -646,12 +646,16 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike[str]) -> None:
             text = (f"OFF\n{mesh.n_vertices} {mesh.n_simplices} 0\n" + _fmt_rows(mesh.vertices)
                     + "".join(f"3 {a} {b} {c}\n" for a, b, c in mesh.simplices))
             atomic_write(p, _text_writer(text))
+        elif ext == ".ply":  # meshio's binary PLY holds doubles (trimesh's singles: vertices off by 3e-8)
+            import meshio
+
+            ply = meshio.Mesh(mesh.vertices, [("triangle", mesh.simplices.astype(np.int32))])  # (PLY has no int64)
+            atomic_write(p, lambda t: meshio.write(t, ply, file_format="ply", binary=True))
         else:
             import trimesh
 
             tm = trimesh.Trimesh(mesh.vertices, mesh.simplices, process=False)
-            kw = {"encoding": "binary"} if ext == ".ply" else {}
-            atomic_write(p, lambda t: tm.export(t, file_type=ext[1:], **kw))
+            atomic_write(p, lambda t: tm.export(t, file_type=ext[1:]))
     else:
         raise MeshError(f"{p}: unknown mesh format {ext!r}")
 
