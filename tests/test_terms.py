@@ -210,6 +210,26 @@ def test_refusals_name_the_option() -> None:
         build_step(sphere, boundary=Boundary(sphere.vertices[:, 2] > 0.3, "conormal"), anisotropy="gamma1")
 
 
+def test_the_ring_variant_advice_names_every_spelling(tmp_path, capsys) -> None:
+    """Found by a new-user check: the co-normal clamp with an anisotropy was refused with 'use variant "ring"', but a
+    mesh file is clamped by ``--set clamp=ring`` and the API takes ``Boundary(free, "ring")``: the message names the
+    Python, the file problem's and the registered problems' spellings."""
+    from willmore_nlp import cli
+    from willmore_nlp.mesh.io import save_mesh
+
+    cap = shapes.spherical_cap(6, 60.0)
+    save_mesh(cap, tmp_path / "cap.obj")
+    spellings = ('Boundary(free, "ring") in Python', "--set clamp=ring for a mesh file",
+                 "--set variant=ring for a clamped registered problem")
+    for target in (str(tmp_path / "cap.obj"), "sphere_cap"):
+        clamp = "clamp" if target.endswith(".obj") else "variant"
+        argv = ["run", target, "--set", "anisotropy=gamma1", "--steps", "1", "--out", str(tmp_path / "r")]
+        assert cli.main([*argv, "--set", f"{clamp}=conormal"]) == 2
+        err = capsys.readouterr().err
+        assert "co-normal boundary variant is not supported with anisotropy" in err and all(s in err for s in spellings)
+    build_step(cap, boundary=Boundary.outer_strip(cap, "ring"), anisotropy="gamma1")  # (the ring variant is taken)
+
+
 def test_step_params_pack_and_unpack_by_name() -> None:
     L = StepParams(3, 2, ("tau", "tt", "lam", "c0"), (("q", 2),), ("b",))
     Xk = np.arange(6.0).reshape(3, 2)

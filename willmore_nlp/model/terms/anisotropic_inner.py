@@ -41,7 +41,9 @@ class AnisotropicInner(Term):
     def check(self, mesh: Mesh, variant: str | None) -> None:
         if variant == "conormal":
             raise UserInputError("anisotropy: the co-normal boundary variant is not supported with anisotropy "
-                                 "(its co-normal term would be gamma's Cahn-Hoffman vector); use variant \"ring\"")
+                                 "(its co-normal term would be gamma's Cahn-Hoffman vector); use the ring variant: "
+                                 "Boundary(free, \"ring\") in Python, --set clamp=ring for a mesh file, --set "
+                                 "variant=ring for a clamped registered problem")
         if variant is None and not mesh.is_closed:
             raise MeshError(f"{mesh.source}: anisotropic flow needs a closed curve or surface")
         if mesh.d == 1 and mesh.m != 2:
