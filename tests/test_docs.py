@@ -150,3 +150,16 @@ def test_tutorial_solver_study(tmp_path: Path) -> None:
         e_ipopt = recs[f"ipopt tau={tau}"]["rows"][-1]["energy"]
         e_newton = recs[f"newton tau={tau}"]["rows"][-1]["energy"]
         assert e_ipopt == pytest.approx(e_newton, rel=1e-6)
+
+
+def test_getting_started_lists_every_step_result_field() -> None:
+    """Found by a new-user check: the list of StepResult's fields lacked ``simplices`` and ``tau_tilde``, and a user who
+    computed volumes from ``r.vertices`` with the initial simplices got wrong numbers after edge flips. Every field is
+    named, and the page says that ``r.simplices`` is the state's own connectivity."""
+    import dataclasses
+
+    from willmore_nlp.flow import StepResult
+
+    text = (ROOT / "docs" / "getting_started.md").read_text(encoding="utf-8")
+    assert [f.name for f in dataclasses.fields(StepResult) if f"`{f.name}`" not in text] == []
+    assert "`r.simplices` is the state's own connectivity" in text
