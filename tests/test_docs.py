@@ -163,13 +163,3 @@ def test_getting_started_lists_every_step_result_field() -> None:
     text = (ROOT / "docs" / "getting_started.md").read_text(encoding="utf-8")
     assert [f.name for f in dataclasses.fields(StepResult) if f"`{f.name}`" not in text] == []
     assert "`r.simplices` is the state's own connectivity" in text
-
-
-def test_the_readme_says_where_the_energy_may_rise() -> None:
-    """Found by a new-user check: the README said "the scheme's energy falls every step", but with the mesh control
-    (surfaces' default) the light repair after each step can raise it. The claim is for each solved step, and the
-    repair outside it is named with a link to the mesh-quality guide's records."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    assert "falls every step" not in text
-    assert "Each solved step lowers the scheme's energy (its energy inequality)" in text
-    assert "a repair can raise it" in text and "(docs/guide/mesh_quality.md#records)" in text
