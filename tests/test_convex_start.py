@@ -201,7 +201,7 @@ def test_a_run_that_started_below_tau_c_resumes_bit_for_bit(tmp_path, straight_a
 def test_a_convexity_limit_under_the_floor_is_named_with_the_min_tau_that_reaches_it(tmp_path) -> None:
     """trimesh's raw cone (34 v, refined by the file problem to 192 v; its apex stays): tau_c = tau / 5.1e4 (measured),
     and the step sizes tau / 2^j below it are under the floor min_tau = 0.01 h^4, so the attempts go on halving and
-    step 1 fails; a warning names tau_c and a min_tau below it, with which the next attempt starts below tau_c / 2 and
+    step 1 fails; a warning names tau_c, the smallest attempt (tau / 2^max_retries) and a min_tau below tau_c, with which the next attempt starts below tau_c / 2 and
     converges."""
     import re
 
@@ -215,6 +215,9 @@ def test_a_convexity_limit_under_the_floor_is_named_with_the_min_tau_that_reache
         flow.step()
     message = next(str(w.message) for w in record if "under the step-size floor" in str(w.message))
     tau_c = float(re.search(r"only below tau = ([0-9.e+-]+)", message).group(1))
+    # (it says how far the halving goes: a user read "the attempts go on halving" as reaching tau_c)
+    last = float(re.search(r"halving to tau / 2\^\d+ = ([0-9.e+-]+) \(max_retries\)", message).group(1))
+    assert last == pytest.approx(flow.tau / 2**flow.settings.max_retries, rel=1e-2) and last > tau_c
     min_tau = float(re.search(r"--set min_tau=([0-9.e+-]+)", message).group(1))
     assert flow.tau / 2 ** np.ceil(np.log2(flow.tau / tau_c)) < flow.min_tau and min_tau < tau_c / 2
     flow = pb.make_flow(min_tau=min_tau)

@@ -1505,10 +1505,12 @@ class WillmoreFlow:
                               f"{'halves instead' if failed else 'starts at tau'})", stacklevel=4)
                 return tau / 2**j
         if failed == 2:  # (once: after the second failure)
+            last = tau / 2**s.max_retries
             warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = {tau_c:.3g} = tau "
                           f"/ {tau / tau_c:.3g}, and the step sizes tau / 2^j below it are under the step-size floor "
-                          f"min_tau = {floor:.3g}: the attempts go on halving (--set min_tau={tau_c / 4:.2g} lets the "
-                          "next one start below tau_c)", stacklevel=4)
+                          f"min_tau = {floor:.3g}: the attempts go on halving to tau / 2^{s.max_retries} = {last:.3g} "
+                          f"(max_retries), {last / tau_c:.3g} times tau_c, where they may all fail (--set "
+                          f"min_tau={tau_c / 4:.2g} lets the next one start below tau_c)", stacklevel=4)
         return None
 
     def _convex_far(self, tau: float) -> float | None:
