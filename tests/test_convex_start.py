@@ -201,8 +201,8 @@ def test_a_run_that_started_below_tau_c_resumes_bit_for_bit(tmp_path, straight_a
 def test_a_convexity_limit_under_the_floor_is_named_with_the_min_tau_that_reaches_it(tmp_path) -> None:
     """trimesh's raw cone (34 v, refined by the file problem to 192 v; its apex stays): tau_c = tau / 5.1e4 (measured),
     and the step sizes tau / 2^j below it are under the floor min_tau = 0.01 h^4, so the attempts go on halving and
-    step 1 fails; a warning names tau_c, the smallest attempt (tau / 2^max_retries) and a min_tau below tau_c, with which the next attempt starts below tau_c / 2 and
-    converges."""
+    step 1 fails; a warning names tau_c, the smallest attempt (tau / 2^max_retries) and a min_tau below tau_c, with
+    which the next attempt starts below tau_c / 2 and converges."""
     import re
 
     from willmore_nlp import FlowError
