@@ -648,3 +648,19 @@ def test_a_factor_that_is_not_positive_definite_ends_the_solve_and_the_flow_retr
     assert r.converged and r.retries == 1 and r.tau == pytest.approx(0.1 * mesh.h)
     assert r.rejected == [f"tau={0.2 * mesh.h:.6g}: solver did not converge (factorisation failed (matrix not "
                           "positive definite (CHOLMOD: leading minor 7 of 486)), 0 iterations)"]
+
+
+def test_a_flow_at_exact_rest_takes_its_steps_where_they_start() -> None:
+    """A flat clamped disc is at rest: the gradient at a step's start is 0. newton-krylov's stopping test is relative
+    to that gradient, floored at the distance term's gradient for a motion of ``REST_MOTION`` h: each step is taken
+    at its first attempt without a Newton iteration (found by a new-user check: the floor was 1e-300, round-off
+    4e-20 never met the tolerance 1e-309, and every step at rest failed 7 attempts, "line search failed", before
+    the IPOPT fallback took it)."""
+    from willmore_nlp.boundary import Boundary
+
+    disk = shapes.disk(6)
+    flow = WillmoreFlow(disk, 0.2 * disk.h, disk.h**2 / 100, boundary=Boundary.outer_strip(disk, "conormal"),
+                        solver="newton-krylov", fallback_solver="", tangential_control="off")
+    for r in flow.run(steps=3):
+        assert r.retries == 0 and r.iterations == 0 and r.stats["solver"] == "newton-krylov"
+        assert np.array_equal(r.vertices, disk.vertices)

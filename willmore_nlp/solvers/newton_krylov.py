@@ -125,6 +125,11 @@ from willmore_nlp.solvers.cholesky import (
 from willmore_nlp.solvers.ipopt import SolveMonitor
 from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, _Point
 
+REST_MOTION = 1e-6
+"""The stopping test's scale is at least the distance term's gradient for a motion of this many mean edges h (its
+tolerance then asks for the step's X to about tol x 1e-6 h): a step whose start has a gradient of 0 (a flow at exact
+rest) is solved where it starts."""
+
 HANDBACK_AFTER = 2
 """Full-space steps after which negative curvature hands the solve to the reduced iteration at the current iterate
 (fewer: it restarts from X^0; module docstring)."""
@@ -506,13 +511,17 @@ class NewtonKrylovSolver(ReducedSolver):
             self._edges = unique_edges(P.simplices)  # a co-normal blend's step has only the patch and its ring)
         h = float(np.mean(edge_lengths(Xk, self._edges)))  # mean edge of X^k: the preconditioner's rebuild scale
         with self._timed("eval"):
-            scale = max(float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max()), 1e-300)
+            scale = float(np.abs(self.ev.grad_f(np.asarray(z0, float), p)).max())
         self._count("n_eval_grad_f")
-        gtol = self._gtol = self.tol * scale
         symbolic = self._jy.n_symbolic + self._pre.n_symbolic  # (CHOLMOD: once per pattern, kept across solves)
         x0, Y0 = np.asarray(z0[: self.nxm], float), P.unpack_z(z0, Xk)[1]  # (the guarded pass starts there too)
         pt = self._feasible(x0, p, Y0)
         D = self._distance_hessian(pt.z, p)
+        # the step's scale: the gradient at its start, but at least that of the distance term for a motion of
+        # REST_MOTION h (a flow at exact rest, a flat clamped patch, has a gradient of 0 there: the test was then
+        # |grad W^| <= 1e-309, which round-off, 4e-20, never met, and every step failed 7 attempts before IPOPT's)
+        scale = max(scale, REST_MOTION * float(np.abs(D.diagonal()).max()) * h, 1e-300)
+        gtol = self._gtol = self.tol * scale
         self._g0 = max(float(np.abs(pt.pgrad).max()), 1e-300)
         self._delta = self._delta_max = 0.0
         stats: dict[str, Any] = {}
