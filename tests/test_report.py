@@ -253,3 +253,25 @@ def test_parameters_are_those_the_flow_ran_with_after_an_input_repair(tmp_path) 
                     "mesh n_vertices": f"{start.n_vertices} (input: {cfg['mesh']['n_vertices']})",
                     "mesh h": f"{cfg['flow_steps']['h']:.6g} (input: {cfg['mesh']['h']:.6g})"}
     assert "The input mesh was repaired before the first step" in md
+
+
+def test_a_clamped_runs_boundary_is_recorded_whole_and_reported_in_one_line(tmp_path) -> None:
+    """config.json recorded the boundary as the dataclass's repr, whose free mask numpy cuts to six entries above
+    1,000 vertices (so a run's fixed set was lost), and the report pasted that repr, 25 lines of booleans (found by a
+    new-user check). It now records the fixed vertices' indices and the variant, and the report says how many are
+    fixed."""
+    import json
+
+    from willmore_nlp import registry
+    from willmore_nlp.apps.report import write_report
+
+    run = tmp_path / "run"
+    subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "sphere_cap", "--out", str(run), "--steps", "1",
+                    "--quiet", "--set", "rings=4", "--set", "variant=ring"], check=True, capture_output=True)
+    record = json.loads((run / "config.json").read_text())["effective_flow_options"]["boundary"]
+    pb, _ = registry.build("sphere_cap", rings=4, variant="ring")
+    fixed = np.flatnonzero(~pb.flow_options["boundary"].free)
+    assert record["fixed"] == fixed.tolist() and record["variant"] == "ring"
+    assert record["n_vertices"] == pb.mesh.n_vertices
+    md = write_report(run).read_text()
+    assert f"| boundary | ring, {fixed.size} of {pb.mesh.n_vertices} vertices fixed |" in md

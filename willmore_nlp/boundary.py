@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -91,6 +92,14 @@ class Boundary:
             raise BoundaryError("boundary: conormal= is only used by the 'conormal' variant")
         if self.ring is not None and self.variant != "ring":
             raise BoundaryError("boundary: ring= is only used by the 'ring' variant")
+
+    def json_record(self) -> dict[str, Any]:
+        """What a run directory's config.json records of the boundary: the variant, the fixed vertices (indices into
+        the initial mesh), the vertex count, and whether a co-normal or ring was given (the dataclass's repr was
+        recorded before, with numpy's mask cut to its first and last three entries above 1,000 vertices)."""
+        return {"variant": self.variant, "fixed": np.flatnonzero(~self.free).tolist(),
+                "n_vertices": int(self.free.size), "conormal": "given" if self.conormal is not None else None,
+                "ring": "given" if self.ring is not None else None}
 
     # -- constructors ------------------------------------------------------------------
     @classmethod

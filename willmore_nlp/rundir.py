@@ -108,8 +108,12 @@ def _csv_text(rows: list[dict[str, Any]], keys: list[str], header: bool) -> str:
 
 
 def _json_default(o: Any) -> Any:
+    """A JSON value for what json does not write: numpy scalars, objects with a ``json_record`` (a clamped run's
+    :class:`~willmore_nlp.boundary.Boundary`), else the object's string."""
     if isinstance(o, np.generic):
         return o.item()
+    if callable(getattr(o, "json_record", None)):
+        return o.json_record()
     return str(o)
 
 

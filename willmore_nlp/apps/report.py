@@ -148,6 +148,10 @@ def _table(rows: list[list[Any]], header: list[str]) -> str:
 def _fmt(v: Any) -> str:
     if isinstance(v, float | np.floating):
         return f"{v:.6g}"
+    if isinstance(v, dict) and {"variant", "fixed", "n_vertices"} <= set(v):  # (a boundary's record, json_record)
+        given = [k for k in ("conormal", "ring") if v.get(k)]
+        return (f"{v['variant']}, {len(v['fixed'])} of {v['n_vertices']} vertices fixed"
+                + "".join(f", {k} given" for k in given))
     return str(v)
 
 
