@@ -970,7 +970,7 @@ class WillmoreFlow:
                     below = tau
                     break
                 if rejected:
-                    self.on_retry(f"step {self.k + 1}: {rejected[-1].replace(': ', ' rejected (', 1)[:100]}); "
+                    self.on_retry(f"step {self.k + 1}: {rejected[-1].replace(': ', ' rejected (', 1)[:160]}); "
                                   f"attempt {tries + 1}: {name} at tau={tau:.3g}")
                 X, Y, res, reason, moved = self._attempt(tau, attempt >= self.settings.max_retries)
                 spent += res.iterations if res is not None else 0
