@@ -145,7 +145,6 @@ BUDGET_WINDOW = 20
 RELAX_WINDOW = 3
 """The relax test looks at the Willmore energy over this many last steps (:meth:`WillmoreFlow.step`)."""
 
-
 DRIFT_SHARE = 0.5
 """A step whose normal motion lies this much (squared lumped L^2 norm) in the span of the ten conformal fields,
 the Willmore energy's zero modes, is the scheme's drift rather than the flow's motion (the smooth flow's is

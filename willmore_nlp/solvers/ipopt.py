@@ -119,12 +119,13 @@ class IpoptSettings(SolverSettings):
     def from_options(cls, options: dict[str, Any]) -> IpoptSettings:
         """``warm_start`` and IPOPT options (with or without the ``ipopt.`` prefix)."""
         mine, other = cls.split(options)
-        cls.refuse_others(k for k in other if not k.startswith("ipopt.") and k not in ipopt_kinds())
-        for k, v in other.items():
-            if not k.startswith("ipopt.") and k not in ipopt_kinds():  # (a typo of a flow option lands here)
-                close = difflib.get_close_matches(k, [*FlowSettings.kinds(), *ipopt_kinds()], n=1)
-                hint = f"; did you mean {close[0]!r}?" if close else ""
-                raise UserInputError(f"unknown option {k} = {v!r}: neither a flow option nor an IPOPT option{hint}")
+        unknown = [k for k in other if not k.startswith("ipopt.") and k not in ipopt_kinds()]
+        cls.refuse_others(unknown)
+        if unknown:  # (a typo of a flow option lands here)
+            k = unknown[0]
+            close = difflib.get_close_matches(k, [*FlowSettings.kinds(), *ipopt_kinds()], n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise UserInputError(f"unknown option {k} = {other[k]!r}: neither a flow option nor an IPOPT option{hint}")
         return cls(**mine, ipopt=tuple((k.removeprefix("ipopt."), check_ipopt_option(k.removeprefix("ipopt."), v))
                                        for k, v in other.items()))
 
