@@ -384,8 +384,18 @@ def test_open_mesh_file_is_clamped_by_its_outer_strip(tmp_path, variant) -> None
     np.testing.assert_array_equal(X[~free], V[~free])
     assert np.abs(X[:, 2]).max() < 1e-5  # measured 9e-7 after 4 steps (from 0.15)
     assert res[-1].energy < 1e-8 * W0
-    with pytest.raises(BoundaryError, match="the mesh is closed: there is no boundary to clamp"):
+    with pytest.raises(BoundaryError, match=r"the mesh is closed: there is no boundary to clamp$"):
         Boundary.outer_strip(shapes.icosphere(1))
+
+
+def test_clamping_a_curve_file_read_as_closed_says_how_to_open_it(tmp_path) -> None:
+    """A curve file without a marker is closed; clamping it names the '# open' line (a user's arc file)."""
+    from willmore_nlp import registry
+
+    s = np.linspace(0.0, 1.0, 21)
+    np.savetxt(tmp_path / "arc.xy", np.c_[s, 0.1 * np.sin(np.pi * s) ** 2])
+    with pytest.raises(BoundaryError, match=r"arc.xy: the mesh is closed: .*'# open' line comes before its vertices"):
+        registry.build("file", path=str(tmp_path / "arc.xy"), clamp="conormal")
 
 
 def test_open_mesh_file_without_clamp_names_the_option(tmp_path) -> None:

@@ -34,12 +34,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from willmore_nlp.fem.assembly import mass_stiffness
 from willmore_nlp.mesh.core import Mesh, MeshError
+from willmore_nlp.mesh.io import CURVE_FORMATS
 from willmore_nlp.mesh.topology import boundary_facets, scatter_sum, simplex_facets, vertex_components
 
 VARIANTS = ("conormal", "ring")
@@ -139,7 +141,9 @@ class Boundary:
         strip's triangles); for an open curve, the end points and the end tangents (the end segments).
         """
         if mesh.is_closed:
-            raise BoundaryError(f"{mesh.source}: the mesh is closed: there is no boundary to clamp")
+            hint = (" (a curve file is read as closed unless a '# open' line comes before its vertices)"
+                    if mesh.d == 1 and Path(mesh.source).suffix.lower() in CURVE_FORMATS else "")
+            raise BoundaryError(f"{mesh.source}: the mesh is closed: there is no boundary to clamp{hint}")
         S = np.asarray(mesh.simplices)
         on_bd = np.zeros(mesh.n_vertices, bool)
         on_bd[mesh.boundary_vertices] = True
