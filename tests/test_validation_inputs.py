@@ -323,6 +323,13 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
      ["regular_polygon: n = 1,000,000,000 would make 1,000,000,000 vertices, more than 2,000,000"]),
     ("set-torus-grid-huge", lambda d: ["torus", "--set", "n_major=100000", "--set", "n_minor=100000"],
      ["torus: n_major = 100,000 x n_minor = 100,000 would make 10,000,000,000 vertices"]),
+    # (these three were built until the memory ran out: sphere 12 GB before step 1; a new-user check, 2026-11-30)
+    ("set-sphere-subdivisions-huge", lambda d: ["sphere", "--set", "subdivisions=9"],
+     ["icosphere: subdivisions = 9 would make 2,621,442 vertices, more than 2,000,000"]),
+    ("set-sphere-cap-rings-huge", lambda d: ["sphere_cap", "--set", "rings=100000"],
+     ["disk: rings = 100,001 would make 30,000,900,007 vertices, more than 2,000,000"]),
+    ("set-surface-blending-huge", lambda d: ["surface_blending", "--set", "n_around=100000", "--set", "n_gap=100000"],
+     ["cylinder: n_around = 100,000 x n_along + 1 =", "vertices, more than 2,000,000"]),
     ("ply-truncated-ascii", _write("t.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\n"
                                    "property double y\nproperty double z\nelement face 2\n"
                                    "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"

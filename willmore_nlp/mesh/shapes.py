@@ -78,10 +78,14 @@ def vertex_count(shape: str, least: int = 3, **counts: int) -> None:
     for name, n in counts.items():
         if n < least:
             raise MeshError(f"{shape}: {name} must be >= {least}, got {n}")
-    total = float(np.prod([float(n) for n in counts.values()]))
+    _at_most(shape, float(np.prod([float(n) for n in counts.values()])),
+             " x ".join(f"{k} = {v:,}" for k, v in counts.items()))
+
+
+def _at_most(shape: str, total: float, what: str) -> None:
+    """MeshError when ``what`` (the parameters, for the message) would make ``total`` > :data:`MAX_VERTICES`."""
     if total > MAX_VERTICES:
-        raise MeshError(f"{shape}: {' x '.join(f'{k} = {v:,}' for k, v in counts.items())} would make "
-                        f"{total:,.0f} vertices, more than {MAX_VERTICES:,}")
+        raise MeshError(f"{shape}: {what} would make {total:,.0f} vertices, more than {MAX_VERTICES:,}")
 
 
 def _remesh_size(shape: str, area: float, h: float) -> None:
@@ -146,9 +150,10 @@ def hypocycloid(n: int, delta: float = 0.0, *, m: int | None = None) -> Mesh:
 def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
     """Icosphere with 10 * 4**subdivisions + 2 vertices (642 for 3, 2562 for 4)."""
     _lengths("icosphere", radius=radius)
-    if isinstance(subdivisions, bool) or not float(subdivisions).is_integer() or not 0 <= subdivisions <= 9:
-        raise MeshError(f"icosphere: subdivisions must be an integer in [0, 9] (10 * 4^s + 2 vertices), got "
+    if isinstance(subdivisions, bool) or not float(subdivisions).is_integer() or subdivisions < 0:
+        raise MeshError(f"icosphere: subdivisions must be an integer >= 0 (10 * 4^s + 2 vertices), got "
                         f"{subdivisions!r}")  # (trimesh makes the icosahedron of -1: a new-user check)
+    _at_most("icosphere", 10.0 * 4.0 ** min(float(subdivisions), 64.0) + 2, f"subdivisions = {subdivisions}")
     s = trimesh.creation.icosphere(subdivisions=int(subdivisions), radius=radius)
     return Mesh(np.asarray(s.vertices), np.asarray(s.faces), f"icosphere({subdivisions})")
 
@@ -188,6 +193,7 @@ def disk(rings: int = 6, radius: float = 1.0) -> Mesh:
     _lengths("disk", radius=radius)
     if rings < 1:
         raise MeshError(f"disk: rings must be >= 1, got {rings}")
+    _at_most("disk", 3.0 * rings * (rings + 1.0) + 1, f"rings = {rings:,}")
     pts = [np.zeros((1, 2))]
     for k in range(1, rings + 1):
         t = 2 * np.pi * np.arange(6 * k) / (6 * k)
@@ -210,6 +216,7 @@ def cylinder(radius: float = 1.0, length: float = 2.0, n_around: int = 24, n_alo
     _lengths("cylinder", radius=radius, length=length)
     if n_around < 3 or n_along < 1:
         raise MeshError(f"cylinder: need n_around >= 3 and n_along >= 1, got {n_around}, {n_along}")
+    _at_most("cylinder", float(n_around) * (n_along + 1.0), f"n_around = {n_around:,} x n_along + 1 = {n_along + 1:,}")
     u = 2 * np.pi * np.arange(n_around) / n_around
     z = z0 + length * np.arange(n_along + 1) / n_along
     Z, U = np.meshgrid(z, u, indexing="ij")
