@@ -124,3 +124,26 @@ def test_sphere_one_step_converges_to_time_discrete_sphere_equation(control: str
         errs.append(abs(np.linalg.norm(r.vertices, axis=1).mean() - R_star))
     assert np.all(np.diff(errs) < 0)
     assert fit_order(hs, errs) > 1.8
+
+
+def test_a_failed_run_keeps_the_steps_it_took(monkeypatch) -> None:
+    """flow.run raises FlowError at a failed step with the steps accepted before it (a user's loop over run()'s
+    list lost 52 accepted steps to the 53rd)."""
+    from willmore_nlp.flow import FlowError
+
+    mesh = shapes.regular_polygon(16)
+    flow = WillmoreFlow(mesh, tau=mesh.h, tau_tilde=mesh.h**2 / 10)
+    take = flow.step
+    calls = []
+
+    def step():
+        calls.append(1)
+        if len(calls) == 3:
+            raise FlowError("step 3 failed", step=3, t=flow.t)
+        return take()
+
+    monkeypatch.setattr(flow, "step", step)
+    with pytest.raises(FlowError, match="step 3 failed") as err:
+        flow.run(steps=5)
+    assert [r.step for r in err.value.results] == [1, 2]
+    np.testing.assert_array_equal(err.value.results[-1].vertices, flow.X)

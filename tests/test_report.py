@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from willmore_nlp.apps.report import markdown_to_html, snapshot_indices
+from willmore_nlp.errors import UserInputError
 
 
 @pytest.mark.parametrize(("problem", "sets"), [("circle", ["n=16"]), ("sphere", ["subdivisions=1"]),
@@ -171,6 +172,17 @@ def test_reproduce_section_writes_document(tmp_path) -> None:
     # the verdict states its criterion, value and tolerance, and follows from them
     m = re.search(r"\*\*Verdict: (\w+)\*\* \(1 of 1 criteria hold\)\. .* = ([0-9.e+-]+) <= ([0-9.e+-]+): yes", text)
     assert m is not None and m.group(1) == "Match" and float(m.group(2)) <= float(m.group(3)) == 0.05
+    # a second --only run replaces its own section and keeps the others (a user's --only "Fig. 3" replaced the
+    # committed ten sections with one), with a line saying what was rerun
+    head = text.split("## Fig. 2", 1)[0]
+    doc.write_text(head + "## Table 1: kept as it was\n\nold table\n\n## Fig. 2: an old run\n\nstale\n")
+    text = reproduce(tmp_path, only=["fig.2"]).read_text()
+    assert "## Table 1: kept as it was\n\nold table\n" in text and "stale" not in text
+    assert text.index("## Table 1") < text.index("## Fig. 2") and text.count("## Fig. 2") == 1
+    assert re.search(r"Rerun at git \S+: Fig. 2: \d+ s", text)
+    with pytest.raises(UserInputError, match=r"reproduce --only 'Fig. 6': no such section; the sections are 'Table 1'"):
+        reproduce(tmp_path / "new", only=["Fig. 6"])
+    assert not (tmp_path / "new").exists()
 
 
 def test_verdicts_are_computed_never_literal() -> None:

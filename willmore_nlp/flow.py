@@ -38,6 +38,7 @@ class FlowError(RuntimeError):
     t : time of the last accepted state
     rejected : reasons of the rejected attempts, ``"tau=...: reason"`` (``"tau=...: SOLVER: reason"`` with a
         ``fallback_solver``)
+    results : the steps :meth:`WillmoreFlow.run` accepted before the failure (empty from :meth:`WillmoreFlow.step`)
     """
 
     def __init__(self, message: str, *, step: int = -1, t: float = float("nan"),
@@ -46,6 +47,7 @@ class FlowError(RuntimeError):
         self.step = step
         self.t = t
         self.rejected = list(rejected or [])
+        self.results: list[StepResult] = []
 
 
 class StepInterrupted(Exception):  # noqa: N818 (an outcome, not an error)
@@ -1716,7 +1718,8 @@ class WillmoreFlow:
 
         With ``relax=True`` it stops earlier, after the step that ended the relaxation
         (:attr:`relaxed` is then True). ``callback`` is called with every accepted StepResult.
-        Returns the accepted steps.
+        Returns the accepted steps (a list, once the run ends); a step that fails raises :class:`FlowError` with
+        the steps accepted before it in its ``results`` (the flow stays at the last of them).
         """
         if t_end is None and steps is None:
             raise UserInputError("run needs t_end or steps")
@@ -1737,7 +1740,11 @@ class WillmoreFlow:
                         break
                     self.tau = min(nominal, remaining)
                     self._time_left = remaining
-                r = self.step()
+                try:
+                    r = self.step()
+                except FlowError as exc:
+                    exc.results = out
+                    raise
                 out.append(r)
                 if callback is not None:
                     callback(r)

@@ -40,6 +40,7 @@ from willmore_nlp.analysis import (
 )
 from willmore_nlp.apps.report import mean_radius
 from willmore_nlp.config import resolve
+from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh import shapes
@@ -283,6 +284,7 @@ def fig3(fig_dir: Path, steps: int = 60) -> str:
     qa, qr, R = nested["min_angle"], nested["edge_ratio"], nested["R"]
     sa = semi["min_angle"]
     drift, predicted = 1 - R[-1], 1 - Rp[-1]
+    low = int(np.argmin(semi["R"]))
     checks = [
         Check("nested: final / initial min angle", qa[-1] / qa[0] if not stop_n else float("nan"), ">=", 0.9),
         Check("nested: final / initial edge ratio", qr[-1] / qr[0] if not stop_n else float("nan"), "<=", 1.25),
@@ -307,10 +309,11 @@ def fig3(fig_dir: Path, steps: int = 60) -> str:
         f"The nested run's radius drifts {drift:.4f}: the time-discrete scheme with finite tt shrinks spheres at "
         f"rate 16 tt/R^5 (predicted drift {predicted:.4f}, analysis.sphere_step_radius).", "",
         verdict(checks), "",
-        "**Comment:** the paper's tiny tt hides the nested scheme's O(tt) drift; with tt = h^2/4 a sphere loses "
-        "16% of its radius in one step of tau = h (docs/theory/tau_tilde.md). The semi-implicit baseline has no "
-        "tt; at this tau its sphere shrinks steadily (radius column) until its mesh tangles and the flow's "
-        "mesh check stops it, as the paper reports for Rusu's scheme.", "",
+        "**Comment:** the paper's tiny tt hides the nested scheme's O(tt) drift; with tt = h^2/4 the 162-vertex "
+        "sphere loses 16% of its radius in one step of tau = h (docs/theory/tau_tilde.md). The semi-implicit "
+        f"baseline has no tt; at this tau its sphere shrinks steadily (mean radius {semi['R'][low]:.4f} at t = "
+        f"{semi['t'][low]:.3g}, its smallest) until its mesh tangles (the table's final radius and angle are the "
+        "tangled mesh's) and the flow's mesh check stops it, as the paper reports for Rusu's scheme.", "",
         f"![Fig. 3](figures/{img})", "",
     ])
 
@@ -1127,18 +1130,56 @@ WAITING: dict[str, tuple[str, ...]] = {}
 """Paper items whose problems are not implemented yet -> the problem names they need."""
 
 
+def _key(name: str) -> str:
+    return "".join(name.split()).lower()
+
+
+def section_names(only: Sequence[str]) -> list[str]:
+    """The :data:`SECTIONS` names ``only`` asks for (case and white space ignored: "fig.3" is "Fig. 3");
+    UserInputError naming an unknown one and listing the sections."""
+    names = {_key(n): n for n, _ in SECTIONS}
+    unknown = [o for o in only if _key(o) not in names]
+    if unknown:
+        raise UserInputError(f"reproduce --only {unknown[0]!r}: no such section; the sections are "
+                             + ", ".join(repr(n) for n, _ in SECTIONS))
+    return [names[_key(o)] for o in only]
+
+
+def _sections_of(text: str) -> tuple[list[str], dict[str, str]]:
+    """A REPRODUCTION.md split into its header lines and its sections by name (a section runs from its
+    '## NAME:' heading to the next '## ' heading)."""
+    names = [n for n, _ in SECTIONS]
+    head: list[str] = []
+    parts: dict[str, list[str]] = {}
+    current: list[str] = head
+    for line in text.split("\n"):
+        if line.startswith("## "):
+            name = next((n for n in names if line.startswith(f"## {n}:")), None)
+            if name is not None:
+                current = parts.setdefault(name, [])
+        current.append(line)
+    return head, {n: "\n".join(lines) for n, lines in parts.items()}
+
+
 def reproduce(out: str | Path = "reports", only: list[str] | None = None) -> Path:
-    """Run every section and write ``out/REPRODUCTION.md`` with figures in ``out/figures``."""
+    """Run every section and write ``out/REPRODUCTION.md`` with figures in ``out/figures``.
+
+    ``only``: the names of the sections to run (``--only``; see :func:`section_names`). Where ``out`` holds a
+    REPRODUCTION.md already, those sections replace their namesakes in it and the others are kept, with a line
+    in its header saying what was rerun (a user's ``--only "Fig. 3"`` in the repository replaced the committed
+    ten sections with one).
+    """
+    wanted = section_names(only) if only else [n for n, _ in SECTIONS]
     out = Path(out)
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    parts, timing = [], []
+    parts, timing = {}, []
     for name, fn in SECTIONS:
-        if only and name not in only:
+        if name not in wanted:
             continue
         ts = time.perf_counter()
-        parts.append(fn(fig_dir))
+        parts[name] = fn(fig_dir)
         timing.append(f"{name}: {time.perf_counter() - ts:.0f} s")
     reg = registry.load_all()
     waiting = [f"- {k}: not yet available (needs problem(s) {', '.join(v)})"
@@ -1160,5 +1201,11 @@ def reproduce(out: str | Path = "reports", only: list[str] | None = None) -> Pat
         "Not reproduced yet:", "", *(waiting or ["- (none)"]), "",
     ]
     doc = out / "REPRODUCTION.md"
-    doc.write_text("\n".join(head + parts), encoding="utf-8")
+    if only and doc.is_file():
+        old_head, old_parts = _sections_of(doc.read_text(encoding="utf-8"))
+        at = next((i for i, line in enumerate(old_head) if line.startswith("Total run time")), len(old_head) - 1)
+        head = [*old_head[: at + 1], "", f"Rerun at git {commit or 'unknown'}: {'; '.join(timing)} (the other "
+                "sections as above).", *old_head[at + 1:]]
+        parts = {n: parts.get(n, old_parts.get(n)) for n, _ in SECTIONS if n in parts or n in old_parts}
+    doc.write_text("\n".join(head + list(parts.values())), encoding="utf-8")
     return doc
