@@ -10,7 +10,7 @@ import pytest
 import scipy.linalg as sl
 import trimesh
 
-from willmore_nlp import registry
+from willmore_nlp import geometry, registry
 from willmore_nlp.solvers.reduced import ReducedSettings, ReducedSolver, convexity_limit
 
 
@@ -186,6 +186,31 @@ def test_a_first_step_taken_at_tau_over_2_is_unchanged(tmp_path) -> None:
     tau_c = runs[0]._tau_c[0]
     assert runs[0].tau / CONVEX_FAR < tau_c < runs[0].tau / CONVEX_JUMP
     assert np.array_equal(runs[0].X, runs[1].X)
+
+
+def test_a_first_step_with_volume_and_area_fixed_is_retried_below_tau_c(tmp_path) -> None:
+    """trimesh's box subdivided 3 times (386 v, its edges sharp) with V and A fixed (IPOPT): the outer constraints'
+    convexity limit is the unconstrained one (their multipliers 0; a lower bound on their tangent space), tau / 4,287
+    (measured). With outer constraints only the last attempt goes below tau_c (here ``max_retries = 2``; the
+    ``file`` problem's 8 fail from tau to tau / 128, IPOPT's iterates collapsing triangles, measured): the attempts at
+    tau and tau / 2 fail, the last one is below tau_c and converges, V and A kept. Before, tau_c was not computed with
+    outer constraints (inf) and the first step failed at every tau."""
+    trimesh.creation.box().subdivide().subdivide().subdivide().export(tmp_path / "box.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "box.obj"))
+    flow = pb.make_flow(volume="initial", area="initial", max_retries=2)
+    free = pb.make_flow()
+    z0 = flow.problem.pack_z(flow.X, flow.Y)
+    assert flow.problem.nh == 2 and np.array_equal(z0, free.problem.pack_z(free.X, free.Y))
+    tau_c = convexity_limit(flow.evaluator, z0, flow.params(flow.X, flow.tau))
+    assert tau_c == pytest.approx(convexity_limit(free.evaluator, z0, free.params(free.X, free.tau)), rel=1e-9)
+    assert tau_c < flow.tau / 1e3
+    V0, A0 = geometry.enclosed_volume(flow.mesh), geometry.measure(flow.mesh)
+    with pytest.warns(UserWarning, match="convex at the initial state only below"):
+        first = flow.step()
+    assert first.retries == 2 and first.tau <= tau_c
+    state = flow.mesh.with_vertices(flow.X)
+    assert geometry.enclosed_volume(state) == pytest.approx(V0, rel=1e-12)
+    assert geometry.measure(state) == pytest.approx(A0, rel=1e-12)
 
 
 def test_a_run_that_started_below_tau_c_resumes_bit_for_bit(tmp_path, straight_and_resumed) -> None:

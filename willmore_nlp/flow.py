@@ -952,7 +952,8 @@ class WillmoreFlow:
         for name in solvers:
             if self.solver.name != name:  # after a first step of first_step_solver, or the fallback_solver's turn
                 self._make_solver(name)
-            if self.k == 0 and name == solvers[0] == "newton-krylov" and self.settings.max_retries:
+            if self.k == 0 and name == solvers[0] == "newton-krylov" and self.settings.max_retries \
+                    and not self.problem.nh:  # (outer constraints: below tau_c only for the last attempt, see below)
                 start = self._convex_start(tau0, 0)  # (its failed attempts are the costly ones: look first)
                 tau_c = self._convex_far(tau0) if start is None and len(solvers) > 1 else None
                 if tau_c is not None:
@@ -981,7 +982,10 @@ class WillmoreFlow:
                     raise StepInterrupted(self.k + 1)
                 rejected.append(f"tau={tau:.6g}: {name + ': ' if len(solvers) > 1 else ''}{reason}")
                 last = attempt == self.settings.max_retries
-                jump = self._convex_start(tau0, attempt + 1) if attempt <= 1 and self.k == 0 and start is None \
+                # with outer constraints tau_c is a lower bound (convexity_limit) and only the last attempt goes below
+                # it: a vesicle cup (v = 0.55, 642 v, tau_c = tau / 128) takes its first step at tau / 4
+                looks = attempt == self.settings.max_retries - 1 if self.problem.nh else attempt <= 1
+                jump = self._convex_start(tau0, min(attempt + 1, 2)) if looks and self.k == 0 and start is None \
                     and not last else None
                 tau = tau / 2 if jump is None else jump
         if below is not None:

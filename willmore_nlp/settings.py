@@ -438,9 +438,11 @@ class FlowSettings(Settings):
         / 10^3 - tau / 10^7 (its noise is smoothed on that time scale, about 0.01-0.04 h^4): its first step at tau / 2^j
         is a non-convex problem that the solvers took after several failed attempts or not at all, where from tau_c the
         steps converge at their first attempt in 4-9 Newton iterations while tau doubles (docs/guide/mesh_quality.md,
-        "Below the convexity limit"). A first step taken at tau or tau / 2, and every smooth input, are unchanged (the
-        first look costs 0.1-10 s: on newton-krylov's first step, on other solvers' where a first attempt failed).
-        Default true.
+        "Below the convexity limit"). With a volume or area constraint tau_c is that of the step problem without them,
+        a lower bound, and only the last attempt (``max_retries``) goes below it, with no first look
+        (docs/guide/terms.md, "Volume and area of closed surfaces"). A first step taken at tau or tau / 2,
+        and every smooth input, are unchanged (the first look costs 0.1-10 s: on newton-krylov's first step, on other
+        solvers' where a first attempt failed). Default true.
     min_tau : float, optional
         Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
         fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
