@@ -52,9 +52,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if spec.steps is None and spec.t_end is None:
         raise ConfigError(f"{args.target}: give --steps or --t-end")
     out = args.out or default_run_dir(args.target)
-    if not args.out:
-        print(f"willmore-nlp: writing the run to {out}", file=sys.stderr)
-    return runner.start(spec, out, quiet=args.quiet, overwrite=args.overwrite, ignore_late_signals=True)
+    return runner.start(spec, out, quiet=args.quiet, overwrite=args.overwrite, ignore_late_signals=True,
+                        announce=not args.out)
 
 
 def default_run_dir(target: str, root: str | os.PathLike[str] = "runs") -> Path:

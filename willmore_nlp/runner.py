@@ -296,10 +296,12 @@ def _abandoned(writer: RunWriter, guard: SignalGuard) -> int:
 
 
 def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, overwrite: bool = False,
-          ignore_late_signals: bool = False) -> int:
+          ignore_late_signals: bool = False, announce: bool = False) -> int:
     """Run ``spec`` into the new run directory ``out``; returns the exit code.
 
-    Nothing is written when the flow cannot be built (bad mesh or options). With ``overwrite``
+    Nothing is written when the flow cannot be built (bad mesh or options). ``announce``: say on stderr
+    "writing the run to OUT" once the flow has been built (``run`` without ``--out``: never for a run refused,
+    which writes nothing). With ``overwrite``
     an existing run directory ``out`` is cleared first (:func:`~willmore_nlp.rundir.clear_run_dir`:
     only the files the run wrote; others stay), once the new flow has been built.
     ``ignore_late_signals``: see :class:`SignalGuard` (``ignore_after``).
@@ -311,6 +313,8 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
         check_new_run_dir(o)
     pb = spec.problem
     flow = pb.make_flow(**spec.flow_options)
+    if announce:
+        print(f"willmore-nlp: writing the run to {o}", file=sys.stderr)
     if overwrite and (o / "config.json").is_file():
         removed = clear_run_dir(o)
         if not quiet:
