@@ -63,6 +63,17 @@ def test_cli_problems_lists_registry() -> None:
         assert name in r.stdout
 
 
+def test_cli_version(capsys) -> None:
+    """``willmore-nlp --version`` prints the package's version (it was "the following arguments are required:
+    command", exit 2)."""
+    from willmore_nlp import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"willmore-nlp {willmore_nlp.__version__}"
+
+
 def test_cli_run_circle_writes_run_directory(tmp_path) -> None:
     out = tmp_path / "run"
     r = run_cli("run", "circle", "--out", str(out), "--steps", "3", "--set", "n=32", "--set", "tau=0.01",
