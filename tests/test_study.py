@@ -22,6 +22,15 @@ def test_tau_specs_and_grid_validation() -> None:
         make_grid("circle", ["ipopt", "bfgs"], ["h"])
     cases = make_grid("circle", ["ipopt", "lbfgs"], ["h", "0.01"], {"n": [16, 32]}, steps=2)
     assert len(cases) == 8 and len({c.key for c in cases}) == 8
+    # ipopt.NAME options are IPOPT's (settings.solver_of): given to the cases whose flow uses IPOPT; they were
+    # max_iter of every solver
+    ipopt, lbfgs, nk = make_grid("circle", ["ipopt", "lbfgs", "newton-krylov"], ["h"], steps=1,
+                                 options={"ipopt.max_iter": 500, "tol": 1e-8})
+    assert ipopt.options == {"ipopt.max_iter": 500, "tol": 1e-8} and lbfgs.options == nk.options == {"tol": 1e-8}
+    assert make_grid("circle", ["newton-krylov"], ["h"], options={"fallback_solver": "ipopt", "ipopt.tol": 1e-7})[
+        0].options == {"fallback_solver": "ipopt", "ipopt.tol": 1e-7}
+    with pytest.raises(StudyError, match="--option: IPOPT option mu_strategy = 'x': not a valid setting"):
+        make_grid("circle", ["ipopt", "lbfgs"], ["h"], options={"ipopt.mu_strategy": "x"})
 
 
 def test_study_on_a_local_cluster_writes_every_artefact_and_reruns_skip(tmp_path, capsys) -> None:

@@ -175,17 +175,18 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
         or multiple of h, or a parameter both in ``grid`` and ``params``.
     """
     from willmore_nlp import registry
-    from willmore_nlp.settings import FlowSettings
+    from willmore_nlp.settings import FlowSettings, route_solver_options
     from willmore_nlp.solvers import solver_names, solver_settings
 
     registry.get(problem)
     known = solver_names()
-    _, solver_options = FlowSettings.split(options or {})
     for s in solvers:
         if s not in known:
             raise StudyError(f"--solvers: unknown solver {s!r}; available: {', '.join(known)}")
         try:
-            solver_settings(s).from_options(solver_options)
+            flow_options, solver_options = FlowSettings.split(case_options(s, options or {}))
+            for name, given in route_solver_options(solver_options, {**flow_options, "solver": s}).items():
+                solver_settings(name).from_options(given)
         except UserInputError as exc:
             raise StudyError(f"--option: {exc}") from exc
     if not solvers or not taus:
@@ -200,8 +201,18 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
     combos: list[dict[str, Any]] = [dict(params or {})]
     for k, vals in grid.items():
         combos = [{**c, k: v} for c in combos for v in vals]
-    return [Case(problem, s, str(t), c, steps, t_end, dict(options or {})) for c in combos for s in solvers
-            for t in taus]
+    return [Case(problem, s, str(t), c, steps, t_end, case_options(s, options or {})) for c in combos
+            for s in solvers for t in taus]
+
+
+def case_options(solver: str, options: dict[str, Any]) -> dict[str, Any]:
+    """The ``--option`` values of a study's cases of ``solver``: without the options written ``NAME.KEY`` for a solver
+    NAME that the case's flow does not use (``--solvers ipopt,lbfgs --option ipopt.max_iter=500``: IPOPT's, for the
+    ipopt cases; :func:`~willmore_nlp.settings.solver_of`)."""
+    from willmore_nlp.settings import flow_solvers, solver_prefix
+
+    used = flow_solvers({**options, "solver": solver}).values()
+    return {k: v for k, v in options.items() if solver_prefix(k) in ("", *used)}
 
 
 def check_cases(cases: list[Case]) -> None:
@@ -389,7 +400,7 @@ def _label(rec: dict[str, Any], varying: tuple[str, ...] = ()) -> str:
     """``SOLVER tau=TAU`` with the case's parameters and its options and length among ``varying``."""
     c = rec["case"]
     par = " ".join([*(f"{k}={v}" for k, v in c["params"].items()),
-                    *(f"{k}={c.get(k, c['options'].get(k))}" for k in varying)])
+                    *(f"{k}={c.get(k, c['options'].get(k))}" for k in varying if k in c or k in c["options"])])
     return f"{c['solver']} tau={c['tau']}" + (f" {par}" if par else "")
 
 
