@@ -102,8 +102,9 @@ def flow_options_markdown() -> str:
         cls = solver_settings(name)
         if name == "ipopt":
             parts += ["### `ipopt`", "", "`warm_start` (default `False`): start each step from the previous "
-                      "step's multipliers. Any IPOPT option as `ipopt.NAME` (`tol`, `max_iter`, `print_level` "
-                      "also without the prefix; in Python also as one mapping, `ipopt={\"max_iter\": 10}`), "
+                      "step's multipliers. Any IPOPT option as `ipopt.NAME` (in Python also as one mapping, "
+                      "`ipopt={\"max_iter\": 10}`; IPOPT's also when it is the first-step, fallback or large "
+                      "solver; `tol`, `max_iter`, `print_level` also without the prefix when IPOPT is `solver`), "
                       "checked against IPOPT's documented type and range before anything runs. Defaults "
                       "differing from IPOPT's:", "", "| IPOPT option | default |", "|---|---|",
                       *(f"| `{k}` | `{v!r}` |" for k, v in IPOPT_DEFAULTS.items()), ""]

@@ -11,6 +11,11 @@ from willmore_nlp.registry import Problem, register
 BUNNY_H = 0.00865
 """Initial mean edge length of the paper's Fig. 11 bunny (436 nodes)."""
 
+HELD = {"anisotropy": "gamma"}
+"""The flow option these problems set from their parameter ``gamma`` (:attr:`~willmore_nlp.registry.Problem.held`:
+``bunny --set gamma=gamma0 --set anisotropy=gamma2`` ran gamma2 with the weight 1 and no redistribution that the
+bunny gives gamma0, failed its first step, and its config.json recorded gamma0: a new-user check)."""
+
 
 def bunny_curve(n: int = 436, h: float = BUNNY_H) -> Mesh:
     """A bunny-shaped closed curve in R^2 (own silhouette): body, head, two ears, tail and feet.
@@ -59,7 +64,8 @@ def bunny(gamma: str = "gamma1", n: int = 436, h: float = 0.05, tau: float | Non
     eps = 1e-7 (``gamma2``) clusters the nodes within the first step. For gamma2 the defaults are
     ``tangential_weight`` (beta of the distance term) = 1000, since nodes otherwise slide into
     clusters, and ``redistribute`` (equal arc-length spacing after every step) = True; for the other
-    anisotropies 1 and False, the paper's scheme.
+    anisotropies 1 and False, the paper's scheme. The anisotropy is ``gamma``'s: the flow option ``anisotropy`` is
+    refused (``gamma=gamma0 anisotropy=gamma2`` ran gamma2 without its tangential weight and redistribution).
     """
     mesh = bunny_curve(n, h)
     h_ = mesh.h
@@ -71,7 +77,7 @@ def bunny(gamma: str = "gamma1", n: int = 436, h: float = 0.05, tau: float | Non
     return Problem(mesh, h_ if tau is None else float(tau), 0.1 * h_ * h_ if tau_tilde is None else float(tau_tilde),
                    lam, steps=steps, flow_options={"anisotropy": gamma, "tangential_weight": float(tangential_weight),
                                                    "redistribute": bool(redistribute)},
-                   description="bunny curve under anisotropic Willmore flow (Fig. 11)")
+                   description="bunny curve under anisotropic Willmore flow (Fig. 11)", held=HELD)
 
 
 @register("anisotropic_sphere")
@@ -84,10 +90,11 @@ def anisotropic_sphere(gamma: str = "gamma1", subdivisions: int = 2, radius: flo
     Defaults: 162 vertices, radius 3, tau = h, tau_tilde = h^2 / 100, lam = 0, and the flow's mesh control. At
     rest (t = 67) x2/x1 is 2.21 / 2.004 / 1.999 and w_gamma 4.98 / 1.23 / 0.33 % below the Wulff shapes' 42.96 on
     162 / 642 / 2,562 vertices (order 1.96), every angle >= 42 deg (reports/wulff_study.md); without the mesh
-    control the 162-vertex mesh collapses (0.5 deg) and its step fails at t = 56.
+    control the 162-vertex mesh collapses (0.5 deg) and its step fails at t = 56. The anisotropy is ``gamma``'s (the
+    flow option ``anisotropy`` is refused).
     """
     mesh = shapes.icosphere(subdivisions, radius)
     h = mesh.h
     return Problem(mesh, h if tau is None else float(tau), 0.01 * h * h if tau_tilde is None else float(tau_tilde),
                    lam, steps=steps, flow_options={"anisotropy": gamma},
-                   description="sphere under anisotropic Willmore flow (surface, beyond the paper)")
+                   description="sphere under anisotropic Willmore flow (surface, beyond the paper)", held=HELD)

@@ -225,6 +225,24 @@ def test_cli_runs_the_fig11_bunny_and_the_sphere(tmp_path) -> None:
     assert not (tmp_path / "bad").exists()
 
 
+def test_the_anisotropic_problems_take_their_anisotropy_from_gamma_only(tmp_path, capsys) -> None:
+    """``run bunny --set gamma=gamma0 --set anisotropy=gamma2`` ran gamma2 with gamma0's tangential weight 1 and no
+    redistribution, failed its first step (exit 1) and recorded params.gamma = 'gamma0' (a new-user check): the flow
+    option ``anisotropy`` of ``bunny`` and ``anisotropic_sphere`` is refused in one line naming ``gamma``."""
+    from willmore_nlp import cli
+    from willmore_nlp.registry import ProblemError
+
+    out = tmp_path / "r"
+    assert cli.main(["run", "bunny", "--set", "gamma=gamma0", "--set", "anisotropy=gamma2", "--steps", "1",
+                     "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "anisotropy is set by the problem's parameters; set gamma instead" in err, err
+    assert not out.exists()
+    pb, _ = registry.build("anisotropic_sphere", subdivisions=0)
+    with pytest.raises(ProblemError, match="anisotropy is set by the problem's parameters; set gamma instead"):
+        pb.make_flow(anisotropy="gamma0")
+
+
 def test_a_clamped_anisotropic_flow_reports_its_anisotropic_energy() -> None:
     """willmore_gamma was NaN for every clamped anisotropic run (the clamped step setup did not carry the anisotropy;
     found by a new-user check). On a clamped cap with the ring variant gamma0's w_gamma equals the isotropic W over

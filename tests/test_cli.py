@@ -63,6 +63,17 @@ def test_cli_problems_lists_registry() -> None:
         assert name in r.stdout
 
 
+def test_cli_version(capsys) -> None:
+    """``willmore-nlp --version`` prints the package's version (it was "the following arguments are required:
+    command", exit 2)."""
+    from willmore_nlp import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"willmore-nlp {willmore_nlp.__version__}"
+
+
 def test_cli_run_circle_writes_run_directory(tmp_path) -> None:
     out = tmp_path / "run"
     r = run_cli("run", "circle", "--out", str(out), "--steps", "3", "--set", "n=32", "--set", "tau=0.01",
@@ -101,6 +112,19 @@ def test_cli_run_without_out_writes_a_new_directory_under_runs(tmp_path) -> None
     assert r.returncode == 2 and "--overwrite needs --out DIR" in r.stderr
     assert default_run_dir("meshes/dt.obj", tmp_path / "runs").name == "dt"
     assert default_run_dir("my.toml", tmp_path / "runs").name == "my"
+
+def test_cli_run_without_out_names_the_directory_only_for_a_run_it_writes(tmp_path, monkeypatch, capsys) -> None:
+    """A run refused when its flow is built (``run vesicle --set volume=1`` without ``--out``) says only its error:
+    it had said "writing the run to runs/vesicle" first, and wrote nothing there."""
+    from willmore_nlp import cli
+
+    monkeypatch.chdir(tmp_path)
+    for bad in ("volume=1", "solver=newton"):
+        assert cli.main(["run", "vesicle", "--set", bad, "--steps", "1", "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert "writing the run to" not in err and err.strip().count("\n") == 0, err
+        assert not (tmp_path / "runs").exists()
+
 
 def test_cli_run_toml_config_with_mesh_file(tmp_path) -> None:
     from willmore_nlp.mesh import shapes

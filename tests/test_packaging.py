@@ -56,3 +56,11 @@ def test_the_core_does_not_import_the_applications(tmp_path) -> None:
             "print(sorted(m for m in sys.modules if m.startswith('willmore_nlp.apps')))")
     r = _python(["-c", code], tmp_path)
     assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr
+
+
+def test_the_version_shown_is_the_packages() -> None:
+    """``willmore-nlp --version`` shows ``willmore_nlp.__version__``: the version pyproject.toml installs."""
+    import willmore_nlp
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    assert willmore_nlp.__version__ == project["version"]

@@ -234,7 +234,8 @@ def test_an_option_of_another_solver_names_that_solver(tmp_path, capsys) -> None
         capsys, ["run", "circle", "--set", "cg_max_iter=5", *out])
     assert "armijo is an option of solvers gd, lbfgs, newton, newton-krylov, not of ipopt: add --set solver=NAME " \
            "with one of them" in _last_line(capsys, ["run", "circle", "--set", "armijo=1e-3", *out])
-    assert "mu_strategy is an option of solver ipopt, not of sqp: add --set solver=ipopt" in _last_line(
+    assert "ipopt.mu_strategy: IPOPT is not used (solver sqp, fallback_solver none): add --set " \
+           "fallback_solver=ipopt or solver=ipopt" in _last_line(
         capsys, ["run", "circle", "--set", "solver=sqp", "--set", "ipopt.mu_strategy=adaptive", *out])
     assert "--option: cholesky is an option of solver newton-krylov, not of lbfgs" in _last_line(
         capsys, ["compare", "circle", "--solvers", "lbfgs", "--option", "cholesky=scipy", "--out", str(tmp_path / "s"),
@@ -247,6 +248,51 @@ def test_an_option_of_another_solver_names_that_solver(tmp_path, capsys) -> None
     assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()
 
 
+def test_ipopt_options_are_ipopts_whichever_solver_it_is(tmp_path) -> None:
+    """``ipopt.NAME`` keys, a config's ``[ipopt]`` table and ``ipopt={...}`` counted as ``NAME`` of whichever solver was
+    ``solver`` (a new-user check): a surface file of >= 500 vertices (newton-krylov with the IPOPT fallback) refused
+    ``[ipopt] mu_strategy = "adaptive"`` ("an option of solver ipopt, not of newton-krylov"), and
+    ``solver='newton-krylov', ipopt={'max_iter': 1}`` cut newton-krylov to one iteration. Now they are IPOPT's, as
+    ``solver``, ``first_step_solver``, ``fallback_solver`` or ``large_solver``, beside the other solver's own options of
+    the same name, and refused in one line when the flow does not use IPOPT."""
+    from willmore_nlp.mesh.io import save_mesh
+    from willmore_nlp.settings import route_solver_options
+
+    save_mesh(shapes.icosphere(3), tmp_path / "ico.obj")
+    (tmp_path / "cfg.toml").write_text('mesh = "ico.obj"\nsteps = 1\nmax_iter = 20\n[ipopt]\nmu_strategy = "adaptive"\n'
+                                       'max_iter = 100\n')
+    spec = resolve(str(tmp_path / "cfg.toml"))
+    options = spec.problem.effective_options(spec.flow_options)
+    assert (options["solver"], options["fallback_solver"]) == ("newton-krylov", "ipopt")
+    assert route_solver_options(spec.flow_options, options) == {
+        "newton-krylov": {"max_iter": 20}, "ipopt": {"ipopt.mu_strategy": "adaptive", "ipopt.max_iter": 100}}
+    m = shapes.icosphere(1)
+    flow = WillmoreFlow(m, 0.1, 1e-3, solver="newton-krylov", fallback_solver="ipopt", max_iter=5,
+                        ipopt={"max_iter": 1, "mu_strategy": "adaptive"})
+    assert flow.solver.name == "newton-krylov" and flow.solver.max_iter == 5
+    flow._make_solver("ipopt")
+    assert flow.solver.options["max_iter"] == 1 and flow.solver.options["mu_strategy"] == "adaptive"
+    for role in ("first_step_solver", "large_solver"):
+        flow = WillmoreFlow(m, 0.1, 1e-3, solver="newton-krylov", max_iter=5, **{role: "ipopt", "ipopt.max_iter": 7})
+        assert flow._solver_options("ipopt") == {"ipopt.max_iter": 7}
+        assert flow._solver_options("newton-krylov") == {"max_iter": 5}
+    with pytest.raises(UserInputError, match=re.escape(
+            "ipopt.max_iter: IPOPT is not used (solver newton-krylov, fallback_solver none): add --set "
+            "fallback_solver=ipopt or solver=ipopt (fallback_solver='ipopt' in Python), or leave ipopt.max_iter out")):
+        WillmoreFlow(m, 0.1, 1e-3, solver="newton-krylov", ipopt={"max_iter": 1})
+    assert cli.main(["run", str(tmp_path / "cfg.toml"), "--set", "solver=sqp", "--out", str(tmp_path / "r")]) == 2
+    assert not (tmp_path / "r").exists()
+    # a run directory written before, with IPOPT unused, resumes with the options it ran with
+    from willmore_nlp.runner import spec_from_config
+
+    old = {"solver": "newton-krylov", "ipopt.max_iter": 3}
+    cfg = {"problem": "circle", "params": {"n": 12}, "flow_options": old, "effective_flow_options": old}
+    assert spec_from_config(cfg, "config.json").flow_options == {"solver": "newton-krylov", "max_iter": 3}
+    both = {**old, "fallback_solver": "ipopt"}
+    assert spec_from_config({**cfg, "flow_options": both, "effective_flow_options": both},
+                            "config.json").flow_options == both
+
+
 def test_ipopt_options_as_one_mapping() -> None:
     """Found by a new-user check: a TOML config takes an ``[ipopt]`` table, so users try
     ``WillmoreFlow(m, ..., ipopt={"max_iter": 10})``, which raised a raw ``TypeError: IpoptSettings() got multiple
@@ -255,7 +301,7 @@ def test_ipopt_options_as_one_mapping() -> None:
     flow = WillmoreFlow(m, 0.1, 1e-3, ipopt={"max_iter": 10, "mu_strategy": "adaptive"})
     assert flow.solver.options["max_iter"] == 10 and flow.solver.options["mu_strategy"] == "adaptive"
     for kwargs, text in [({"ipopt": {"max_iter": 10}, "max_iter": 5},
-                          "ipopt: option max_iter is given twice, in the ipopt mapping and as max_iter"),
+                          "option max_iter of solver ipopt is given twice, as max_iter and as ipopt.max_iter"),
                          ({"ipopt": {"max_iter": 10}, "ipopt.max_iter": 5}, "and as ipopt.max_iter"),
                          ({"ipopt": {"mu_strategy": "x"}}, "IPOPT option mu_strategy = 'x': not a valid setting"),
                          ({"ipopt": 3}, "ipopt must be a mapping of IPOPT options (name: value), got 3")]:

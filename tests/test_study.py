@@ -22,6 +22,15 @@ def test_tau_specs_and_grid_validation() -> None:
         make_grid("circle", ["ipopt", "bfgs"], ["h"])
     cases = make_grid("circle", ["ipopt", "lbfgs"], ["h", "0.01"], {"n": [16, 32]}, steps=2)
     assert len(cases) == 8 and len({c.key for c in cases}) == 8
+    # ipopt.NAME options are IPOPT's (settings.solver_of): given to the cases whose flow uses IPOPT; they were
+    # max_iter of every solver
+    ipopt, lbfgs, nk = make_grid("circle", ["ipopt", "lbfgs", "newton-krylov"], ["h"], steps=1,
+                                 options={"ipopt.max_iter": 500, "tol": 1e-8})
+    assert ipopt.options == {"ipopt.max_iter": 500, "tol": 1e-8} and lbfgs.options == nk.options == {"tol": 1e-8}
+    assert make_grid("circle", ["newton-krylov"], ["h"], options={"fallback_solver": "ipopt", "ipopt.tol": 1e-7})[
+        0].options == {"fallback_solver": "ipopt", "ipopt.tol": 1e-7}
+    with pytest.raises(StudyError, match="--option: IPOPT option mu_strategy = 'x': not a valid setting"):
+        make_grid("circle", ["ipopt", "lbfgs"], ["h"], options={"ipopt.mu_strategy": "x"})
 
 
 def test_study_on_a_local_cluster_writes_every_artefact_and_reruns_skip(tmp_path, capsys) -> None:
@@ -151,6 +160,33 @@ def test_a_rerun_of_another_length_runs_its_cases_anew(tmp_path, capsys) -> None
     assert "| off | ok | 1 |" in md.read_text()
     (out / "cases" / f"{two[0].key}.json").unlink()
     assert case_file(out, two[0]) is None  # an old-named file of another length does not count
+
+
+def test_a_rerun_with_a_smaller_grid_keeps_every_case_in_the_summary(tmp_path, capsys) -> None:
+    """``compare circle --taus h --set n=64 --steps 5 --out S`` on a study of 6 cases said "1 cases, 1 already
+    finished" and wrote a summary of that 1 case, and ``report S`` too, while cases/ held 6 (a new-user check): the
+    rerun adds its cases to study.json and the summary covers every case file; cases that differ only in their
+    length or options are labelled with it."""
+    from willmore_nlp.cli import main
+
+    out = tmp_path / "s"
+    cases = make_grid("circle", ["ipopt"], ["h", "2h"], {"n": [12, 16]}, steps=1)
+    longer = Case("circle", "ipopt", "h", {"n": 12}, 2)
+    for c in [*cases, longer]:
+        run_case(c, str(out))  # (finished without a cluster)
+    (out / STUDY_FILE).write_text(json.dumps({"cases": []}), encoding="utf-8")
+    run_study(cases, out, n_workers=1)
+    md = run_study(cases[:1], out, n_workers=1)
+    assert "1 cases, 1 already finished" in capsys.readouterr().err
+    assert len(json.loads((out / STUDY_FILE).read_text())["cases"]) == 4
+    for _ in range(2):  # compare, then report
+        text = md.read_text()
+        assert "5 finished case(s)" in text and text.count("| off | ok |") == 5
+        assert "| ipopt tau=h n=12 steps=1 |" in text and "| ipopt tau=h n=12 steps=2 |" in text
+        with open(out / "study.csv", encoding="utf-8") as fh:
+            assert len({r["case"] for r in csv.DictReader(fh)}) == 5
+        (out / "summary.md").unlink()
+        assert main(["report", str(out)]) == 0
 
 
 def test_compare_refuses_a_case_that_can_never_run_before_writing(tmp_path, capsys) -> None:

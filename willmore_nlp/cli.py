@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from willmore_nlp import runner
+from willmore_nlp import __version__, runner
 from willmore_nlp.config import ConfigError, parse_overrides, resolve
 from willmore_nlp.errors import EXIT_BUG, EXIT_IO, EXIT_USAGE, IO_ERRNOS, PATH_ERRNOS, UserInputError, interrupted
 
@@ -52,9 +52,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if spec.steps is None and spec.t_end is None:
         raise ConfigError(f"{args.target}: give --steps or --t-end")
     out = args.out or default_run_dir(args.target)
-    if not args.out:
-        print(f"willmore-nlp: writing the run to {out}", file=sys.stderr)
-    return runner.start(spec, out, quiet=args.quiet, overwrite=args.overwrite, ignore_late_signals=True)
+    return runner.start(spec, out, quiet=args.quiet, overwrite=args.overwrite, ignore_late_signals=True,
+                        announce=not args.out)
 
 
 def default_run_dir(target: str, root: str | os.PathLike[str] = "runs") -> Path:
@@ -193,6 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``willmore-nlp``."""
     ap = argparse.ArgumentParser(prog="willmore-nlp", description=__doc__)
     ap.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                    help="show the version of willmore_nlp and exit")
     sub = ap.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="run a problem (registry name, TOML config or mesh file) into a run directory")

@@ -4,7 +4,8 @@ A TOML file is flat: ``problem = "NAME"`` (a registered problem) or ``mesh = "FI
 (shorthand for problem ``file`` with ``path = FILE``, relative to the TOML file), then
 any parameter of that problem, flow options (:class:`~willmore_nlp.settings.FlowSettings`), solver
 options (:func:`solver_keys`), run length (``steps``, ``t_end``) and IPOPT options in an ``[ipopt]``
-table or as ``ipopt.NAME`` keys.
+table or as ``ipopt.NAME`` keys: IPOPT's, whether it is the ``solver``, ``first_step_solver``, ``fallback_solver``
+or ``large_solver`` (:func:`~willmore_nlp.settings.solver_of`).
 A run target may also be a mesh file itself (:data:`MESH_SUFFIXES`).
 Unknown keys are errors, so a typo is never silently ignored, and values are checked by the
 settings (:func:`check_spec`) with messages naming the file or ``--set`` that gave them.
@@ -27,7 +28,7 @@ from willmore_nlp import registry
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh.core import MeshError
 from willmore_nlp.registry import Problem, ProblemError, coerce
-from willmore_nlp.settings import FlowSettings, auto, check_run_value
+from willmore_nlp.settings import FlowSettings, auto, check_run_value, flow_solvers, solver_of
 from willmore_nlp.solvers import solver_names, solver_settings
 
 FLOW_KEYS: dict[str, Any] = FlowSettings.defaults()
@@ -240,14 +241,16 @@ def check_spec(spec: RunSpec, sources: dict[str, str] | None = None) -> None:
             FlowSettings.check(k, v) if k in flow else check_run_value(k, v)
         except UserInputError as exc:
             raise fail(k, exc) from exc
-    solver = spec.flow_options.get("solver", pb.flow_options.get("solver", "ipopt"))
-    try:
-        settings = solver_settings(solver)
-    except UserInputError as exc:
-        raise ConfigError(f"{sources.get('solver', 'solver')}: {exc}") from exc
+    roles = pb.effective_options(spec.flow_options)  # (the problem's solvers, e.g. the file problem's fallback)
+    for role, name in flow_solvers(roles).items():
+        if name:
+            try:
+                solver_settings(name)
+            except UserInputError as exc:
+                raise ConfigError(f"{sources.get(role, role)}: {exc}") from exc
     for k, v in solver_opts.items():
         try:
-            settings.from_options({k: v})
+            solver_settings(solver_of(k, roles)[0]).from_options({k: v})
         except UserInputError as exc:
             raise ConfigError(f"{sources.get(k, '--set')}: {exc}") from exc
 

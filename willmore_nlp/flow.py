@@ -23,7 +23,14 @@ from willmore_nlp.model.build import build_step
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms.base import Term
 from willmore_nlp.model.terms.tangential_control import TangentialControlTerm
-from willmore_nlp.settings import FlowSettings, check_run_value, flatten_ipopt, is_number
+from willmore_nlp.settings import (
+    SOLVER_ROLES,
+    FlowSettings,
+    check_run_value,
+    flatten_ipopt,
+    is_number,
+    route_solver_options,
+)
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
 from willmore_nlp.solvers.ipopt import UNIT_WIDTHS, length_unit
 from willmore_nlp.tangential import TangentialControl, default_weight, resolve_method
@@ -502,9 +509,12 @@ class WillmoreFlow:
         Flow options, the fields of :class:`~willmore_nlp.settings.FlowSettings` (``solver``,
         ``max_retries``, ``anisotropy``, ``tangential_weight``, ``relax``, ``remesh`` ...: see there
         or docs/reference/options.md), and the solver's options (``tol``, ``max_iter``, ``warm_start``,
-        IPOPT options: :func:`willmore_nlp.solvers.solver_settings`). Each is validated when given. IPOPT's
-        options may also come as one mapping, like a config's ``[ipopt]`` table: ``ipopt={"max_iter": 10}`` is
-        ``max_iter=10`` (an option both in it and given flat is refused).
+        IPOPT options: :func:`willmore_nlp.solvers.solver_settings`). Each is validated when given. An option written
+        ``NAME.KEY`` (``ipopt.max_iter``) is solver NAME's, whether NAME is ``solver``, ``first_step_solver``,
+        ``fallback_solver`` or ``large_solver`` (refused when it is none of them), the others ``solver``'s
+        (:func:`willmore_nlp.settings.solver_of`). IPOPT's options may also come as one mapping, like a config's
+        ``[ipopt]`` table: ``ipopt={"max_iter": 10}`` is ``**{"ipopt.max_iter": 10}`` (an option given to one
+        solver twice is refused).
 
     Attributes
     ----------
@@ -531,8 +541,8 @@ class WillmoreFlow:
                 raise UserInputError(f"terms: each must be a willmore_nlp.model.terms.Term instance, got "
                                      f"{type(t).__name__}")
         flow_options, solver_options = FlowSettings.split(options)
-        self._options = flatten_ipopt(solver_options)
         s = self.settings = dataclasses.replace(settings or FlowSettings(), **flow_options)  # validates them
+        self._options = route_solver_options(flatten_ipopt(solver_options), {r: getattr(s, r) for r in SOLVER_ROLES})
         tau, tau_tilde, lam = (check_run_value(k, v) for k, v in (("tau", tau), ("tau_tilde", tau_tilde), ("lam", lam)))
         if not s.allow_components:
             from willmore_nlp.mesh.topology import check_connected
@@ -708,14 +718,9 @@ class WillmoreFlow:
         return (first,) if fallback in ("", first) else (first, fallback)
 
     def _solver_options(self, name: str) -> dict[str, Any]:
-        """The solver options of ``name``: with a ``first_step_solver``, ``fallback_solver`` or ``large_solver``
-        other than ``solver``, the ``NAME.KEY`` ones (as KEY) are that solver's and the others ``solver``'s; else
-        all of them."""
-        s = self.settings
-        others = {n for n in (s.first_step_solver, s.fallback_solver, s.large_solver) if n and n != s.solver}
-        if name in others:
-            return {k.removeprefix(name + "."): v for k, v in self._options.items() if k.startswith(name + ".")}
-        return {k: v for k, v in self._options.items() if not any(k.startswith(o + ".") for o in others)}
+        """The solver options of ``name``, one of the flow's solvers: the ``NAME.KEY`` ones and, for ``solver``, the
+        others (:func:`~willmore_nlp.settings.solver_of`)."""
+        return dict(self._options[name])
 
     def _make_solver(self, name: str) -> None:
         """``self.solver``: the solver ``name`` for the current step problem, with the flow's stop and stall tests."""

@@ -59,6 +59,7 @@ from willmore_nlp.rundir import (
     require_run_dir,
     write_text_atomic,
 )
+from willmore_nlp.settings import flow_solvers
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 """Environment variables that set BLAS/OpenMP thread counts (recorded in config.json)."""
@@ -296,10 +297,12 @@ def _abandoned(writer: RunWriter, guard: SignalGuard) -> int:
 
 
 def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, overwrite: bool = False,
-          ignore_late_signals: bool = False) -> int:
+          ignore_late_signals: bool = False, announce: bool = False) -> int:
     """Run ``spec`` into the new run directory ``out``; returns the exit code.
 
-    Nothing is written when the flow cannot be built (bad mesh or options). With ``overwrite``
+    Nothing is written when the flow cannot be built (bad mesh or options). ``announce``: say on stderr
+    "writing the run to OUT" once the flow has been built (``run`` without ``--out``: never for a run refused,
+    which writes nothing). With ``overwrite``
     an existing run directory ``out`` is cleared first (:func:`~willmore_nlp.rundir.clear_run_dir`:
     only the files the run wrote; others stay), once the new flow has been built.
     ``ignore_late_signals``: see :class:`SignalGuard` (``ignore_after``).
@@ -311,6 +314,8 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
         check_new_run_dir(o)
     pb = spec.problem
     flow = pb.make_flow(**spec.flow_options)
+    if announce:
+        print(f"willmore-nlp: writing the run to {o}", file=sys.stderr)
     if overwrite and (o / "config.json").is_file():
         removed = clear_run_dir(o)
         if not quiet:
@@ -391,7 +396,8 @@ def _chdir(path: str | None) -> Iterator[None]:
 
 
 def spec_from_config(cfg: dict[str, Any], where: str, run_dir: Path | None = None) -> RunSpec:
-    """Rebuild the RunSpec of a stored configuration (relative paths as seen from its ``cwd``).
+    """Rebuild the RunSpec of a stored configuration (relative paths as seen from its ``cwd``). ``ipopt.NAME`` options
+    of a run that used no IPOPT, written when they counted as ``NAME`` of its ``solver``, are given as ``NAME``.
 
     With ``run_dir``, a run of a mesh file (problem ``file``) reads the run's own copy of the
     initial mesh, ``run_dir/mesh.npz``, so the original file may have moved, changed or gone.
@@ -401,7 +407,11 @@ def spec_from_config(cfg: dict[str, Any], where: str, run_dir: Path | None = Non
             raise RunError(f"{where}: no {k!r} entry")
     entry = registry.load_all().get(str(cfg["problem"]))  # (an unknown name: resolve's error)
     before = {} if entry is None else {k: v for k, v in entry.before.items() if k not in cfg["params"]}
-    overrides = {**before, **cfg["params"], **cfg.get("flow_options", {})}
+    given = dict(cfg.get("flow_options", {}))
+    if "ipopt" not in flow_solvers(cfg.get("effective_flow_options", given)).values():
+        # written before ipopt.NAME keys were IPOPT's alone (2026-11-30; refused since without IPOPT): solver's NAME
+        given = {k.removeprefix("ipopt."): v for k, v in given.items()}
+    overrides = {**before, **cfg["params"], **given}
     if run_dir is not None and cfg["problem"] == "file":
         overrides["path"] = str(Path(run_dir).resolve() / "mesh.npz")
     with _chdir(cfg.get("cwd")):

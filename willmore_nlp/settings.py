@@ -175,12 +175,12 @@ SOLVER_IGNORED = ("warm_start", "print_level")
 
 def flatten_ipopt(options: dict[str, Any]) -> dict[str, Any]:
     """``options`` with an ``ipopt`` mapping (the API's counterpart of a config's ``[ipopt]`` table) given as
-    ``ipopt.NAME`` entries, which the solvers check as IPOPT options.
+    ``ipopt.NAME`` entries: IPOPT's options (:func:`solver_of`).
 
     Raises
     ------
     UserInputError
-        ``ipopt`` is not a mapping, or one of its entries is given flat too (``NAME`` or ``ipopt.NAME``).
+        ``ipopt`` is not a mapping, or one of its entries is given as ``ipopt.NAME`` too.
     """
     if "ipopt" not in options:
         return options
@@ -189,11 +189,82 @@ def flatten_ipopt(options: dict[str, Any]) -> dict[str, Any]:
         raise UserInputError(f"ipopt must be a mapping of IPOPT options (name: value), got {table!r}")
     flat = {k: v for k, v in options.items() if k != "ipopt"}
     for k, v in table.items():
-        twice = [f for f in (k, f"ipopt.{k}") if f in flat]
-        if twice:
-            raise UserInputError(f"ipopt: option {k} is given twice, in the ipopt mapping and as {twice[0]}")
+        if f"ipopt.{k}" in flat:
+            raise UserInputError(f"ipopt: option {k} is given twice, in the ipopt mapping and as ipopt.{k}")
         flat[f"ipopt.{k}"] = v
     return flat
+
+
+SOLVER_ROLES = ("solver", "first_step_solver", "fallback_solver", "large_solver")
+"""The flow options that name a solver of the flow (:class:`FlowSettings`)."""
+
+
+def flow_solvers(roles: Mapping[str, Any]) -> dict[str, str]:
+    """Each of :data:`SOLVER_ROLES` -> the solver ``roles`` (flow options) give it ('' none; ``solver``: "ipopt"
+    unless given)."""
+    return {r: str(roles.get(r) or ("ipopt" if r == "solver" else "")) for r in SOLVER_ROLES}
+
+
+def solver_prefix(key: str) -> str:
+    """NAME of an option written ``NAME.KEY`` with NAME a registered solver (``ipopt.max_iter``), else ''."""
+    from willmore_nlp.solvers import solver_names  # (the solvers' registry imports this module)
+
+    name, dot, _ = key.partition(".")
+    return name if dot and name in solver_names() else ""
+
+
+def solver_of(key: str, roles: Mapping[str, Any]) -> tuple[str, str]:
+    """The solver that the solver option ``key`` of a flow is given to, and the option's name there.
+
+    ``NAME.KEY``, NAME a registered solver, is solver NAME's option KEY, whether NAME is the flow's ``solver``,
+    ``first_step_solver``, ``fallback_solver`` or ``large_solver`` (``ipopt.max_iter``: a config's ``[ipopt]``
+    table and the API's ``ipopt={...}`` give IPOPT's options so); any other key is ``solver``'s. Until 2026-11-30 an
+    ``ipopt.NAME`` key counted as ``NAME`` of whichever solver was ``solver``: ``[ipopt] max_iter = 100`` became
+    newton-krylov's ``max_iter`` beside an IPOPT fallback, which could not be tuned (a new-user check).
+
+    Parameters
+    ----------
+    key : a solver option as given
+    roles : the flow's :data:`SOLVER_ROLES` (missing or '': none; ``solver`` "ipopt" when missing)
+
+    Raises
+    ------
+    UserInputError
+        NAME is not a solver of the flow: ``KEY: IPOPT is not used (solver S, fallback_solver F)``.
+    """
+    used = flow_solvers(roles)
+    name = solver_prefix(key)
+    if not name:
+        return used["solver"], key
+    if name not in used.values():
+        what = "IPOPT" if name == "ipopt" else f"solver {name}"
+        given = ", ".join(f"{r} {n or 'none'}" for r, n in used.items() if n or r == "fallback_solver")
+        raise UserInputError(f"{key}: {what} is not used ({given}): add --set fallback_solver={name} or "
+                             f"solver={name} (fallback_solver={name!r} in Python), or leave {key} out")
+    return name, key.removeprefix(f"{name}.")
+
+
+def route_solver_options(options: Mapping[str, Any], roles: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """Solver name -> its options, for every solver of a flow (:data:`SOLVER_ROLES` ``roles``), each key given as it
+    is (``NAME.KEY`` or ``KEY``, which :meth:`SolverSettings.from_options` both take) to the solver :func:`solver_of`
+    says.
+
+    Raises
+    ------
+    UserInputError
+        As :func:`solver_of`, or an option given twice to one solver (``max_iter`` and ``ipopt.max_iter`` with
+        ``solver = "ipopt"``).
+    """
+    out: dict[str, dict[str, Any]] = {n: {} for n in flow_solvers(roles).values() if n}
+    given: dict[tuple[str, str], str] = {}
+    for key, value in options.items():
+        name, option_name = solver_of(key, roles)
+        if (name, option_name) in given:
+            raise UserInputError(f"option {option_name} of solver {name} is given twice, as {given[name, option_name]} "
+                                 f"and as {key}")
+        given[name, option_name] = key
+        out[name][key] = value
+    return out
 
 
 class SolverSettings(Settings):
@@ -209,7 +280,7 @@ class SolverSettings(Settings):
 
     @classmethod
     def config_keys(cls) -> tuple[str, ...]:
-        """The keys a config may give for this solver (besides ``ipopt.NAME``)."""
+        """The keys a config may give for this solver (besides ``NAME.KEY``, :func:`solver_of`)."""
         return tuple(cls.kinds())
 
     @classmethod
@@ -238,9 +309,8 @@ class SolverSettings(Settings):
 
     @classmethod
     def from_options(cls, options: dict[str, Any]) -> SolverSettings:
-        """Validated settings from a dict of options.
-
-        ``ipopt.NAME`` keys count as ``NAME`` (a config may switch solvers).
+        """Validated settings from a dict of options, each written ``KEY`` or ``NAME.KEY`` (NAME this solver's name;
+        a flow's options are routed by :func:`solver_of`).
 
         Raises
         ------
@@ -248,7 +318,7 @@ class SolverSettings(Settings):
             ``KEY is an option of solver OTHER, not of NAME ...``, ``solver NAME: unknown option(s) ...; known:
             ...`` or ``solver NAME: option KEY must be ...``.
         """
-        mine, other = cls.split({k.removeprefix("ipopt."): v for k, v in options.items()})
+        mine, other = cls.split({k.removeprefix(f"{cls.solver}."): v for k, v in options.items()})
         unknown = sorted(set(other) - set(cls.ignores))
         cls.refuse_others(unknown)
         if unknown:
@@ -295,10 +365,10 @@ class FlowSettings(Settings):
     first_step_solver : str
         The solver of the run's first step when it is not ``solver`` ("" default: ``solver``); every later step,
         and a resumed run's steps after the first, use ``solver``. "ipopt" with ``solver = "newton-krylov"``
-        starts a flow with IPOPT's first step (measured: docs/guide/performance.md). With two or
-        three solvers, options written ``NAME.KEY`` (NAME the first step's or the fallback solver, e.g.
-        ``ipopt.max_iter``) are that solver's, the others ``solver``'s; only ``solver``'s iteration counts enter the
-        iteration budget.
+        starts a flow with IPOPT's first step (measured: docs/guide/performance.md). Options written ``NAME.KEY``
+        (``ipopt.max_iter``, a config's ``[ipopt]`` table) are solver NAME's, whichever of ``solver``,
+        ``first_step_solver``, ``fallback_solver`` and ``large_solver`` it is (an error when it is none of them), the
+        others ``solver``'s; only ``solver``'s iteration counts enter the iteration budget.
     fallback_solver : str
         A solver that takes a step over when every attempt of ``solver`` (``max_retries`` halvings of tau) failed:
         its attempts start again from the step's first tau ("" default: none, the step fails). The ``file``
@@ -311,9 +381,10 @@ class FlowSettings(Settings):
         ``solver`` throughout), with ``fallback_solver`` or else ``solver`` as its fallback: a run that a remeshing
         (``refine_dihedral``) grows past that size changes solver at the next step, and a resumed run chooses the
         same from its state. Its options, when it is not ``solver``, are written ``NAME.KEY``
-        (``newton-krylov.cholesky``). The ``file`` problem's surfaces whose flow starts below 500 vertices, and the
-        other problems' below 10,000, get ``large_solver = "newton-krylov"`` from those sizes when no solver is
-        named (a double torus refined from 453 to 6,339 vertices had gone on with IPOPT: docs/guide/performance.md).
+        (``newton-krylov.cholesky`` in Python; ``ipopt.KEY`` also in configs and ``--set``). The ``file`` problem's
+        surfaces whose flow starts below 500 vertices, and the other problems' below 10,000, get ``large_solver =
+        "newton-krylov"`` from those sizes when no solver is named (a double torus refined from 453 to 6,339
+        vertices had gone on with IPOPT: docs/guide/performance.md).
     large_vertices : int
         The size from which ``large_solver`` takes the steps (vertices of the mesh a step starts from; 0 default).
     codegen : bool or None

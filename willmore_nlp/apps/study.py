@@ -4,8 +4,9 @@
 this machine by default, or an existing scheduler), each case writing ``cases/<key>.json`` when
 it ends (atomically: a crashed worker never leaves a partial file). A failed case is recorded with
 its error and does not stop the others; a rerun skips finished cases (same problem, solver, tau, parameters,
-options and length: a rerun with another ``--steps`` or ``--t-end`` runs its cases anew). ``write_study``
-turns the case files into the study's artefacts:
+options and length: a rerun with another ``--steps`` or ``--t-end`` runs its cases anew). A rerun with another grid
+adds its cases to the study (``study.json`` lists the cases of every run). ``write_study`` turns every case file in
+``cases/`` into the study's artefacts:
 
     study.csv      tidy table, one row per case and step (step 0 = initial state)
     summary.md     per-case table and the largest stable tau per solver (and mesh size)
@@ -174,17 +175,18 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
         or multiple of h, or a parameter both in ``grid`` and ``params``.
     """
     from willmore_nlp import registry
-    from willmore_nlp.settings import FlowSettings
+    from willmore_nlp.settings import FlowSettings, route_solver_options
     from willmore_nlp.solvers import solver_names, solver_settings
 
     registry.get(problem)
     known = solver_names()
-    _, solver_options = FlowSettings.split(options or {})
     for s in solvers:
         if s not in known:
             raise StudyError(f"--solvers: unknown solver {s!r}; available: {', '.join(known)}")
         try:
-            solver_settings(s).from_options(solver_options)
+            flow_options, solver_options = FlowSettings.split(case_options(s, options or {}))
+            for name, given in route_solver_options(solver_options, {**flow_options, "solver": s}).items():
+                solver_settings(name).from_options(given)
         except UserInputError as exc:
             raise StudyError(f"--option: {exc}") from exc
     if not solvers or not taus:
@@ -199,8 +201,18 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
     combos: list[dict[str, Any]] = [dict(params or {})]
     for k, vals in grid.items():
         combos = [{**c, k: v} for c in combos for v in vals]
-    return [Case(problem, s, str(t), c, steps, t_end, dict(options or {})) for c in combos for s in solvers
-            for t in taus]
+    return [Case(problem, s, str(t), c, steps, t_end, case_options(s, options or {})) for c in combos
+            for s in solvers for t in taus]
+
+
+def case_options(solver: str, options: dict[str, Any]) -> dict[str, Any]:
+    """The ``--option`` values of a study's cases of ``solver``: without the options written ``NAME.KEY`` for a solver
+    NAME that the case's flow does not use (``--solvers ipopt,lbfgs --option ipopt.max_iter=500``: IPOPT's, for the
+    ipopt cases; :func:`~willmore_nlp.settings.solver_of`)."""
+    from willmore_nlp.settings import flow_solvers, solver_prefix
+
+    used = flow_solvers({**options, "solver": solver}).values()
+    return {k: v for k, v in options.items() if solver_prefix(k) in ("", *used)}
 
 
 def check_cases(cases: list[Case]) -> None:
@@ -296,7 +308,9 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
         raise StudyError(f"--out {out}: is {what}, not a study directory; a study writes into a new or empty folder "
                          f"(or reruns into its own, skipping finished cases)")
     (out / "cases").mkdir(parents=True, exist_ok=True)
-    spec = {"cases": [asdict(c) for c in cases]}
+    before = _study_cases(out)
+    known = {c.key for c in before}
+    spec = {"cases": [asdict(c) for c in [*before, *(c for c in cases if c.key not in known)]]}
     (out / STUDY_FILE).write_text(json.dumps(spec, indent=1), encoding="utf-8")
     if evolver is not None and not (out / "evolver.json").exists():
         rows = evolver_rows(cases, evolver)
@@ -335,14 +349,19 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
     return write_study(out)
 
 
+def _study_cases(out: Path) -> list[Case]:
+    """The cases ``out``'s study.json lists (every grid run into it; none when it does not exist yet)."""
+    path = out / STUDY_FILE
+    return [Case(**c) for c in json.loads(path.read_text(encoding="utf-8"))["cases"]] if path.is_file() else []
+
+
 def _load(out: Path) -> list[dict[str, Any]]:
-    spec = json.loads((out / STUDY_FILE).read_text(encoding="utf-8"))
-    recs = []
-    for c in spec["cases"]:
-        path = case_file(out, Case(**c))
-        if path is not None:
-            recs.append(json.loads(path.read_text(encoding="utf-8")))
-    return recs
+    """Every case file in ``out/cases``: those of the cases study.json lists first, in its order, then the others
+    by name (a rerun with a smaller grid listed only its own cases, and the summary lost the rest: a new-user check).
+    Temporary files of a write under way (hidden: :func:`~willmore_nlp.mesh.io.atomic_write`) are not case files."""
+    listed = [p for c in _study_cases(out) if (p := case_file(out, c)) is not None]
+    others = sorted(p for p in (out / "cases").glob("*.json") if not p.name.startswith("."))
+    return [json.loads(p.read_text(encoding="utf-8")) for p in dict.fromkeys([*listed, *others])]
 
 
 def _energy_rise(rec: dict[str, Any]) -> float:
@@ -367,18 +386,32 @@ def _energy_rise(rec: dict[str, Any]) -> float:
     return worst
 
 
-def _label(rec: dict[str, Any]) -> str:
+def _varying(recs: list[dict[str, Any]]) -> tuple[str, ...]:
+    """The options and lengths (``steps``, ``t_end``) in which the cases of ``recs`` differ: the study directory
+    may hold the cases of several runs of ``compare`` (another ``--steps`` or ``--option``)."""
+    def value(rec: dict[str, Any], k: str) -> str:
+        return json.dumps(rec["case"].get(k, rec["case"]["options"].get(k)), default=str)
+
+    names = dict.fromkeys(["steps", "t_end", *(k for rec in recs for k in rec["case"]["options"])])
+    return tuple(k for k in names if len({value(rec, k) for rec in recs}) > 1)
+
+
+def _label(rec: dict[str, Any], varying: tuple[str, ...] = ()) -> str:
+    """``SOLVER tau=TAU`` with the case's parameters and its options and length among ``varying``."""
     c = rec["case"]
-    par = " ".join(f"{k}={v}" for k, v in c["params"].items())
+    par = " ".join([*(f"{k}={v}" for k, v in c["params"].items()),
+                    *(f"{k}={c.get(k, c['options'].get(k))}" for k in varying if k in c or k in c["options"])])
     return f"{c['solver']} tau={c['tau']}" + (f" {par}" if par else "")
 
 
 def write_study(out: str | os.PathLike[str]) -> Path:
-    """Write study.csv, summary.md and figures/ from the finished case files; returns summary.md."""
+    """Write study.csv, summary.md and figures/ from every finished case file in ``out/cases`` (the cases of every
+    run of ``compare`` into ``out``); returns summary.md."""
     out = Path(out)
     if not (out / STUDY_FILE).exists():
         raise StudyError(f"{out}: not a study directory (no {STUDY_FILE})")
     recs = _load(out)
+    varying = _varying(recs)
     figs = out / "figures"
     figs.mkdir(exist_ok=True)
     cols = ["case", "solver", "tau_spec", "tau", "h", "params", "case_status", "step", "status", "t", "energy",
@@ -392,8 +425,10 @@ def write_study(out: str | os.PathLike[str]) -> Path:
                     "h": rec["h"], "params": json.dumps(c["params"], sort_keys=True), "case_status": rec["status"]}
             for row in rec["rows"] or [{}]:
                 w.writerow({**base, **row})
-    lines = [f"# Solver comparison: {recs[0]['case']['problem'] if recs else '(no finished cases)'}", "",
-             f"{len(recs)} finished case(s). Regenerate with `willmore-nlp report {out}`; rerun missing cases with "
+    problems = ", ".join(dict.fromkeys(rec["case"]["problem"] for rec in recs)) or "(no finished cases)"
+    lines = [f"# Solver comparison: {problems}", "",
+             f"{len(recs)} finished case(s): every case file in `cases/`, of every `willmore-nlp compare` run into "
+             f"this directory. Regenerate with `willmore-nlp report {out}`; rerun missing cases with "
              "`willmore-nlp compare` and the same options.", "",
              "In-step tangential control: the resolved `tangential_control` of each case (its weight).", "",
              "| case | h | tau | control | status | steps | mean iterations | mean s/step | final energy | "
@@ -405,7 +440,7 @@ def write_study(out: str | os.PathLike[str]) -> Path:
         wt = np.mean([r["wall_time"] for r in steps]) if steps else float("nan")
         kkt = max((r.get("kkt_residual", float("nan")) for r in steps), default=float("nan"))
         last = rec["rows"][-1] if rec["rows"] else {}
-        lines.append(f"| {_label(rec)} | {rec['h']:.4g} | {rec['tau']:.4g} | {rec.get('control', '')} | "
+        lines.append(f"| {_label(rec, varying)} | {rec['h']:.4g} | {rec['tau']:.4g} | {rec.get('control', '')} | "
                      f"{rec['status']} | {len(steps)} | "
                      f"{it:.1f} | {wt:.4f} | {last.get('energy', float('nan')):.6g} | "
                      f"{last.get('willmore_energy', float('nan')):.6g} | {kkt:.2e} | {_energy_rise(rec):.1e} | "
@@ -438,18 +473,20 @@ def write_study(out: str | os.PathLike[str]) -> Path:
                              f"{r['iterations']} |")
     lines += ["", "![energy](figures/energy.png)", "", "![cost](figures/cost.png)", "",
               "![stable tau](figures/stable_tau.png)", ""]
-    _figures(recs, stable, figs)
+    _figures(recs, stable, figs, varying)
     md = out / "summary.md"
     md.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return md
 
 
-def _figures(recs: list[dict[str, Any]], stable: dict[tuple[str, float], float], figs: Path) -> None:
+def _figures(recs: list[dict[str, Any]], stable: dict[tuple[str, float], float], figs: Path,
+             varying: tuple[str, ...] = ()) -> None:
     fig = Figure(figsize=(6, 4))
     ax = fig.add_subplot(1, 1, 1)
     for rec in recs:
         if rec["rows"]:
-            ax.plot([r["t"] for r in rec["rows"]], [r["energy"] for r in rec["rows"]], "o-", ms=2, label=_label(rec))
+            ax.plot([r["t"] for r in rec["rows"]], [r["energy"] for r in rec["rows"]], "o-", ms=2,
+                    label=_label(rec, varying))
     ax.set_xlabel("t")
     ax.set_ylabel("discrete energy")
     if ax.lines:  # (no case with a state: matplotlib warns of a legend without artists)
@@ -458,7 +495,7 @@ def _figures(recs: list[dict[str, Any]], stable: dict[tuple[str, float], float],
     fig.savefig(figs / "energy.png", dpi=90)
     fig = Figure(figsize=(9, 3.6))
     a1, a2 = fig.subplots(1, 2)
-    labels = [_label(r) for r in recs]
+    labels = [_label(r, varying) for r in recs]
     its = [np.mean([s["iterations"] for s in r["rows"][1:]]) if len(r["rows"]) > 1 else 0.0 for r in recs]
     wts = [np.mean([s["wall_time"] for s in r["rows"][1:]]) if len(r["rows"]) > 1 else 0.0 for r in recs]
     y = np.arange(len(recs))
