@@ -334,3 +334,16 @@ def test_a_weight_given_where_auto_leaves_the_control_off_is_named() -> None:
         WillmoreFlow(torus, 0.01, 1e-4, tangential_control="off", tangential_control_weight=5.0)
         sphere = WillmoreFlow(shapes.icosphere(2), 0.01, 1e-4, tangential_control_weight=5.0)
     assert sphere.tangential_control.method == "meanratio" and sphere.tangential_control.weight == 5.0
+
+
+def test_a_first_step_the_control_makes_hard_is_solved_from_the_step_without_it() -> None:
+    """``sphere_cap`` from its flat start (12 rings, conormal): from the state, the step with the control wanders on
+    IPOPT's path (255 iterations without a budget; three budget cuts and tau / 8 with the default budget of 100, here
+    30); from the step without the control (13 iterations) it takes 4 at tau, the attempt reporting all three."""
+    pb, _ = registry.build("sphere_cap", init="flat", amp=0.5)
+    flow = pb.make_flow(first_step_budget=30)
+    assert flow.tangential_control.enabled
+    r = flow.step()
+    assert (r.retries, r.tau) == (0, flow.tau)
+    assert r.iterations <= 30 + 25 and r.stats["n_eval_hess"] == r.iterations  # the counts of the three solves
+    assert flow.step().iterations <= 9  # (a second step starts from the flow's own state)

@@ -1026,6 +1026,8 @@ class WillmoreFlow:
             res = self.solver.solve(z0, p, self.lam_g)
         except RuntimeError as exc:  # CasADi reports evaluation failures as RuntimeError
             return X, Y, None, f"solver error: {str(exc).strip().splitlines()[-1]}", moved
+        if not res.converged:
+            res = self._from_control_free_step(res, z0, p, tau)
         X, Y = self.problem.unpack_z(res.z, self.X)
         reason = self._reject_reason(res, f0, X)
         if reason is None and self._grown(tau):
@@ -1064,6 +1066,42 @@ class WillmoreFlow:
                 if not np.all(np.isfinite(Y)):
                     reason = "inner equation Y[X] gave non-finite values"
         return X, Y, res, reason, moved
+
+    def _from_control_free_step(self, cold: Any, z0: np.ndarray, p: np.ndarray, tau: float) -> Any:
+        """The solve of a first step's attempt at ``tau`` with the tangential control, whose solve from the state
+        ``z0`` failed (``cold``), from the solution of the same step without the control (the paper's step,
+        :data:`CONTROL_OFF`). The result carries the iterations and solver counts of all the solves; when the step
+        without the control fails too, it is ``cold``'s with both statuses. ``cold`` itself without a control, after
+        the first step or on a stop request.
+
+        Measured (2026-11-30, ``sphere_cap`` from its flat start, 12 rings, 547 v): the control's term is small
+        (1.3e-5 against the step's objective 1.53 at the start, 4.7e-4 against 0.59 at the solution, whose nodes it
+        moves by 0.18 h) but positive semi-definite. On IPOPT's path from the state, far from the flow's shape, the
+        step's reduced Hessian is indefinite without it (IPOPT regularises it by 10^-1.3 at the 8th iteration and
+        takes a damped step of 0.05); with it the Hessian is barely definite there, IPOPT takes the undamped Newton
+        step, 0.49 (7 h, mostly tangential), and wanders among near-inverted meshes (NaN constraints at trial
+        points, the regularisation up to 10^7.7): 255 iterations without a budget, three cuts by the first step's
+        budget of 100 and tau / 8 with it. From the step without the control (13 iterations) it takes 4, to the
+        minimiser of the 255 (24 rings: 16 + 4, where the cold start had not taken the step after 300 s). Only after
+        a failed solve: where the cold solve converges, that start can land on another minimiser (a clamped
+        icosphere(2) cut at z > -0.2 with ``tangential_weight = 1``: W_c 7.19993, lower than the cold solve's
+        7.21206, but the smallest angle 22.9 instead of 31.1 degrees after step 1, then a remeshing in every step,
+        tests/test_boundary.py).
+        """
+        if self.k or not self._control.enabled or self.stop_requested():
+            return cold
+        solves = [cold]
+        try:
+            solves.append(self.solver.solve(z0, self.params(self.X, tau, CONTROL_OFF), self.lam_g))
+            if solves[-1].converged:
+                solves.append(self.solver.solve(solves[-1].z, p, self.lam_g))
+        except RuntimeError:
+            pass
+        last = solves[-1] if len(solves) == 3 else cold if len(solves) == 1 else dataclasses.replace(
+            cold, status=f"{cold.status}, without the control {solves[1].status}")
+        return dataclasses.replace(last, iterations=sum(r.iterations for r in solves), stats={
+            k: sum(r.stats.get(k, 0) for r in solves) if k.startswith(("n_", "t_wall")) and is_number(v) else v
+            for k, v in last.stats.items()})
 
     def _accept(self, X: np.ndarray, Y: np.ndarray, tau: float, res: Any, moved: dict[str, float], t0: float,
                 tries: int, rejected: list[str], spent: int) -> StepResult:
