@@ -1086,9 +1086,11 @@ class WillmoreFlow:
         a failed solve: where the cold solve converges, that start can land on another minimiser (a clamped
         icosphere(2) cut at z > -0.2 with ``tangential_weight = 1``: W_c 7.19993, lower than the cold solve's
         7.21206, but the smallest angle 22.9 instead of 31.1 degrees after step 1, then a remeshing in every step,
-        tests/test_boundary.py).
+        tests/test_boundary.py). IPOPT's solves only: newton-krylov's failed first attempts on a 1:1:2 ellipsoid
+        (trimesh icosphere(5), 10,242 v, the ``file`` problem) failed without the control too, and the same step 1
+        (tau / 4 after 2 retries) took 297 s instead of 160.
         """
-        if self.k or not self._control.enabled or self.stop_requested():
+        if self.k or not self._control.enabled or self.solver.name != "ipopt" or self.stop_requested():
             return cold
         solves = [cold]
         try:
