@@ -1,6 +1,7 @@
 """Command line, run directories, registry and the public API as a user meets them."""
 
 import csv
+import json
 import pkgutil
 import subprocess
 import sys
@@ -279,3 +280,19 @@ def test_debug_goes_before_or_after_the_command(command: list[str]) -> None:
     assert parser.parse_args([*command, "--debug"]).debug
     assert parser.parse_args(["--debug", *command]).debug
     assert not parser.parse_args(command).debug
+
+
+def test_resuming_a_relaxed_run_takes_no_step(tmp_path) -> None:
+    """A run that relax=true ended before its length (the vesicle discocyte) resumes as a no-op, as a completed run
+    of fixed length does: it took a step past its rest and ended with another message (a new user's check)."""
+    out = tmp_path / "disco"
+    r = run_cli("run", "vesicle", "--set", "reduced_volume=0.65", "--set", "start=oblate", "--steps", "60",
+                "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    status = json.loads((out / "status.json").read_text())
+    history = (out / "history.csv").read_text()
+    assert status["state"] == "completed" and status["message"].startswith("relaxed") and status["step"] < 60
+    r = run_cli("run", "--resume", str(out))
+    assert r.returncode == 0 and "nothing to resume" in r.stdout, r.stderr
+    assert (out / "history.csv").read_text() == history
+    assert json.loads((out / "status.json").read_text())["message"] == status["message"]
