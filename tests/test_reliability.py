@@ -691,3 +691,35 @@ def test_ctrl_c_in_a_python_session_interrupts_an_ipopt_step_and_changes_nothing
     flow.solver._hook.check = check
     flow.run(steps=2)
     assert flow.k == 3 and np.array_equal(flow.X, straight.X)
+
+
+def test_an_atomic_write_that_fails_names_the_file_asked_for(tmp_path: Path, monkeypatch) -> None:
+    """An export into a read-only folder said "Permission denied: '.../.x.obj.61hzdyrr.obj'" (the hidden temporary
+    file); the error names x.obj, and an error about another file is left as it is."""
+    import errno
+    import tempfile
+
+    from willmore_nlp.mesh.io import atomic_write
+
+    def refuse(tmp: Path) -> None:
+        raise PermissionError(errno.EACCES, "Permission denied", str(tmp))
+
+    with pytest.raises(PermissionError) as err:
+        atomic_write(tmp_path / "x.obj", refuse)
+    assert err.value.filename == str(tmp_path / "x.obj") and list(tmp_path.iterdir()) == []
+
+    def no_temporary(dir: str, prefix: str, suffix: str) -> tuple[int, str]:
+        raise PermissionError(errno.EROFS, "Read-only file system", f"{dir}/{prefix}abcd{suffix}")
+
+    monkeypatch.setattr(tempfile, "mkstemp", no_temporary)
+    with pytest.raises(PermissionError, match="Read-only file system") as err:
+        atomic_write(tmp_path / "x.obj", refuse)
+    assert err.value.filename == str(tmp_path / "x.obj")
+    monkeypatch.undo()
+
+    def other(tmp: Path) -> None:
+        raise FileNotFoundError(errno.ENOENT, "No such file", str(tmp_path / "input.npz"))
+
+    with pytest.raises(FileNotFoundError) as err:
+        atomic_write(tmp_path / "y.obj", other)
+    assert err.value.filename == str(tmp_path / "input.npz")

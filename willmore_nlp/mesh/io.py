@@ -552,18 +552,24 @@ def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
     never a partial ``path``.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
+    hidden = str(path.parent / f".{path.name}.")
     with signals_deferred():
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
         try:
-            os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600: give the file the mode open() would
-        finally:
-            os.close(fd)
-        try:
-            write(Path(tmp))
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+            try:
+                os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600: give the file the mode open() would
+            finally:
+                os.close(fd)
+            try:
+                write(Path(tmp))
+                os.replace(tmp, path)
+            finally:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+        except OSError as exc:  # named by the file asked for, not the temporary one (a read-only folder's message)
+            if isinstance(exc.filename, str) and exc.filename.startswith(hidden):
+                raise type(exc)(exc.errno, exc.strerror, str(path)) from None
+            raise
 
 
 @contextlib.contextmanager
