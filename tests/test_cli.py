@@ -296,3 +296,27 @@ def test_resuming_a_relaxed_run_takes_no_step(tmp_path) -> None:
     assert r.returncode == 0 and "nothing to resume" in r.stdout, r.stderr
     assert (out / "history.csv").read_text() == history
     assert json.loads((out / "status.json").read_text())["message"] == status["message"]
+
+
+def test_a_problem_of_ones_own_runs_and_resumes_from_python_and_the_cli_says_how(tmp_path) -> None:
+    """docs/guide/runs.md's own problem: runner.start / runner.resume write and continue its run directory; the
+    command line's --resume, which does not import the user's module, says how to resume it (it said only
+    "unknown problem" with the package's list)."""
+    (tmp_path / "myproblems.py").write_text(
+        "from willmore_nlp import registry\nfrom willmore_nlp.mesh import shapes\n"
+        "from willmore_nlp.registry import Problem\n\n\n@registry.register('stretched_ellipsoid')\n"
+        "def stretched_ellipsoid(stretch: float = 1.5, subdivisions: int = 2) -> Problem:\n"
+        "    '''An icosphere stretched along x3.'''\n    base = shapes.icosphere(subdivisions)\n"
+        "    mesh = base.with_vertices(base.vertices * [1.0, 1.0, stretch])\n"
+        "    return Problem(mesh, tau=mesh.h, tau_tilde=mesh.h**2 / 100, steps=20)\n")
+    go = ("import myproblems\nfrom willmore_nlp import registry, runner\nfrom willmore_nlp.config import RunSpec\n"
+          "pb, params = registry.build('stretched_ellipsoid', stretch=1.8)\n"
+          "print(runner.start(RunSpec('stretched_ellipsoid', pb, params, steps=2), 'runs/mine', quiet=True))\n"
+          "print(runner.resume('runs/mine', steps=3, quiet=True))\n")
+    r = subprocess.run([sys.executable, "-c", go], capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert r.returncode == 0 and r.stdout.split() == ["0", "0"], r.stderr
+    assert len(load_run(tmp_path / "runs" / "mine").states) == 4  # states 0-3
+    r = run_cli("run", "--resume", "runs/mine", "--steps", "4", cwd=tmp_path)
+    assert r.returncode == 2
+    assert "problem 'stretched_ellipsoid' is not registered here" in r.stderr
+    assert "willmore_nlp.runner.resume(RUN)" in r.stderr

@@ -405,7 +405,11 @@ def spec_from_config(cfg: dict[str, Any], where: str, run_dir: Path | None = Non
     for k in ("problem", "params"):
         if k not in cfg:
             raise RunError(f"{where}: no {k!r} entry")
-    entry = registry.load_all().get(str(cfg["problem"]))  # (an unknown name: resolve's error)
+    entry = registry.load_all().get(str(cfg["problem"]))
+    if entry is None:  # (a problem registered in a user's own module, which the command line does not import)
+        raise RunError(f"{where}: problem {cfg['problem']!r} is not registered here (known: "
+                       f"{', '.join(sorted(registry.load_all()))}); a problem of your own code is resumed from Python "
+                       "after importing the module that registers it: willmore_nlp.runner.resume(RUN)")
     before = {} if entry is None else {k: v for k, v in entry.before.items() if k not in cfg["params"]}
     given = dict(cfg.get("flow_options", {}))
     if "ipopt" not in flow_solvers(cfg.get("effective_flow_options", given)).values():
@@ -425,15 +429,15 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
            quiet: bool = False, ignore_late_signals: bool = False) -> int:
     """Continue the run in ``run_dir`` from its last trusted state; returns the exit code.
 
+    The problem is rebuilt from config.json and must reproduce the stored initial mesh and
+    step sizes exactly; otherwise nothing is changed and :class:`RunError` names the difference.
+
     Parameters
     ----------
     run_dir : a directory written by :func:`start` (interrupted, killed, failed or completed)
     steps, t_end : a new total length (extends the run; stored in config.json); default: as configured
     quiet : no progress bar
     ignore_late_signals : see :class:`SignalGuard` (``ignore_after``)
-
-    The problem is rebuilt from config.json and must reproduce the stored initial mesh and
-    step sizes exactly; otherwise nothing is changed and :class:`RunError` names the difference.
     """
     d = Path(run_dir)
     require_run_dir(d)
