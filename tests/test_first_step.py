@@ -3,8 +3,9 @@ median to budget against, and a first step that IPOPT cannot solve at tau (a noi
 every attempt to ``max_iter``."""
 
 import numpy as np
+import pytest
 
-from willmore_nlp import WillmoreFlow
+from willmore_nlp import FlowError, WillmoreFlow
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 
@@ -188,3 +189,13 @@ def test_large_solver_takes_the_steps_of_a_mesh_grown_past_its_size() -> None:
     assert {k: pb.effective_options({})[k] for k in ("large_solver", "large_vertices")} == {
         "large_solver": "newton-krylov", "large_vertices": LARGE_SURFACE}
     assert "large_solver" not in pb.effective_options({"solver": "sqp"})  # every step sqp's
+
+
+def test_a_failed_step_names_a_tau_tilde_above_h2() -> None:
+    """tau_tilde between h^2 and the warning's 2 h^2 (a user's 1.5 h^2 on a 642-vertex ellipsoid) failed with only
+    "Iteration_Budget"; the retries halve tau, never tau_tilde, so the failure names it."""
+    base = shapes.icosphere(2)
+    mesh = base.with_vertices(base.vertices * [1.0, 1.0, 1.5])
+    flow = WillmoreFlow(mesh, mesh.h, 1.5 * mesh.h**2, max_retries=1, first_step_budget=10)
+    with pytest.raises(FlowError, match=r"failed after 1 retries \(tau_tilde = .* is 1.5 h\^2: above about h\^2"):
+        flow.step()

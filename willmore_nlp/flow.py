@@ -997,9 +997,14 @@ class WillmoreFlow:
             raise FlowError(f"step {self.k + 1} at t={self.t:.6g} failed: the step size fell to {below:.3g}, below "
                             f"min_tau = {floor:.3g} (the clock would freeze); rejected: " + "; ".join(rejected),
                             step=self.k + 1, t=self.t, rejected=rejected)
+        h = self.mesh.with_vertices(self.X).h
+        wide = (f" (tau_tilde = {self.tau_tilde:.3g} is {self.tau_tilde / (h * h):.3g} h^2: above about h^2 the step "
+                "loses tangential convexity, and the retries halve tau only; docs/theory/tau_tilde.md)"
+                if self.tau_tilde > h * h else "")
         raise FlowError(
             f"step {self.k + 1} at t={self.t:.6g} failed after {self.settings.max_retries} retries"
-            + (f" with each of {' and '.join(solvers)}" if len(solvers) > 1 else "") + ": " + "; ".join(rejected),
+            + (f" with each of {' and '.join(solvers)}" if len(solvers) > 1 else "") + wide + ": "
+            + "; ".join(rejected),
             step=self.k + 1, t=self.t, rejected=rejected,
         )
 
