@@ -54,6 +54,16 @@ def test_a_parameter_that_is_a_flow_option_is_listed_once_as_the_flow_used_it(tm
     assert rows == ["| c0 | 0 |", "| tangential_weight | 10 |"]
     assert "| reduced_volume | 0.65 |" in md and "| volume | initial |" in md
     assert "(input: " not in md and "The input mesh was repaired" not in md  # (the vesicle's input is not repaired)
+    # the vesicle section: v held (the start is built at 0.65, V and A fixed), w / 8 pi of the last row, and the
+    # axisymmetric minimiser of the oblate branch at v = 0.65 (1.826233 extrapolated, docs/guide/vesicles.md)
+    from willmore_nlp.rundir import load_run
+
+    v = float(re.search(r"\| reduced volume v = .* \| ([0-9.]+) \|", md).group(1))
+    w = float(re.search(r"\| w / 8 pi \(final state.* \| ([0-9.]+) \|", md).group(1))
+    ref = re.search(r"\| axisymmetric minimiser on the oblate branch .* \| [0-9.]+ / [0-9.]+ -> ([0-9.]+) \(", md)
+    assert v == pytest.approx(0.65, abs=1e-6)
+    assert w == pytest.approx(load_run(run).history[-1]["willmore_energy"] / (8 * np.pi), abs=1e-6)
+    assert ref is not None and float(ref.group(1)) == pytest.approx(1.826233, abs=2e-6)
 
 
 def test_snapshot_indices_and_html() -> None:
