@@ -55,7 +55,9 @@ def test_evolver_ellipsoid_keeps_volume_and_area() -> None:
 
     _evolver()
     mesh = shapes.ellipsoid_of_reduced_volume(0.85, "prolate", 2, exact="mesh")
-    r = evolver_equilibrium(mesh, schedule=SHORT)
+    with pytest.warns(RuntimeWarning, match="not converged after the whole schedule of 9 commands"):
+        r = evolver_equilibrium(mesh, schedule=SHORT)  # a short schedule: not yet converged, and it says so
+    assert r["converged"] is False
     V0, A0 = enclosed_volume(mesh), measure(mesh)
     assert abs(r["volume"] / V0 - 1) < 1e-10 and abs(r["area"] / A0 - 1) < 1e-10
     assert abs(enclosed_volume(r["mesh"]) / V0 - 1) < 1e-10 and abs(measure(r["mesh"]) / A0 - 1) < 1e-10
@@ -82,6 +84,54 @@ def test_evolver_bad_target() -> None:
     _evolver()
     with pytest.raises(ValueError, match="volume target must be positive"):
         evolver_equilibrium(shapes.icosphere(1), volume=-1.0)
+
+
+
+def test_evolver_equilibrium_says_whether_it_converged() -> None:
+    """The 162-vertex oblate start of v = 0.65: with c0 = 0 the default schedule stops early (measured after
+    14 commands, min angle 13.9 degrees); with c0 = 0.8 it runs all 83 commands without meeting tol and the
+    mesh degenerates (min angle 0.04 degrees). That result used to look like the converged one; now it
+    says converged False, warns with the schedule length and the last relative change, and reports the
+    smallest triangle angle of the returned mesh."""
+    from willmore_nlp.evolver import DEFAULT_SCHEDULE, evolver_equilibrium
+    from willmore_nlp.geometry import min_angles
+
+    _evolver()
+    mesh = shapes.ellipsoid_of_reduced_volume(0.65, "oblate", 2, exact="mesh")
+    ok = evolver_equilibrium(mesh)
+    assert ok["converged"] and ok["commands"] < len(DEFAULT_SCHEDULE) and ok["last_change"] <= 1e-10
+    assert ok["min_angle"] > 5
+    with pytest.warns(RuntimeWarning, match=rf"not converged after the whole schedule of {len(DEFAULT_SCHEDULE)} "
+                      r"commands: relative energy change over the last 4 commands \S+, tol = 1e-10"):
+        r = evolver_equilibrium(mesh, c0=0.8)
+    assert r["converged"] is False and r["commands"] == len(DEFAULT_SCHEDULE) and r["last_change"] > 1e-10
+    assert r["min_angle"] == pytest.approx(min_angles(r["mesh"].vertices, r["mesh"].simplices).min(), rel=1e-12)
+    assert r["min_angle"] < 1
+
+
+def test_evolver_nan_is_a_runtime_error() -> None:
+    """An Evolver energy of NaN (printed "(NaN)"; a long hessian_seek schedule on a degenerating mesh) raised a
+    raw ValueError "could not convert string to float: '(NaN)'"; now a RuntimeError naming Evolver's line.
+    The NaN is made here by setting h_zero to inf - inf."""
+    from willmore_nlp.evolver import evolver_equilibrium
+
+    _evolver()
+    with pytest.raises(RuntimeError, match=r"non-finite or unreadable value: 'S \(NaN\) "):
+        evolver_equilibrium(shapes.icosphere(2), c0=0.8, schedule=("h_zero := 1e400 - 1e400; recalc",))
+
+
+def test_evolver_timeout_is_a_runtime_error() -> None:
+    """timeout=0.05 (the 642-vertex icosphere, default schedule) raised a raw subprocess.TimeoutExpired from
+    evolver_equilibrium, and likewise from evolver_reference and evolver_trajectory; now a RuntimeError naming
+    the timeout."""
+    from willmore_nlp.evolver import evolver_equilibrium, evolver_reference, evolver_trajectory
+
+    _evolver()
+    mesh = shapes.icosphere(3)
+    for run in (lambda: evolver_equilibrium(mesh, timeout=0.05), lambda: evolver_reference(mesh, 2000, timeout=0.05),
+                lambda: evolver_trajectory(mesh, ["hessian_seek"] * 50, timeout=0.05)):
+        with pytest.raises(RuntimeError, match=r"did not finish within the timeout of 0\.05 s"):
+            run()
 
 
 @pytest.mark.parametrize(("kw", "message"), [

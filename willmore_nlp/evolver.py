@@ -23,6 +23,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -95,6 +96,30 @@ def write_datafile(mesh: Mesh, path: str | os.PathLike[str], *, volume: float | 
     Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
 
 
+def _run(prog: str, cmd: Path, fe: Path, timeout: float) -> subprocess.CompletedProcess[str]:
+    """Run Evolver in batch mode on datafile ``fe`` with command file ``cmd``; a timeout is a RuntimeError."""
+    try:
+        return subprocess.run([prog, "-x", "-f", str(cmd), str(fe)], capture_output=True, text=True,
+                              timeout=timeout, stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        # (timeout=0.05 raised a raw subprocess.TimeoutExpired; the docstrings promise RuntimeError)
+        raise RuntimeError(f"Surface Evolver did not finish within the timeout of {timeout:g} s") from None
+
+
+def _numbers(line: str, n: int) -> list[float]:
+    """The ``n`` finite numbers after the tag of an output line of ours; otherwise a RuntimeError naming the line.
+
+    (Evolver prints a NaN as ``(NaN)``; a long schedule on a degenerating mesh gave a raw ValueError
+    "could not convert string to float: '(NaN)'".)"""
+    try:
+        vals = [float(x) for x in line.split()[1:n + 1]]
+    except ValueError:
+        vals = []
+    if len(vals) != n or not all(math.isfinite(v) for v in vals):
+        raise RuntimeError(f"Surface Evolver printed a non-finite or unreadable value: {line.strip()[:200]!r}")
+    return vals
+
+
 def evolver_reference(mesh: Mesh, iterations: int = 200, timeout: float = 600.0) -> dict[str, Any]:
     """Surface Evolver's Willmore energy of ``mesh`` before and after ``iterations`` of ``g``.
 
@@ -108,7 +133,8 @@ def evolver_reference(mesh: Mesh, iterations: int = 200, timeout: float = 600.0)
     FileNotFoundError
         When Surface Evolver is not installed.
     RuntimeError
-        When Evolver fails or prints no energy (its output tail is in the message).
+        When Evolver fails or prints no energy (its output tail is in the message), prints NaN or an
+        unreadable number (that line is in the message), or does not finish within ``timeout`` seconds.
     """
     prog = find_evolver()
     if prog is None:
@@ -120,12 +146,12 @@ def evolver_reference(mesh: Mesh, iterations: int = 200, timeout: float = 600.0)
         cmd.write_text('printf "W0 %.17g\\n", willmore.value\n'
                        f"g {int(iterations)}\n"
                        'printf "W1 %.17g\\n", willmore.value\nq\nq\n', encoding="ascii")
-        r = subprocess.run([prog, "-x", "-f", str(cmd), str(fe)], capture_output=True, text=True,
-                           timeout=timeout, stdin=subprocess.DEVNULL)
+        r = _run(prog, cmd, fe, timeout)
     vals = dict(re.findall(r"^(W[01]) (\S+)$", r.stdout, flags=re.MULTILINE))
     if "W0" not in vals or "W1" not in vals:
         raise RuntimeError(f"Surface Evolver failed (exit {r.returncode}): {(r.stdout + r.stderr)[-400:]}")
-    return {"initial": EVOLVER_TO_W * float(vals["W0"]), "final": EVOLVER_TO_W * float(vals["W1"]),
+    w0, w1 = (_numbers(f"{k} {vals[k]}", 1)[0] for k in ("W0", "W1"))
+    return {"initial": EVOLVER_TO_W * w0, "final": EVOLVER_TO_W * w1,
             "iterations": int(iterations), "program": prog}
 
 
@@ -166,19 +192,18 @@ def evolver_trajectory(mesh: Mesh, stages: list[str], timeout: float = 600.0) ->
         write_datafile(mesh, fe)
         cmd = Path(tmp) / "commands.txt"
         cmd.write_text(script, encoding="ascii")
-        r = subprocess.run([prog, "-x", "-f", str(cmd), str(fe)], capture_output=True, text=True,
-                           timeout=timeout, stdin=subprocess.DEVNULL)
+        r = _run(prog, cmd, fe, timeout)
     out: list[dict[str, Any]] = []
     verts: list[list[float]] = []
     for line in r.stdout.splitlines():
         if line.startswith("S "):
             if out:
                 out[-1]["vertices"] = np.array(verts)
-            w, clock = map(float, line.split()[1:3])
+            w, clock = _numbers(line, 2)
             out.append({"command": stages[len(out) - 1] if out else "", "energy": EVOLVER_TO_W * w, "cpu": clock})
             verts = []
         elif line.startswith("V "):
-            verts.append([float(v) for v in line.split()[1:4]])
+            verts.append(_numbers(line, 3))
     if out:
         out[-1]["vertices"] = np.array(verts)
     if len(out) != len(stages) + 1 or any(o["vertices"].shape != mesh.vertices.shape for o in out):
@@ -229,7 +254,12 @@ def evolver_equilibrium(mesh: Mesh, *, volume: float | str | None = "initial", a
     dict with ``mesh`` (the final surface, same connectivity), ``energy`` and ``initial_energy`` (w),
     ``volume`` and ``area`` (Evolver's values of the final surface), ``target_volume`` and
     ``target_area`` (None when free), ``history`` ((n,) energies after each command), ``commands``
-    (how many ran) and ``program``.
+    (how many ran), ``converged`` (True when the run stopped because the energy changed by at most ``tol``
+    relative over the last 4 commands; False when the schedule ran out first, which also issues a
+    ``RuntimeWarning`` naming the schedule length and the last relative change, except for an empty
+    schedule, which only evaluates), ``last_change`` (that relative change, over fewer commands when fewer
+    ran), ``min_angle`` (the smallest triangle angle of the final mesh, degrees: a degenerating mesh shows
+    here) and ``program``.
 
     Raises
     ------
@@ -240,9 +270,10 @@ def evolver_equilibrium(mesh: Mesh, *, volume: float | str | None = "initial", a
         for a target that is not positive and finite, a c0 or tol that is not finite (tol >= 0), a timeout that is
         not a positive finite number.
     RuntimeError
-        When Evolver fails (its output tail is in the message).
+        When Evolver fails (its output tail is in the message), prints NaN or an unreadable number (that
+        line is in the message), or does not finish within ``timeout`` seconds.
     """
-    from willmore_nlp.geometry import enclosed_volume, measure
+    from willmore_nlp.geometry import enclosed_volume, measure, min_angles
 
     # (c0 = nan reached Evolver, whose RuntimeError carried its raw output; a new-user check)
     numbers = (("c0", c0, "a finite number", True),
@@ -269,7 +300,7 @@ def evolver_equilibrium(mesh: Mesh, *, volume: float | str | None = "initial", a
     area_expr = "area_q.value" if targets["area"] is not None else "total_area"
     report = f'printf "S %.17g %.17g %.17g\\n", willmore.value, {vol_expr}, {area_expr}'
     loop = "".join(f"{c}; {report};\n"
-                   f"if abs(willmore.value - w_4) <= {tol:.3g} * abs(willmore.value) then return;\n"
+                   f"if abs(willmore.value - w_4) <= {tol:.17g} * abs(willmore.value) then return;\n"
                    "w_4 := w_3; w_3 := w_2; w_2 := w_1; w_1 := willmore.value;\n" for c in schedule)
     script = ("target_tolerance := 1e-12\n" + report + "\n"
               + "w_1 := willmore.value; w_2 := 1e300; w_3 := 1e300; w_4 := 1e300\n"
@@ -280,14 +311,28 @@ def evolver_equilibrium(mesh: Mesh, *, volume: float | str | None = "initial", a
         write_datafile(mesh, fe, volume=targets["volume"], area=targets["area"], c0=c0)
         cmd = Path(tmp) / "commands.txt"
         cmd.write_text(script, encoding="ascii")
-        r = subprocess.run([prog, "-x", "-f", str(cmd), str(fe)], capture_output=True, text=True,
-                           timeout=timeout, stdin=subprocess.DEVNULL)
-    rows = [[float(x) for x in line.split()[1:4]] for line in r.stdout.splitlines() if line.startswith("S ")]
-    verts = [[float(x) for x in line.split()[1:4]] for line in r.stdout.splitlines() if line.startswith("V ")]
+        r = _run(prog, cmd, fe, timeout)
+    rows = [_numbers(line, 3) for line in r.stdout.splitlines() if line.startswith("S ")]
+    verts = [_numbers(line, 3) for line in r.stdout.splitlines() if line.startswith("V ")]
     if not rows or len(verts) != mesh.n_vertices:
         raise RuntimeError(f"Surface Evolver failed (exit {r.returncode}): {(r.stdout + r.stderr)[-400:]}")
-    w = EVOLVER_TO_W * np.array([row[0] for row in rows])
-    return {"mesh": mesh.with_vertices(np.array(verts)), "energy": float(w[-1]), "initial_energy": float(w[0]),
+    h = np.array([row[0] for row in rows])
+    # the stopping test of the script, on the printed (%.17g, exact) energies: change over the last 4 commands
+    k = min(4, len(h) - 1)
+    diff = abs(h[-1] - h[-1 - k])
+    converged = bool(k == 4 and diff <= tol * abs(h[-1]))
+    change = diff / abs(h[-1]) if h[-1] != 0 else (0.0 if diff == 0 else math.inf)
+    out_mesh = mesh.with_vertices(np.array(verts))
+    min_angle = float(min_angles(out_mesh.vertices, out_mesh.simplices).min())
+    if schedule and not converged:
+        # (c0 = 0.8 on the oblate v = 0.65 start: all 83 default commands ran, min angle 0.0075 degrees, and
+        # nothing said the energy was not an equilibrium)
+        warnings.warn(f"evolver_equilibrium: not converged after the whole schedule of {len(schedule)} commands: "
+                      f"relative energy change over the last {k} commands {change:.3g}, tol = {tol:g} "
+                      f"(smallest triangle angle {min_angle:.3g} degrees)", RuntimeWarning, stacklevel=2)
+    w = EVOLVER_TO_W * h
+    return {"mesh": out_mesh, "energy": float(w[-1]), "initial_energy": float(w[0]),
             "volume": rows[-1][1] if targets["volume"] is not None else None, "area": rows[-1][2],
             "target_volume": targets["volume"], "target_area": targets["area"], "history": w,
-            "commands": len(rows) - 1, "program": prog}
+            "commands": len(rows) - 1, "converged": converged, "last_change": float(change),
+            "min_angle": min_angle, "program": prog}
