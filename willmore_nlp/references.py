@@ -186,8 +186,8 @@ def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,
         return [], "anisotropic energy: no closed-form value (compare with the Wulff shape)"
     held = [k for k in ("volume", "area") if flow_options.get(k) is not None]
     if held:  # (a vesicle's report showed "Target: sphere", 8 pi and a gap of +19.6: a new-user check)
-        return [], (f"{' and '.join(held)} held fixed: the sphere or circle is not reachable (a vesicle run's report has an "
-                    "axisymmetric reference in its Vesicle section; docs/guide/vesicles.md)")
+        return [], (f"{' and '.join(held)} held fixed: the sphere or circle is not reachable (a vesicle run's "
+                    "report has an axisymmetric reference in its Vesicle section; docs/guide/vesicles.md)")
     if float(flow_options.get("c0") or 0.0) != 0.0:
         return [], "spontaneous curvature c0: no closed-form target shape"
     if not mesh.is_closed or _components(mesh) != 1:
