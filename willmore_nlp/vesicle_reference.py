@@ -206,16 +206,18 @@ def branch_energy(v: float, branch: str, n: int = 200, dv: float = 0.01) -> Axis
     return s if n == n0 else solve_axisymmetric(v, branch, n, start=s)
 
 
-def extrapolated_energy(v: float, branch: str, n: int = 200) -> tuple[float, float, float]:
-    """Energy at ``n`` and ``2 n`` segments and its Richardson extrapolation (second order).
+def extrapolated_energy(v: float, branch: str, n: int = 200) -> tuple[AxisymmetricShape, AxisymmetricShape, float]:
+    """The minimal contours at ``n`` and ``2 n`` segments and the Richardson extrapolation (second order) of their
+    energies.
 
     Returns
     -------
-    (e_n, e_2n, e_inf) with e_inf = (4 e_2n - e_n) / 3, all in units of 8 pi.
+    (a, b, e_inf): the shapes at n and 2 n segments (energies a.energy, b.energy; check ``converged``) and
+    e_inf = (4 b.energy - a.energy) / 3, in units of 8 pi.
     """
     a = branch_energy(v, branch, n)
     b = solve_axisymmetric(v, branch, 2 * n, start=a)
-    return a.energy, b.energy, (4 * b.energy - a.energy) / 3
+    return a, b, (4 * b.energy - a.energy) / 3
 
 
 def revolve_contour(shape: AxisymmetricShape, subdivisions: int = 3) -> Mesh:
