@@ -468,12 +468,12 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
             for note in notes:
                 print(f"willmore-nlp: note: {note}", file=sys.stderr)
             done_k, done_t = (0, 0.0) if ck is None else (ck.step, ck.t)
-            relaxed = str(writer.status.get("message", "")) if writer.status.get("state") == "completed" else ""
-            if (steps, t_end) == (None, None) and relaxed.startswith("relaxed") and writer.status.get("step") == done_k:
+            relaxed = bool(writer.rows) and bool(float(writer.rows[-1].get("relaxed") or 0))
+            if (steps, t_end) == (None, None) and relaxed and writer.status.get("state") == "completed":
                 # (relax=true ended the run before its length: resuming took a step past the rest and ended anew)
                 if not quiet:
-                    print(f"{d}: the run ended at step {done_k}, {relaxed}; nothing to resume (--steps or --t-end "
-                          "continue it past its rest)")
+                    print(f"{d}: the run ended at step {done_k}, {writer.status.get('message', 'relaxed')}; nothing "
+                          "to resume (--steps or --t-end continue it past its rest)")
                 return 0
             if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
                 raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
