@@ -573,27 +573,28 @@ def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
 
 
 @contextlib.contextmanager
-def signals_deferred() -> Iterator[None]:
-    """SIGINT and SIGTERM held back for the block: their handlers are replaced by one that notes the signal, and on
-    exit the old handlers are restored and every noted signal is raised again (so a handler that raises, a run's
-    second Ctrl-C, does so after the block). Only in the main thread (the only one that may set handlers; elsewhere a
-    no-op). Blocking the signals with ``pthread_sigmask`` was not enough: a signal sent to the process is delivered
-    to any thread that does not block it (tqdm's monitor, BLAS threads), and Python then runs the handler in the
-    main thread at once.
+def signals_deferred(signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[list[int]]:
+    """``signals`` (SIGINT and SIGTERM) held back for the block: their handlers are replaced by one that notes the
+    signal in the list the block is given, and on exit the old handlers are restored and every noted signal is
+    raised again (so a handler that raises, a run's second Ctrl-C or Python's own KeyboardInterrupt, does so after
+    the block; a block may read the list to stop early, as an IPOPT solve does). Only in the main thread (the only
+    one that may set handlers; elsewhere a no-op). Blocking the signals with ``pthread_sigmask`` was not enough: a
+    signal sent to the process is delivered to any thread that does not block it (tqdm's monitor, BLAS threads), and
+    Python then runs the handler in the main thread at once.
 
     Found: a second SIGINT a few milliseconds after the first (tests/test_reliability.py, rapid double signals)
     once left a ``.status.json.XXXX.json`` temporary file behind (a full test run of 2026-11-28)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     noted: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield noted
+        return
 
     def note(signum: int, frame: object) -> None:
         noted.append(signum)
 
-    old = {s: signal.signal(s, note) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {s: signal.signal(s, note) for s in signals}
     try:
-        yield
+        yield noted
     finally:
         for s, handler in old.items():
             signal.signal(s, signal.SIG_DFL if handler is None else handler)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import difflib
 import json
 import signal
-import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -17,6 +16,7 @@ import casadi as ca
 import numpy as np
 
 from willmore_nlp.errors import UserInputError
+from willmore_nlp.mesh.io import signals_deferred
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.settings import BOOL, FlowSettings, Kind, SolverSettings, one_of, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
@@ -369,20 +369,15 @@ class IpoptSolver:
         signal is recorded, stops the solve at its next iteration and is raised as KeyboardInterrupt after it; the
         step is abandoned, the flow stays at its last accepted state and continues from it as if uninterrupted.
         """
-        if (threading.current_thread() is not threading.main_thread()
-                or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
             yield
             return
-        hits: list[int] = []
-        self._interrupted = hits
-        previous = signal.signal(signal.SIGINT, lambda signum, frame: hits.append(signum))
-        try:
-            yield
-        finally:
-            signal.signal(signal.SIGINT, previous)
-            self._interrupted = []
-        if hits:
-            raise KeyboardInterrupt
+        with signals_deferred((signal.SIGINT,)) as noted:  # (raised again after the block: KeyboardInterrupt)
+            self._interrupted = noted
+            try:
+                yield
+            finally:
+                self._interrupted = []
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """Solve from ``z0``; ``lam_g0`` is used when warm starting.
