@@ -182,6 +182,21 @@ CONSTRAINT_RTOL_SOLVER = 1e-6
 """Largest relative residual of an outer constraint (volume, area) that a solve may leave: the state is
 then moved onto the constraints (:meth:`WillmoreFlow._restore`, to 1e-13); more rejects the step."""
 
+SADDLE_TOL = 0.1
+"""A relaxed state is a saddle (``relax_check``) when the lowest eigenvalue of :meth:`WillmoreFlow.stability`
+(dimensionless) is below -SADDLE_TOL. Measured at 534-642 vertices: minima 4.3 (the c0 = 0.8 vesicle's prolate), 6.4
+(the discocyte, v = 0.65), 16.9 (oblate v = 0.55), 22.3 (prolate v = 0.85), 24 (a round sphere, the closed form);
+the c0 = 0.8 vesicle's plateau -1.14 and -0.45."""
+SADDLE_KICK = 1.0
+"""Largest nodal move of the step off a saddle (``relax_check``), in mean edge lengths h: on the c0 = 0.8 vesicle
+(534 v) it lowered the energy by 0.3 %; the flow then left the saddle in 80 steps, where without it it stayed
+above the saddle's energy for 140 steps."""
+MAX_SADDLE_KICKS = 3
+"""Saddles a relaxation leaves (``relax_check``) before it ends on one."""
+STABILITY_MAX_VERTICES = 3000
+"""Largest surface :meth:`WillmoreFlow.stability` takes (a dense Hessian on normal motions: one Hessian-vector product
+per free node and a generalised eigenproblem of that size; measured 0.4 s at 534 vertices, 13 s at 2,562, 119 s at
+5,000)."""
 REPAIR_SPEED = 1.0
 """Each pass of the light repair moves a vertex by at most this factor times the distance the step moved it."""
 
@@ -230,6 +245,22 @@ TAU_TILDE_WARN_FACTOR = 2.0
 
 
 @dataclass
+class Stability:
+    """The lowest eigenvalues of the energy's Hessian on normal motions (:meth:`WillmoreFlow.stability`).
+
+    Attributes
+    ----------
+    eigenvalues : (k,) ascending, dimensionless (times L^4): a negative one is a saddle
+    modes : (k, N, 3) their normal displacement fields (zero at fixed nodes), each with max |phi| = 1
+    scale : L = sqrt(area / 4 pi) of the state
+    """
+
+    eigenvalues: np.ndarray
+    modes: np.ndarray
+    scale: float
+
+
+@dataclass
 class StepResult:
     """One accepted time step (or the initial state, with ``step == 0``).
 
@@ -261,8 +292,9 @@ class StepResult:
     simplices : (K, d + 1) connectivity of the state (changes when the mesh control remeshes)
     free : (N,) bool free-vertex mask of a clamped problem on that connectivity (None without boundary)
     remeshed : the mesh-control action taken after this step ("" none; "flips", "repair", "smooth", "remesh",
-        "refine" joined by "+"); ``stats`` then holds ``energy_before_remesh`` and ``energy_after_remesh`` (the
-        discrete energy) and ``willmore_before_remesh`` (the Willmore energy of the state the step reached)
+        "refine", "saddle" (a relaxation's move off a saddle, ``relax_check``) joined by "+"); ``stats`` then holds
+        ``energy_before_remesh`` and ``energy_after_remesh`` (the discrete energy) and ``willmore_before_remesh`` (the
+        Willmore energy of the state the step reached)
     relaxed : True on the step that ended a relaxation (``relax=True``: the step lowered the
         Willmore energy by less than ``relax_tol`` relative)
     tau_tilde : inner step size of the state (lowered at rest by ``rest_tau_tilde``; Y is Y[X] for it)
@@ -329,7 +361,7 @@ class StepResult:
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "t_wall_control", "n_eval_hess",
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
                   "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard",
-                  "drift_share", "dilation_undone"):
+                  "drift_share", "dilation_undone", "stability"):
             # (n_cg to n_guard: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
             # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS; the last two: the
             # drift rule's, DRIFT_SHARE)
@@ -629,6 +661,7 @@ class WillmoreFlow:
         # the energy is the Willmore energy's, Moebius invariant: no lam, and no term that changes W otherwise (c0,
         # an anisotropy, a term of the user's: a user's surface tension had its dilation undone by the drift rule)
         invariant = lam == 0 and all(t.moebius_invariant for t in self.problem.terms)
+        self._moebius = invariant
         foreign = [t.label for t in self._extra_terms if not t.moebius_invariant]
         if s.conformal_gauge and foreign:  # (asked for with lam, c0 or an anisotropy it is the user's choice)
             raise UserInputError(f"{mesh.source}: conformal_gauge=True undoes the motion along the Willmore energy's "
@@ -638,6 +671,9 @@ class WillmoreFlow:
         # (a c0 vesicle "relaxed" on a rise of W while its Helfrich energy still fell 2e-4 per step: a new-user check)
         self._relax_on_energy = s.relax and not invariant
         self.relax_reason = ""  # why relax=true ended: "small" (change below relax_tol) or "rose" (drift at rest)
+        self._kicks = 0  # saddles left (relax_check; counted by the relax test, replayed on restart)
+        self.last_stability = float("nan")  # the lowest eigenvalue of stability() when a relaxation last ended
+        self._saddle_mode = np.zeros_like(self.X)
         self._relax_start(self._relax_value(self.X, self.Y))
         self._X_prev = self.X
         # the scheme's drift of closed surfaces with mesh control and no outer constraint (a scale to drift along)
@@ -832,6 +868,50 @@ class WillmoreFlow:
         p = self.params(X, 1.0, CONTROL_OFF)
         Y = self.evaluator.solve_y(X, p) if Y is None else Y
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0
+
+    def stability(self, count: int = 2) -> Stability:
+        """The lowest eigenvalues of the scheme's energy's Hessian on normal motions of the current state: is it a
+        minimum (all positive) or a saddle (a negative one, whose mode lowers the energy)?
+
+        :func:`~willmore_nlp.solvers.reduced.normal_spectrum` at X^k = X: the L^2 Hessian of e (:meth:`discrete_energy`)
+        on normal displacements phi n of the free nodes, on the tangent space of the outer constraints (with their
+        multipliers) and, for a closed surface, without the normal parts of the motions its energy does not see:
+        the translations, the rotations (isotropic energies) and the dilation and special conformal fields (a
+        Moebius-invariant energy without outer constraints). The eigenvalues are made dimensionless by L^4 (L^2 =
+        area / 4 pi; 24 on a round sphere). Meaningful where the state is at rest (the gradient near 0); dense, for
+        surfaces in R^3 of at most :data:`STABILITY_MAX_VERTICES` vertices.
+
+        Parameters
+        ----------
+        count : how many of the lowest eigenvalues
+
+        Returns
+        -------
+        Stability
+        """
+        mesh = self.mesh.with_vertices(self.X)
+        if mesh.d != 2 or mesh.m != 3:
+            raise UserInputError("stability(): surfaces in R^3 only")
+        if mesh.n_vertices > STABILITY_MAX_VERTICES:
+            raise UserInputError(f"stability(): {mesh.n_vertices} vertices, above STABILITY_MAX_VERTICES = "
+                                 f"{STABILITY_MAX_VERTICES} (a dense Hessian on normal motions)")
+        from willmore_nlp.solvers.reduced import ReducedSolver, normal_spectrum
+
+        free = self.problem.x_free
+        n = geometry.vertex_normals(mesh)
+        fields = None
+        if self.boundary is None:  # the symmetries of the energy: translations, rotations, Moebius
+            B = geometry.conformal_normals(mesh, n)[0]
+            keep = 3 if self.setup.anisotropy is not None else 10 if self._moebius and not self.problem.nh else 6
+            fields = B[free, :keep]
+        p = self.params(self.X, 1.0, CONTROL_OFF)
+        solver = self.solver if isinstance(self.solver, ReducedSolver) else None
+        mu, phi = normal_spectrum(self.evaluator, self.problem.pack_z(self.X, self.Y), p, n[free], fields, count,
+                                  solver)
+        L = geometry.length_scale(geometry.measure(mesh), 2, True)
+        modes = np.zeros((len(mu), *self.X.shape))
+        modes[:, free] = phi.T[:, :, None] * n[free][None]
+        return Stability(eigenvalues=mu * L**4, modes=modes, scale=L)
 
     def state(self) -> StepResult:
         """The current state as a StepResult (step 0 style, no solver data; at step 0 ``remeshed`` says what
@@ -1140,7 +1220,55 @@ class WillmoreFlow:
             # energy changed by less than relax_tol relative per nominal step, or rose without a flip
             value = result.energy if self._relax_on_energy else result.willmore
             result.relaxed = self.relaxed = self._relax_test(value, tau, action)
+            if self.relaxed and self._checks_saddles():
+                result.stats["stability"] = lowest = self._stability_at_rest()
+                if lowest < -SADDLE_TOL and self._kicks < MAX_SADDLE_KICKS and self._leave_saddle(tau):
+                    kicked = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
+                    kicked.stats, kicked.rest_steps = result.stats, result.rest_steps
+                    kicked.stats.update(energy_before_remesh=result.energy, willmore_before_remesh=result.willmore,
+                                        energy_after_remesh=kicked.energy,
+                                        min_angle_before_remesh=result.quality["min_angle"])
+                    kicked.remeshed = "+".join([*filter(None, [action]), "saddle"])
+                    result = kicked
+                    value = result.energy if self._relax_on_energy else result.willmore
+                    result.relaxed = self.relaxed = self._relax_test(value, tau, result.remeshed)
         return result
+
+    def _checks_saddles(self) -> bool:
+        """Whether an ended relaxation tests its state for a saddle (``relax_check``: surfaces in R^3 of at most
+        :data:`STABILITY_MAX_VERTICES` vertices)."""
+        return (self.settings.relax_check and self.mesh.d == 2 and self.mesh.m == 3
+                and self.mesh.n_vertices <= STABILITY_MAX_VERTICES)
+
+    def _stability_at_rest(self) -> float:
+        """The lowest eigenvalue of :meth:`stability` at the relaxed state (kept with its mode for the move off a
+        saddle)."""
+        st = self.stability(1)
+        self._saddle_mode = st.modes[0]
+        self.last_stability = float(st.eigenvalues[0])
+        return self.last_stability
+
+    def _leave_saddle(self, tau: float) -> bool:
+        """Move the state along the mode of its negative eigenvalue (:meth:`_stability_at_rest`), onto the outer
+        constraints, by the move of the lowest energy among +-1, 1/2, 1/4 and 1/8 times ``SADDLE_KICK`` h at most (the
+        energy along the mode is a quartic: on the c0 = 0.8 vesicle it is lowest near h / 4); False (the state kept)
+        when none lowers it."""
+        h = self.mesh.with_vertices(self.X).h
+        e0, best = self.discrete_energy(self.X, self.Y), None
+        for move in SADDLE_KICK * h * np.array([1.0, -1.0, 0.5, -0.5, 0.25, -0.25, 0.125, -0.125]):
+            try:
+                X1 = self._restore(self.X + move * self._saddle_mode)
+                Y1 = self._solve_y(X1, tau)
+            except (RuntimeError, ArithmeticError):
+                continue
+            e1 = self.discrete_energy(X1, Y1)
+            if np.isfinite(e1) and e1 < e0 and (best is None or e1 < best[0]):
+                best = (e1, X1, Y1)
+        if best is None:
+            return False
+        self.X, self.Y, self.lam_g = best[1], best[2], None
+        self._X_prev = self.X
+        return True
 
     def _iteration_limit(self) -> int | None:
         """Iteration budget of the next attempt: ``max(iteration_budget_min, iteration_budget x median)``.
@@ -1589,10 +1717,19 @@ class WillmoreFlow:
             return ""
         what = "the scheme's energy (with lam, c0 or an anisotropy)" if self._relax_on_energy else "the Willmore energy"
         if self.relax_reason == "small":
-            return (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps that changed {what} by less than relax_tol = "
-                    f"{self.settings.relax_tol:g} per nominal step")
-        return (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps over which {what} rose with no edge flip (the "
-                "scheme's drift at rest)")
+            why = (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps that changed {what} by less than relax_tol = "
+                   f"{self.settings.relax_tol:g} per nominal step")
+        else:
+            why = (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps over which {what} rose with no edge flip (the "
+                   "scheme's drift at rest)")
+        lowest, left = self.last_stability, f" ({self._kicks} saddle(s) left on the way)" if self._kicks else ""
+        if not np.isfinite(lowest):  # (not tested: relax_check off, a curve, a large mesh)
+            return why
+        if lowest >= -SADDLE_TOL:
+            return why + f"; a minimum: lowest eigenvalue on normal motions {lowest:.3g}{left}"
+        return why + (f"; a saddle: lowest eigenvalue on normal motions {lowest:.3g}, "
+                      + (f"left {MAX_SADDLE_KICKS} times already (MAX_SADDLE_KICKS)" if self._kicks >= MAX_SADDLE_KICKS
+                         else "no move along its mode lowered the energy"))
 
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of energy ``willmore`` (:meth:`_relax_value`), with no step-size
@@ -1662,14 +1799,15 @@ class WillmoreFlow:
         """
         parts = set(action.split("+"))
         entry = (willmore, "flips" in parts, min(1.0, tau / self.tau))
-        ok = not ({"smooth"} | NEW_VERTICES) & parts
+        self._kicks += "saddle" in parts
+        ok = not ({"smooth", "saddle"} | NEW_VERTICES) & parts
         w = self._relax_window = [*self._relax_window, entry][-RELAX_WINDOW - 1:] if ok else [entry]
         if len(w) <= RELAX_WINDOW:
             return False
         change = w[0][0] - w[-1][0]
         steps = sum(s for _, _, s in w[1:])
         small = abs(change) <= steps * self.settings.relax_tol * abs(w[-1][0])
-        rose = change < 0 and not any(f for _, f, _ in w[1:])
+        rose = change < 0 and not any(f for _, f, _ in w[1:]) and not self._kicks  # (off a saddle it may rise first)
         self.relax_reason = "small" if small else "rose" if rose else ""
         return small or rose
 
@@ -1728,6 +1866,7 @@ class WillmoreFlow:
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         w0 = self._relax_value(X, Y)  # (W, the rest rule's, whenever that rule runs: it runs without relax)
         self._relax_start(w0)
+        self._kicks, self.last_stability = 0, float("nan")
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
         self._refinements = sum("refine" in str(r.get("remesh_action") or "").split("+") for r in history or []
                                 if int(float(r["step"])) <= self.k)
@@ -1741,6 +1880,8 @@ class WillmoreFlow:
             else:
                 self._grow_tau(float(r["tau"]), int(float(r["retries"])))
                 self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""))
+                if r.get("stability") not in (None, "") and np.isfinite(float(r["stability"])):
+                    self.last_stability = float(r["stability"])
         if not replayed:
             self._tau_adapt = (float("inf") if last_tau is None
                                else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))

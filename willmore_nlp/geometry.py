@@ -72,6 +72,22 @@ def stereographic_reprojection(X: np.ndarray, centre: np.ndarray, rho: float, po
     return (Y @ Q[:, 1:4]) / (1 - Y @ p)[:, None]
 
 
+def conformal_normals(mesh: Mesh, normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """(N, 10) normal components of the ten conformal fields of R^3 at the vertices of a surface in R^3: the
+    translations (3), the rotations (3), the dilation (1) and the special conformal fields V_j(y) = 2 y_j y - |y|^2 e_j
+    (3), with y = (x - centre) / scale (centre the vertex mean, scale = sqrt(area / 4 pi)); with the centre and the
+    scale. ``normals``: the (N, 3) unit vertex normals when the caller has them."""
+    X = mesh.vertices
+    n = vertex_normals(mesh) if normals is None else normals
+    centre = X.mean(axis=0)
+    scale = length_scale(measure(mesh), 2, True)
+    y = (X - centre) / scale
+    yn = np.einsum("ij,ij->i", y, n)
+    y2 = np.einsum("ij,ij->i", y, y)
+    rot = np.cross(y, n)  # <e_j x y, n> = (y x n)_j: the rotations
+    return np.column_stack([n, rot, yn] + [2 * y[:, j] * yn - y2 * n[:, j] for j in range(3)]), centre, scale
+
+
 def conformal_fit(mesh0: Mesh, X1: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, float]:
     """Fit of the normal motion of a closed surface from ``mesh0`` (vertices X0, (N, 3)) to the positions X1
     ((N, 3)) of the same vertices by the ten conformal fields of R^3.
@@ -97,13 +113,7 @@ def conformal_fit(mesh0: Mesh, X1: np.ndarray) -> tuple[np.ndarray, float, np.nd
     X0 = mesh0.vertices
     n = vertex_normals(mesh0)
     m = lumped_mass(X0, mesh0.simplices)
-    centre = X0.mean(axis=0)
-    scale = length_scale(measure(mesh0), 2, True)
-    y = (X0 - centre) / scale
-    yn = np.einsum("ij,ij->i", y, n)
-    y2 = np.einsum("ij,ij->i", y, y)
-    rot = np.cross(y, n)  # <e_j x y, n> = (y x n)_j: the rotations
-    B = np.column_stack([n, rot, yn] + [2 * y[:, j] * yn - y2 * n[:, j] for j in range(3)])
+    B, centre, scale = conformal_normals(mesh0, n)
     d = np.einsum("ij,ij->i", np.asarray(X1, float) - X0, n) / scale
     w = np.sqrt(m)
     # rcond: directions whose normal component nearly vanishes are left alone (moving along them would only slide

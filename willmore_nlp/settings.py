@@ -568,6 +568,13 @@ class FlowSettings(Settings):
         ends (default 1e-4).
     relax_max_tau : float, optional
         Largest step size of a relaxation (default 100 tau).
+    relax_check : bool
+        When a relaxation of a surface in R^3 (of at most ``STABILITY_MAX_VERTICES`` vertices) ends, test whether
+        the state is a minimum: the lowest eigenvalue of the energy's Hessian on normal motions
+        (:meth:`~willmore_nlp.flow.WillmoreFlow.stability`, history column ``stability``). At a saddle (an
+        eigenvalue below ``-SADDLE_TOL``) the state is moved along the mode (``SADDLE_KICK`` h at most, the sign
+        that lowers the energy; history action ``saddle``) and the relaxation goes on, without the test for a rise
+        (which ended a c0 = 0.8 vesicle on its saddle), at most ``MAX_SADDLE_KICKS`` times. Default true.
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme: no repair
         between steps and ``tangential_control = "auto"`` is "off"; an explicit "meanratio" is kept).
@@ -711,6 +718,7 @@ class FlowSettings(Settings):
     relax: bool = option(False, BOOL)
     relax_tol: float = option(1e-4, real(0))
     relax_max_tau: float | None = option(None, real(0, lo_open=True, unset="100 tau"))
+    relax_check: bool = option(True, BOOL)
     mesh_control: str = option("auto", one_of("auto", "off"))
     remesh: str = option("auto", one_of("auto", "off"))
     input_repair: bool = option(True, BOOL)
