@@ -298,6 +298,23 @@ def test_resuming_a_relaxed_run_takes_no_step(tmp_path) -> None:
     assert json.loads((out / "status.json").read_text())["message"] == status["message"]
 
 
+def test_a_no_op_resume_does_not_repeat_the_inputs_warnings(tmp_path) -> None:
+    """Resuming a relaxed run of a poor input (a trimesh capsule, repaired before its first step) printed the input
+    repair's warnings before saying there was nothing to resume; now only a resume that goes on shows them."""
+    import trimesh
+
+    f = tmp_path / "cap.obj"
+    trimesh.creation.capsule(height=1.0, radius=0.5, count=[16, 16]).export(f)
+    out = tmp_path / "cap"
+    r = run_cli("run", str(f), "--set", "relax=true", "--steps", "40", "--out", str(out), "--quiet")
+    assert r.returncode == 0 and "repaired before the first step" in r.stderr, r.stderr
+    assert json.loads((out / "status.json").read_text())["message"].startswith("relaxed")
+    r = run_cli("run", "--resume", str(out))
+    assert r.returncode == 0 and "nothing to resume" in r.stdout and "warning" not in r.stderr, r.stderr
+    r = run_cli("run", "--resume", str(out), "--steps", "40", "--quiet")
+    assert r.returncode == 0 and "repaired before the first step" in r.stderr, r.stderr
+
+
 def test_a_problem_of_ones_own_runs_and_resumes_from_python_and_the_cli_says_how(tmp_path) -> None:
     """docs/guide/runs.md's own problem: runner.start / runner.resume write and continue its run directory; the
     command line's --resume, which does not import the user's module, says how to resume it (it said only

@@ -460,8 +460,9 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
         if cfg.get(k) != getattr(pb, k):
             raise RunError(f"{where}: cannot resume: {k} = {cfg.get(k)!r} but the problem now gives "
                            f"{getattr(pb, k)!r}")
-    flow = pb.make_flow(**{**spec.flow_options,
-                           **stored_control(cfg, pb.flow_options.get("boundary") is not None)})
+    with warnings.catch_warnings(record=True) as built:  # (shown once the run goes on: a no-op says nothing of them)
+        flow = pb.make_flow(**{**spec.flow_options,
+                               **stored_control(cfg, pb.flow_options.get("boundary") is not None)})
     with SignalGuard(ignore_late_signals) as guard:
         writer, _, ck, notes = RunWriter.resume(d)
         try:
@@ -475,6 +476,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                     print(f"{d}: the run ended at step {done_k}, {writer.status.get('message', 'relaxed')}; nothing "
                           "to resume (--steps or --t-end continue it past its rest)")
                 return 0
+            for w in built:
+                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
             if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
                 raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
                                f"new total length, which cannot be shorter (the run is unchanged)")
