@@ -253,11 +253,14 @@ class Stability:
     eigenvalues : (k,) ascending, dimensionless (times L^4): a negative one is a saddle
     modes : (k, N, 3) their normal displacement fields (zero at fixed nodes), each with max |phi| = 1
     scale : L = sqrt(area / 4 pi) of the state
+    gap : how far the energy is above the minimum of its quadratic model on these motions, relative to the energy
+        (the Newton decrement; nan at a saddle): a state at rest on normal motions has a small one
     """
 
     eigenvalues: np.ndarray
     modes: np.ndarray
     scale: float
+    gap: float
 
 
 @dataclass
@@ -361,7 +364,7 @@ class StepResult:
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "t_wall_control", "n_eval_hess",
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
                   "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard",
-                  "drift_share", "dilation_undone", "stability"):
+                  "drift_share", "dilation_undone", "stability", "stability_gap"):
             # (n_cg to n_guard: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
             # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS; the last two: the
             # drift rule's, DRIFT_SHARE)
@@ -672,7 +675,8 @@ class WillmoreFlow:
         self._relax_on_energy = s.relax and not invariant
         self.relax_reason = ""  # why relax=true ended: "small" (change below relax_tol) or "rose" (drift at rest)
         self._kicks = 0  # saddles left (relax_check; counted by the relax test, replayed on restart)
-        self.last_stability = float("nan")  # the lowest eigenvalue of stability() when a relaxation last ended
+        self.last_stability = self.last_gap = float("nan")  # stability()'s lowest eigenvalue and gap when a
+        # relaxation last ended
         self._saddle_mode = np.zeros_like(self.X)
         self._relax_start(self._relax_value(self.X, self.Y))
         self._X_prev = self.X
@@ -906,12 +910,13 @@ class WillmoreFlow:
             fields = B[free, :keep]
         p = self.params(self.X, 1.0, CONTROL_OFF)
         solver = self.solver if isinstance(self.solver, ReducedSolver) else None
-        mu, phi = normal_spectrum(self.evaluator, self.problem.pack_z(self.X, self.Y), p, n[free], fields, count,
-                                  solver)
+        mu, phi, gap = normal_spectrum(self.evaluator, self.problem.pack_z(self.X, self.Y), p, n[free], fields, count,
+                                       solver)
         L = geometry.length_scale(geometry.measure(mesh), 2, True)
         modes = np.zeros((len(mu), *self.X.shape))
         modes[:, free] = phi.T[:, :, None] * n[free][None]
-        return Stability(eigenvalues=mu * L**4, modes=modes, scale=L)
+        return Stability(eigenvalues=mu * L**4, modes=modes, scale=L,
+                         gap=gap / abs(self.discrete_energy(self.X, self.Y)))
 
     def state(self) -> StepResult:
         """The current state as a StepResult (step 0 style, no solver data; at step 0 ``remeshed`` says what
@@ -1221,7 +1226,8 @@ class WillmoreFlow:
             value = result.energy if self._relax_on_energy else result.willmore
             result.relaxed = self.relaxed = self._relax_test(value, tau, action)
             if self.relaxed and self._checks_saddles():
-                result.stats["stability"] = lowest = self._stability_at_rest()
+                lowest = self._stability_at_rest()
+                result.stats.update(stability=lowest, stability_gap=self.last_gap)
                 if lowest < -SADDLE_TOL and self._kicks < MAX_SADDLE_KICKS and self._leave_saddle(tau):
                     kicked = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
                     kicked.stats, kicked.rest_steps = result.stats, result.rest_steps
@@ -1245,7 +1251,7 @@ class WillmoreFlow:
         saddle)."""
         st = self.stability(1)
         self._saddle_mode = st.modes[0]
-        self.last_stability = float(st.eigenvalues[0])
+        self.last_stability, self.last_gap = float(st.eigenvalues[0]), st.gap
         return self.last_stability
 
     def _leave_saddle(self, tau: float) -> bool:
@@ -1726,7 +1732,8 @@ class WillmoreFlow:
         if not np.isfinite(lowest):  # (not tested: relax_check off, a curve, a large mesh)
             return why
         if lowest >= -SADDLE_TOL:
-            return why + f"; a minimum: lowest eigenvalue on normal motions {lowest:.3g}{left}"
+            return why + (f"; a minimum: lowest eigenvalue on normal motions {lowest:.3g}, the energy "
+                          f"{self.last_gap:.2g} of itself above its quadratic model's minimum there{left}")
         return why + (f"; a saddle: lowest eigenvalue on normal motions {lowest:.3g}, "
                       + (f"left {MAX_SADDLE_KICKS} times already (MAX_SADDLE_KICKS)" if self._kicks >= MAX_SADDLE_KICKS
                          else "no move along its mode lowered the energy"))
@@ -1866,7 +1873,7 @@ class WillmoreFlow:
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         w0 = self._relax_value(X, Y)  # (W, the rest rule's, whenever that rule runs: it runs without relax)
         self._relax_start(w0)
-        self._kicks, self.last_stability = 0, float("nan")
+        self._kicks, self.last_stability, self.last_gap = 0, float("nan"), float("nan")
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
         self._refinements = sum("refine" in str(r.get("remesh_action") or "").split("+") for r in history or []
                                 if int(float(r["step"])) <= self.k)
@@ -1881,7 +1888,7 @@ class WillmoreFlow:
                 self._grow_tau(float(r["tau"]), int(float(r["retries"])))
                 self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""))
                 if r.get("stability") not in (None, "") and np.isfinite(float(r["stability"])):
-                    self.last_stability = float(r["stability"])
+                    self.last_stability, self.last_gap = float(r["stability"]), float(r.get("stability_gap", "nan"))
         if not replayed:
             self._tau_adapt = (float("inf") if last_tau is None
                                else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))

@@ -574,7 +574,9 @@ class FlowSettings(Settings):
         (:meth:`~willmore_nlp.flow.WillmoreFlow.stability`, history column ``stability``). At a saddle (an
         eigenvalue below ``-SADDLE_TOL``) the state is moved along the mode (``SADDLE_KICK`` h at most, the sign
         that lowers the energy; history action ``saddle``) and the relaxation goes on, without the test for a rise
-        (which ended a c0 = 0.8 vesicle on its saddle), at most ``MAX_SADDLE_KICKS`` times. Default true.
+        (which ended a c0 = 0.8 vesicle on its saddle), at most ``MAX_SADDLE_KICKS`` times. At a minimum the message
+        also gives how far the energy is above its quadratic model's minimum on normal motions (column
+        ``stability_gap``). Default true.
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme: no repair
         between steps and ``tangential_control = "auto"`` is "off"; an explicit "meanratio" is kept).

@@ -341,8 +341,9 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
 
 def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, normals: np.ndarray,
                     fields: np.ndarray | None = None, count: int = 2,
-                    solver: ReducedSolver | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The lowest eigenvalues and modes of the energy's Hessian on normal motions of the free nodes at a state.
+                    solver: ReducedSolver | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """The lowest eigenvalues and modes of the energy's Hessian on normal motions of the free nodes at a state, and
+    how far the energy is above the minimum of its quadratic model there.
 
     At the state X = X^k of ``z0`` the reduced Hessian of the step's objective is D + tau R (:func:`convexity_limit`),
     R the Hessian of 2 e(X), e the scheme's energy, with the outer constraints' multipliers of the least-squares fit of
@@ -373,6 +374,8 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     -------
     mu : (count,) ascending eigenvalues
     modes : (nX, count) the normal displacements phi of their modes, each scaled to max |phi| = 1
+    gap : e(X) minus the minimum of e's quadratic model on these motions (the Newton decrement; energy units): how
+        far a state at rest on normal motions is from their minimum; nan when the lowest eigenvalue is not positive
     """
     P = evaluator.problem
     red = ReducedSolver(evaluator, ReducedSettings(), "newton") if solver is None else solver
@@ -384,12 +387,13 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     if P.nh:  # the multipliers that fit the gradient's normal part (its tangential part, O(1) on a discrete sphere,
         # is the mesh's: fitted too it gave a round sphere's volume a pressure 0.55 and its modes +0.55)
         Cn, gn, w = np.asarray(pt.C) @ Nm, Nm.T @ pt.grad, 1.0 / D.diagonal()[::m] ** 0.5
-        mu = -np.linalg.lstsq((Cn * w).T, gn * w, rcond=None)[0]
-        pt.lam = np.concatenate([pt.lam[: -P.nh] + pt.nu @ (mu - pt.lam[-P.nh :]), mu])
+        mu_h = -np.linalg.lstsq((Cn * w).T, gn * w, rcond=None)[0]
+        pt.lam = np.concatenate([pt.lam[: -P.nh] + pt.nu @ (mu_h - pt.lam[-P.nh :]), mu_h])
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
     HN = np.column_stack([red._hessp(pt, p, Nm[:, i].toarray().ravel()) for i in range(nX)])
     Mn = (Nm.T @ (D @ Nm)).toarray()
-    Rn = (Nm.T @ HN - Mn) / P.params.scalar(p, "tau")
+    tau = P.params.scalar(p, "tau")
+    Rn = (Nm.T @ HN - Mn) / tau
     Rn = 0.5 * (Rn + Rn.T)
     rows = [np.asarray(pt.C) @ Nm] if P.nh else []
     if fields is not None and fields.size:  # (their span: directions below 1e-2 of the largest are no field's)
@@ -400,6 +404,11 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
         Z = la.null_space(A / np.linalg.norm(A, axis=1, keepdims=True), rcond=1e-8)
     else:
         Z = np.eye(nX)
-    mu, V = la.eigh(Z.T @ Rn @ Z, Z.T @ Mn @ Z, subset_by_index=[0, min(count, Z.shape[1]) - 1])
+    RZ = Z.T @ Rn @ Z
+    mu, V = la.eigh(RZ, Z.T @ Mn @ Z, subset_by_index=[0, min(count, Z.shape[1]) - 1])
     modes = Z @ V
-    return mu, modes / np.abs(modes).max(axis=0)
+    # the Newton decrement of e on these motions: e(X) - min of its quadratic model, g^T R^-1 g / (4 tau^2) with g the
+    # projected gradient of the objective (2 tau grad e at X^k); nan where the model has no minimum
+    g = Z.T @ (gn + Cn.T @ mu_h) if P.nh else Z.T @ (Nm.T @ pt.grad)
+    gap = float(g @ la.solve(RZ, g, assume_a="sym")) / (4 * tau**2) if mu[0] > 0 else float("nan")
+    return mu, modes / np.abs(modes).max(axis=0), gap
