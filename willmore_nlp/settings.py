@@ -552,8 +552,9 @@ class FlowSettings(Settings):
         every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``; after a
         failed doubling it is held for 2, 4, 8, ... steps before the next try. :meth:`run` stops early,
         with ``relaxed`` set, after the first state whose last 3 steps (``RELAX_WINDOW``) lowered the
-        Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant) by less than
-        ``relax_tol`` relative per nominal step (a step of tau_i < tau counts as tau_i / tau steps),
+        Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant; with ``lam``, ``c0``, an
+        anisotropy or a user's term that is not Moebius invariant the scheme's energy e, which the flow lowers) by
+        less than ``relax_tol`` relative per nominal step (a step of tau_i < tau counts as tau_i / tau steps),
         or raised it with no Delaunay flip (not counting steps after which the mesh was smoothed or remeshed;
         the light repair, ``remesh_repair``, follows every step and counts; one step is too noisy a measure: a
         Delaunay flip alone moves the energy by ~1e-3 on 642 vertices). Near the
@@ -564,8 +565,8 @@ class FlowSettings(Settings):
         docs/guide/solver_studies.md). The discrete energy e falls all along it, so it cannot serve
         as the stopping test.
     relax_tol : float
-        Relative decrease of the Willmore energy per nominal step (of size tau) below which a relaxation
-        ends (default 1e-4).
+        Relative decrease of the watched energy (the Willmore energy, or e: ``relax``) per nominal step (of size
+        tau) below which a relaxation ends (default 1e-4).
     relax_max_tau : float, optional
         Largest step size of a relaxation (default 100 tau).
     relax_check : bool
@@ -574,9 +575,11 @@ class FlowSettings(Settings):
         (:meth:`~willmore_nlp.flow.WillmoreFlow.stability`, history column ``stability``). At a saddle (an
         eigenvalue below ``-SADDLE_TOL``) the state is moved along the mode (``SADDLE_KICK`` h at most, the sign
         that lowers the energy; history action ``saddle``) and the relaxation goes on, without the test for a rise
-        (which ended a c0 = 0.8 vesicle on its saddle), at most ``MAX_SADDLE_KICKS`` times. At a minimum the message
-        also gives how far the energy is above its quadratic model's minimum on normal motions (column
-        ``stability_gap``). Default true.
+        (which ended a c0 = 0.8 vesicle on its saddle), at most ``MAX_SADDLE_KICKS`` times. At a minimum the state
+        is polished by Newton steps on normal motions (history action ``polish``, at most ``POLISH_STEPS``) until the
+        energy is within ``POLISH_GAP`` (relative) of its quadratic model's minimum there; the message gives that gap
+        (column ``stability_gap``). Curves ignore it; above ``STABILITY_MAX_VERTICES`` the message says the state
+        was not tested. Default true.
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme: no repair
         between steps and ``tangential_control = "auto"`` is "off"; an explicit "meanratio" is kept).

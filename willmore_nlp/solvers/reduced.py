@@ -386,8 +386,12 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     D = red._distance_hessian(pt.z, p)
     if P.nh:  # the multipliers that fit the gradient's normal part (its tangential part, O(1) on a discrete sphere,
         # is the mesh's: fitted too it gave a round sphere's volume a pressure 0.55 and its modes +0.55)
+        # (columns of norm 1 and directions below 3e-2 of the largest dropped: on a sphere the volume's and the area's
+        # gradients are parallel, singular values 1.5e-2 / 7.7e-3 of the largest at 162 / 642 v, and the exact fit gave
+        # them multipliers of +-1e4 and the sphere an eigenvalue of -56,605; a vesicle of v = 0.99: 5e-2, 0.85: 0.16)
         Cn, gn, w = np.asarray(pt.C) @ Nm, Nm.T @ pt.grad, 1.0 / D.diagonal()[::m] ** 0.5
-        mu_h = -np.linalg.lstsq((Cn * w).T, gn * w, rcond=None)[0]
+        cols = np.linalg.norm(Cn * w, axis=1)
+        mu_h = -np.linalg.lstsq((Cn * w).T / cols, gn * w, rcond=3e-2)[0] / cols
         pt.lam = np.concatenate([pt.lam[: -P.nh] + pt.nu @ (mu_h - pt.lam[-P.nh :]), mu_h])
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
     HN = np.column_stack([red._hessp(pt, p, Nm[:, i].toarray().ravel()) for i in range(nX)])
@@ -410,5 +414,6 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     # the Newton decrement of e on these motions: e(X) - min of its quadratic model, g^T R^-1 g / (4 tau^2) with g the
     # projected gradient of the objective (2 tau grad e at X^k); nan where the model has no minimum
     g = Z.T @ (gn + Cn.T @ mu_h) if P.nh else Z.T @ (Nm.T @ pt.grad)
-    gap = float(g @ la.solve(RZ, g, assume_a="sym")) / (4 * tau**2) if mu[0] > 0 else float("nan")
-    return mu, modes / np.abs(modes).max(axis=0), gap
+    step = -la.solve(RZ, g, assume_a="sym") / tau if mu[0] > 0 else np.full(len(g), np.nan)
+    gap = -float(g @ step) / (4 * tau)
+    return mu, modes / np.abs(modes).max(axis=0), gap, Z @ step
