@@ -262,6 +262,8 @@ class Stability:
     scale : L = sqrt(area / 4 pi) of the state
     gap : how far the energy is above the minimum of its quadratic model on these motions, relative to the energy
         (the Newton decrement; nan at a saddle): a state at rest on normal motions has a small one
+    newton : (N, 3) the Newton step to that minimum (normal displacements on the constraints' tangent space; nan at a
+        saddle)
     """
 
     eigenvalues: np.ndarray
@@ -1293,21 +1295,27 @@ class WillmoreFlow:
             e0, a = self.discrete_energy(self.X, self.Y), min(1.0, POLISH_CAP * h / float(np.abs(self._newton).max()))
             best = None
             for _ in range(6):
-                try:
-                    X1 = self._restore(self.X + a * self._newton)
-                    Y1 = self._solve_y(X1, tau)
-                except (RuntimeError, ArithmeticError):
-                    X1 = None
-                if X1 is not None and self.discrete_energy(X1, Y1) < e0:
-                    best = (X1, Y1)
+                best = self._trial_move(a * self._newton, tau)
+                if best is not None and best[0] < e0:
                     break
-                a /= 2
+                best, a = None, a / 2
             if best is None:
                 break
-            self.X, self.Y, self.lam_g = best[0], best[1], None
+            self.X, self.Y, self.lam_g = best[1], best[2], None
             self._X_prev, moved = self.X, True
             self._stability_at_rest()
         return moved
+
+    def _trial_move(self, d: np.ndarray, tau: float) -> tuple[float, np.ndarray, np.ndarray] | None:
+        """(e, X', Y[X']) of the state moved by ``d`` ((N, m)) onto the outer constraints; None when the restoration or
+        Y[X'] fails or e is not finite."""
+        try:
+            X1 = self._restore(self.X + d)
+            Y1 = self._solve_y(X1, tau)
+        except (RuntimeError, ArithmeticError):
+            return None
+        e1 = self.discrete_energy(X1, Y1)
+        return (e1, X1, Y1) if np.isfinite(e1) else None
 
     def _leave_saddle(self, tau: float) -> bool:
         """Move the state along the mode of its negative eigenvalue (:meth:`_stability_at_rest`), onto the outer
@@ -1317,14 +1325,9 @@ class WillmoreFlow:
         h = self.mesh.with_vertices(self.X).h
         e0, best = self.discrete_energy(self.X, self.Y), None
         for move in SADDLE_KICK * h * np.array([1.0, -1.0, 0.5, -0.5, 0.25, -0.25, 0.125, -0.125]):
-            try:
-                X1 = self._restore(self.X + move * self._saddle_mode)
-                Y1 = self._solve_y(X1, tau)
-            except (RuntimeError, ArithmeticError):
-                continue
-            e1 = self.discrete_energy(X1, Y1)
-            if np.isfinite(e1) and e1 < e0 and (best is None or e1 < best[0]):
-                best = (e1, X1, Y1)
+            trial = self._trial_move(move * self._saddle_mode, tau)
+            if trial is not None and trial[0] < e0 and (best is None or trial[0] < best[0]):
+                best = trial
         if best is None:
             return False
         self.X, self.Y, self.lam_g = best[1], best[2], None
@@ -1854,12 +1857,13 @@ class WillmoreFlow:
     def _relax_test(self, willmore: float, tau: float, action: str) -> bool:
         """Record an accepted state in the relax window and say whether the relaxation has ended.
 
-        A state counts unless its step was followed by smoothing or remeshing (``action``; the light repair
-        follows every step and counts); such a state restarts the window from itself. The relaxation ends when
-        over the window the Willmore energy changed by less than ``relax_tol`` relative per nominal step (a
-        step of tau_i < tau counts as tau_i / tau steps: a flow held at small steps by retries still ends), or
-        rose with no Delaunay flip in the window (the scheme's own drift at rest; a flip alone moves the energy
-        by ~1e-3 on 642 vertices).
+        A state counts unless its step was followed by smoothing, remeshing or a move off a saddle (``action``; the
+        light repair follows every step and counts); such a state restarts the window from itself (and a move off a
+        saddle is counted, ``relax_check``). The relaxation ends when over the window the Willmore energy changed by
+        less than ``relax_tol`` relative per nominal step (a step of tau_i < tau counts as tau_i / tau steps: a flow
+        held at small steps by retries still ends), or rose with no Delaunay flip in the window (the scheme's own
+        drift at rest; a flip alone moves the energy by ~1e-3 on 642 vertices; not after a move off a saddle, from
+        which the energy may rise first).
         """
         parts = set(action.split("+"))
         entry = (willmore, "flips" in parts, min(1.0, tau / self.tau))
