@@ -891,8 +891,9 @@ class WillmoreFlow:
         :func:`~willmore_nlp.solvers.reduced.normal_spectrum` at X^k = X: the L^2 Hessian of e (:meth:`discrete_energy`)
         on normal displacements phi n of the free nodes, on the tangent space of the outer constraints (with their
         multipliers) and, for a closed surface, without the normal parts of the motions its energy does not see:
-        the translations, the rotations (isotropic energies) and the dilation and special conformal fields (a
-        Moebius-invariant energy without outer constraints). The eigenvalues are made dimensionless by L^4 (L^2 =
+        the translations, the rotations (isotropic energies), the dilation (scale-invariant energies: W or an
+        anisotropic W without lam, c0 or outer constraints) and the special conformal fields (a Moebius-invariant
+        energy without outer constraints). The eigenvalues are made dimensionless by L^4 (L^2 =
         area / 4 pi; 24 on a round sphere). Meaningful where the state is at rest (the gradient near 0); dense, for
         surfaces in R^3 of at most :data:`STABILITY_MAX_VERTICES` vertices.
 
@@ -917,10 +918,16 @@ class WillmoreFlow:
         free = self.problem.x_free
         n = geometry.vertex_normals(mesh)
         fields = None
-        if self.boundary is None:  # the symmetries of the energy: translations, rotations, Moebius
+        if self.boundary is None:  # the symmetries of the energy: translations, rotations, dilation, Moebius
             B = geometry.conformal_normals(mesh, n)[0]
-            keep = 3 if self.setup.anisotropy is not None else 10 if self._moebius and not self.problem.nh else 6
-            fields = B[free, :keep]
+            isotropic, free_scale = self.setup.anisotropy is None, not self.problem.nh
+            # scale invariant: W and an anisotropic W (no lam, c0 or a user's term) without outer constraints (the
+            # anisotropic sphere's dilation had an eigenvalue of -0.23, and the move along it sped up its drift)
+            scaled = free_scale and (self._moebius or (self.lam == 0 and self.settings.c0 == 0 and all(
+                t.moebius_invariant for t in self._extra_terms)))
+            keep = [*range(3), *(range(3, 6) if isotropic else ()), *([6] if scaled else ()),
+                    *(range(7, 10) if self._moebius and free_scale else ())]
+            fields = B[np.ix_(free, keep)]
         p = self.params(self.X, 1.0, CONTROL_OFF)
         solver = self.solver if isinstance(self.solver, ReducedSolver) else None
         z = self.problem.pack_z(self.X, self.Y)
