@@ -110,6 +110,8 @@ def test_a_relaxed_minimum_is_polished_by_newton_steps_on_normal_motions(tmp_pat
     last = flow.run(steps=60)[-1]
     assert flow.relaxed and last.step == plain.k and "polish" in last.remeshed
     assert last.stats["energy_before_remesh"] == stepped  # (the stepped state's, before the repair and the polish)
+    assert last.stats["energy_before_move"] == pytest.approx(e_rest, rel=1e-12)  # (after the repair, the polish's)
+    assert last.stats["stability_gap_before_move"] == pytest.approx(predicted / e_rest, rel=1e-6)
     assert (e_rest - last.energy) == pytest.approx(predicted, rel=0.05)
     assert last.stats["stability_gap"] < 1e-10 and flow.last_stability > SADDLE_TOL
     assert last.quality["min_angle"] > plain.state().quality["min_angle"] - 1.0
@@ -190,3 +192,16 @@ def test_an_anisotropic_sphere_relaxes_at_a_minimum_not_along_its_dilation() -> 
     assert flow.relaxed and not any("saddle" in r.remeshed for r in results)
     assert flow.last_stability > SADDLE_TOL and "polish" in results[-1].remeshed
     assert results[-1].measure > 0.8 * results[0].measure
+
+
+def test_a_state_far_from_rest_on_normal_motions_is_not_polished() -> None:
+    """The c0 = 0.8 vesicle at 162 vertices relaxes on the step/repair exchange with a gap of 9.2e-2: polished, three
+    Newton steps at the h / 4 cap lowered e by 1.6 %, the smallest angle from 41 to 21 deg and the lowest eigenvalue
+    to -0.03, and the message called it a minimum with a gap of nan (a new user's check). Above POLISH_MAX_GAP the
+    state is left as the flow made it and the message says it is not at rest."""
+    pb, _ = build("vesicle", reduced_volume=0.65, start="oblate", c0=0.8, subdivisions=2)
+    flow = pb.make_flow(relax=True)
+    last = flow.run(steps=60)[-1]
+    assert flow.relaxed and flow.last_gap > 1e-2 and "polish" not in last.remeshed
+    assert "; not at rest on normal motions: lowest eigenvalue" in flow.relax_message()
+    assert "(above POLISH_MAX_GAP = 0.01: not polished)" in flow.relax_message() and "nan" not in flow.relax_message()

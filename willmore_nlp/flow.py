@@ -196,6 +196,12 @@ MAX_SADDLE_KICKS = 3
 """Saddles a relaxation leaves (``relax_check``) before it ends on one."""
 POLISH_GAP = 1e-12
 """The gap (relative) below which a relaxed minimum is not polished further (``relax_check``)."""
+POLISH_MAX_GAP = 1e-2
+"""The largest gap (relative) a relaxed minimum is polished from (``relax_check``): above it the state is not at rest
+on normal motions (a 162-vertex c0 = 0.8 vesicle relaxed on the step/repair exchange with a gap of 9.2e-2; three
+polishing steps at the h / 4 cap lowered e by 1.6 %, its smallest angle from 41 to 21 deg and its lowest eigenvalue
+to -0.03: a new user's check). Measured at rest: 1.6e-3 and 2.9e-3 (trimesh tori), 1.4e-3 (Lawson's genus 2),
+3e-4 (a vesicle), 1.2e-5 (a capsule)."""
 POLISH_STEPS = 4
 """Newton steps on normal motions of the polish of a relaxed minimum (each costs one :meth:`WillmoreFlow.stability`)."""
 POLISH_CAP = 0.25
@@ -375,7 +381,8 @@ class StepResult:
         for k in ("kkt_residual", "t_wall_eval", "t_wall_solver", "t_wall_control", "n_eval_hess",
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
                   "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard",
-                  "drift_share", "dilation_undone", "stability", "stability_gap"):
+                  "drift_share", "dilation_undone", "stability", "stability_gap", "energy_before_move",
+                  "stability_gap_before_move"):
             # (n_cg to n_guard: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
             # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS; the last two: the
             # drift rule's, DRIFT_SHARE)
@@ -1250,7 +1257,7 @@ class WillmoreFlow:
             if self.relaxed and self._checks_saddles():
                 lowest = self._stability_at_rest()
                 result.stats.update(stability=lowest, stability_gap=self.last_gap)
-                e_rest, moved = result.energy, ""
+                e_rest, gap_rest, moved = result.energy, self.last_gap, ""
                 if lowest < -SADDLE_TOL:
                     moved = "saddle" if self._kicks < MAX_SADDLE_KICKS and self._leave_saddle(tau) else ""
                 elif self._polish(tau):
@@ -1264,7 +1271,8 @@ class WillmoreFlow:
                                  ("min_angle_before_remesh", result.quality["min_angle"])):
                         new.stats.setdefault(k, v)
                     new.stats.update(energy_after_remesh=new.energy, stability=self.last_stability,
-                                     stability_gap=self.last_gap)
+                                     stability_gap=self.last_gap, energy_before_move=e_rest,
+                                     stability_gap_before_move=gap_rest)
                     new.remeshed = "+".join([*filter(None, [action]), moved])
                     value = new.energy if self._relax_on_energy else new.willmore
                     if moved == "saddle":  # (the window restarts from the state off the saddle)
@@ -1291,13 +1299,14 @@ class WillmoreFlow:
 
     def _polish(self, tau: float) -> bool:
         """Newton steps on normal motions from a relaxed minimum (``relax_check``; :meth:`stability`'s ``newton``):
-        while the gap is above :data:`POLISH_GAP`, at most :data:`POLISH_STEPS`, each at most :data:`POLISH_CAP` h
-        long and halved until it lowers the energy (onto the outer constraints); True when the state moved. The
+        while the gap is above :data:`POLISH_GAP` and not above :data:`POLISH_MAX_GAP`, at most :data:`POLISH_STEPS`,
+        each at most :data:`POLISH_CAP` h long and halved until it lowers the energy (onto the outer constraints),
+        kept when it shrinks the gap and leaves the mesh above the repair thresholds; True when the state moved. The
         shape then rests on normal motions at the mesh's tangential distribution, which the relaxation's step/repair
         exchange leaves above it (a 934-vertex trimesh torus: gap 1.6e-3 -> 1.6e-6 -> 4.7e-10 -> 1.9e-13)."""
         h, moved = self.mesh.with_vertices(self.X).h, False
         for _ in range(POLISH_STEPS):
-            if not self.last_gap > POLISH_GAP:  # (nan: no minimum of the model)
+            if not POLISH_GAP < self.last_gap <= POLISH_MAX_GAP:  # (nan: no minimum of the model)
                 break
             e0, a = self.discrete_energy(self.X, self.Y), min(1.0, POLISH_CAP * h / float(np.abs(self._newton).max()))
             best = None
@@ -1308,9 +1317,15 @@ class WillmoreFlow:
                 best, a = None, a / 2
             if best is None:
                 break
+            kept = (self.X, self.Y, self._saddle_mode, self._newton, self.last_stability, self.last_gap)
             self.X, self.Y, self.lam_g = best[1], best[2], None
-            self._X_prev, moved = self.X, True
             self._stability_at_rest()
+            # a Newton step from rest shrinks the gap and keeps the mesh above the repair thresholds; one that does
+            # not is undone and ends the polish
+            if not self.last_gap < kept[5] or self._needs_repair(self.X, self.mesh.simplices):
+                self.X, self.Y, self._saddle_mode, self._newton, self.last_stability, self.last_gap = kept
+                break
+            self._X_prev, moved = self.X, True
         return moved
 
     def _trial_move(self, d: np.ndarray, tau: float) -> tuple[float, np.ndarray, np.ndarray] | None:
@@ -1798,6 +1813,13 @@ class WillmoreFlow:
             big = self.settings.relax_check and self.mesh.d == 2 and self.mesh.m == 3
             return why + (f"; not tested for a saddle: {self.mesh.n_vertices} vertices, above STABILITY_MAX_VERTICES = "
                           f"{STABILITY_MAX_VERTICES}" if big else "")
+        if lowest >= -SADDLE_TOL and not np.isfinite(self.last_gap):
+            return why + (f"; flat on normal motions: lowest eigenvalue {lowest:.3g} (not below -SADDLE_TOL, and its "
+                          f"quadratic model has no minimum){left}")
+        if lowest >= -SADDLE_TOL and self.last_gap > POLISH_MAX_GAP:
+            return why + (f"; not at rest on normal motions: lowest eigenvalue {lowest:.3g}, the energy "
+                          f"{self.last_gap:.2g} of itself above its quadratic model's minimum there (above "
+                          f"POLISH_MAX_GAP = {POLISH_MAX_GAP:g}: not polished){left}")
         if lowest >= -SADDLE_TOL:
             return why + (f"; a minimum on normal motions: lowest eigenvalue {lowest:.3g}, the energy "
                           f"{self.last_gap:.2g} of itself above its quadratic model's minimum there{left}")

@@ -301,7 +301,9 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
         summary.append(["steps taken", "none (only the initial state)"])
     remeshes = [r for r in steps if int(r.get("remeshed") or 0)]
     if remeshes:
-        jumps = [float(r["energy_after_remesh"]) - float(r["energy_before_remesh"]) for r in remeshes]
+        # (a relaxation's move off a saddle or polish, after the repair: its own energy change, not the repair's)
+        jumps = [float(r.get("energy_before_move") or r["energy_after_remesh"]) - float(r["energy_before_remesh"])
+                 for r in remeshes]
         summary += [["mesh repairs (steps)", f"{len(remeshes)} ({', '.join(str(r['step']) for r in remeshes[:10])}"
                      f"{' ...' if len(remeshes) > 10 else ''})"],
                     ["vertices (first -> last)", f"{first.get('vertices', '')} -> {last.get('vertices', '')}"],
