@@ -315,8 +315,9 @@ class StepResult:
         ``relax_check``) joined by "+"); ``stats`` then holds
         ``energy_before_remesh`` and ``energy_after_remesh`` (the discrete energy) and ``willmore_before_remesh`` (the
         Willmore energy of the state the step reached)
-    relaxed : True on the step that ended a relaxation (``relax=True``: the last steps changed the Willmore energy,
-        or the scheme's energy with lam, c0 or an anisotropy, by less than ``relax_tol`` relative)
+    relaxed : True on the step that ended a relaxation (``relax=True``: the last steps changed the watched energy,
+        the Willmore energy, the anisotropic one, or the scheme's energy with lam, c0 or outer constraints, by less
+        than ``relax_tol`` relative)
     tau_tilde : inner step size of the state (lowered at rest by ``rest_tau_tilde``; Y is Y[X] for it)
     rest_steps : consecutive steps at rest counted toward the next halving of tau_tilde (``rest_tau_tilde``)
     """
@@ -690,7 +691,13 @@ class WillmoreFlow:
                                  "(moebius_invariant = False)")
         # relax=true watches the energy the flow decreases: W, or with lam A, c0 or an anisotropy the scheme's energy
         # (a c0 vesicle "relaxed" on a rise of W while its Helfrich energy still fell 2e-4 per step: a new-user check)
-        self._relax_on_energy = s.relax and not invariant
+        # scale invariant: W, or an anisotropic W, without lam, c0, a user's term or outer constraints; relax=true then
+        # watches the anisotropic W (e falls with the drift at rest: the anisotropic sphere's relaxation never ended
+        # on e with two BLAS threads and collapsed at step 35)
+        self._scale_invariant = not self.problem.nh and (invariant or (lam == 0 and s.c0 == 0 and all(
+            t.moebius_invariant for t in self._extra_terms)))
+        self._relax_column = ("willmore_energy" if invariant or not s.relax else "willmore_gamma"
+                              if self._scale_invariant and self.setup.anisotropy is not None else "energy")
         self.relax_reason = ""  # why relax=true ended: "small" (change below relax_tol) or "rose" (drift at rest)
         self._kicks = 0  # saddles left (relax_check; counted by the relax test, replayed on restart)
         self.last_stability = self.last_gap = float("nan")  # stability()'s lowest eigenvalue and gap when a
@@ -928,11 +935,9 @@ class WillmoreFlow:
         if self.boundary is None:  # the symmetries of the energy: translations, rotations, dilation, Moebius
             B = geometry.conformal_normals(mesh, n)[0]
             isotropic, free_scale = self.setup.anisotropy is None, not self.problem.nh
-            # scale invariant: W and an anisotropic W (no lam, c0 or a user's term) without outer constraints (the
-            # anisotropic sphere's dilation had an eigenvalue of -0.23, and the move along it sped up its drift)
-            scaled = free_scale and (self._moebius or (self.lam == 0 and self.settings.c0 == 0 and all(
-                t.moebius_invariant for t in self._extra_terms)))
-            keep = [*range(3), *(range(3, 6) if isotropic else ()), *([6] if scaled else ()),
+            # (the dilation of a scale-invariant energy: the anisotropic sphere's had an eigenvalue of -0.23, and the
+            # move along it sped up its drift)
+            keep = [*range(3), *(range(3, 6) if isotropic else ()), *([6] if self._scale_invariant else ()),
                     *(range(7, 10) if self._moebius and free_scale else ())]
             fields = B[np.ix_(free, keep)]
         p = self.params(self.X, 1.0, CONTROL_OFF)
@@ -1252,7 +1257,7 @@ class WillmoreFlow:
         if self.settings.relax:
             # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
             # energy changed by less than relax_tol relative per nominal step, or rose without a flip
-            value = result.energy if self._relax_on_energy else result.willmore
+            value = self._watched(result)
             result.relaxed = self.relaxed = self._relax_test(value, tau, action)
             if self.relaxed and self._checks_saddles():
                 lowest = self._stability_at_rest()
@@ -1274,7 +1279,7 @@ class WillmoreFlow:
                                      stability_gap=self.last_gap, energy_before_move=e_rest,
                                      stability_gap_before_move=gap_rest)
                     new.remeshed = "+".join([*filter(None, [action]), moved])
-                    value = new.energy if self._relax_on_energy else new.willmore
+                    value = self._watched(new)
                     if moved == "saddle":  # (the window restarts from the state off the saddle)
                         new.relaxed = self.relaxed = self._relax_test(value, tau, new.remeshed)
                     else:  # (the window ends at the polished state, as a restart replays it)
@@ -1791,17 +1796,26 @@ class WillmoreFlow:
         return self._tau_c[0] if self._tau_c is not None and self._tau_c[0] < tau / CONVEX_FAR else None
 
     def _relax_value(self, X: np.ndarray, Y: np.ndarray) -> float:
-        """The energy relax=true watches at the state (X, Y): the Willmore energy, or the scheme's energy where the
-        flow decreases W + lam A, a Helfrich or an anisotropic energy."""
-        if self._relax_on_energy:
+        """The energy relax=true watches at the state (X, Y): the Willmore energy, the anisotropic one (a
+        scale-invariant anisotropic flow), or the scheme's energy where the flow decreases W + lam A, a Helfrich
+        energy or an energy with outer constraints."""
+        if self._relax_column == "energy":
             return self.discrete_energy(X, Y)
+        if self._relax_column == "willmore_gamma":
+            return anisotropic_willmore_energy(self.mesh.with_vertices(X), self.setup.anisotropy, self.energy_nodes)
         return geometry.willmore_energy(self.mesh.with_vertices(X), self.energy_nodes)
+
+    def _watched(self, result: StepResult) -> float:
+        """The energy relax=true watches (:meth:`_relax_value`) of an accepted state's result."""
+        return {"energy": result.energy, "willmore_gamma": result.willmore_gamma}.get(self._relax_column,
+                                                                                     result.willmore)
 
     def relax_message(self) -> str:
         """Why relax=true ended ("" while it has not)."""
         if not self.relaxed:
             return ""
-        what = "the scheme's energy (with lam, c0 or an anisotropy)" if self._relax_on_energy else "the Willmore energy"
+        what = {"energy": "the scheme's energy (with lam, c0, an anisotropy or outer constraints)",
+                "willmore_gamma": "the anisotropic Willmore energy"}.get(self._relax_column, "the Willmore energy")
         if self.relax_reason == "small":
             why = (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps that changed {what} by less than relax_tol = "
                    f"{self.settings.relax_tol:g} per nominal step")
@@ -1967,7 +1981,7 @@ class WillmoreFlow:
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
         self._refinements = sum("refine" in str(r.get("remesh_action") or "").split("+") for r in history or []
                                 if int(float(r["step"])) <= self.k)
-        column = "energy" if self._relax_on_energy else "willmore_energy"
+        column = self._relax_column
         for r in history or []:
             replayed = "willmore_energy" in r and int(float(r["step"])) == self.k
             if "willmore_energy" not in r:  # a checkpoint without its history row: the window starts after it

@@ -552,9 +552,10 @@ class FlowSettings(Settings):
         every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``; after a
         failed doubling it is held for 2, 4, 8, ... steps before the next try. :meth:`run` stops early,
         with ``relaxed`` set, after the first state whose last 3 steps (``RELAX_WINDOW``) lowered the
-        Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant; with ``lam``, ``c0``, an
-        anisotropy or a user's term that is not Moebius invariant the scheme's energy e, which the flow lowers) by
-        less than ``relax_tol`` relative per nominal step (a step of tau_i < tau counts as tau_i / tau steps),
+        Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant; with an anisotropy alone
+        the anisotropic Willmore energy, also scale invariant; with ``lam``, ``c0``, outer constraints or a user's term
+        that is not Moebius invariant the scheme's energy e, which the flow lowers) by less than ``relax_tol``
+        relative per nominal step (a step of tau_i < tau counts as tau_i / tau steps),
         or raised it with no Delaunay flip (not counting steps after which the mesh was smoothed or remeshed;
         the light repair, ``remesh_repair``, follows every step and counts; one step is too noisy a measure: a
         Delaunay flip alone moves the energy by ~1e-3 on 642 vertices). Near the
