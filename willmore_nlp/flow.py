@@ -934,11 +934,11 @@ class WillmoreFlow:
         fields = None
         if self.boundary is None:  # the symmetries of the energy: translations, rotations, dilation, Moebius
             B = geometry.conformal_normals(mesh, n)[0]
-            isotropic, free_scale = self.setup.anisotropy is None, not self.problem.nh
             # (the dilation of a scale-invariant energy: the anisotropic sphere's had an eigenvalue of -0.23, and the
             # move along it sped up its drift)
-            keep = [*range(3), *(range(3, 6) if isotropic else ()), *([6] if self._scale_invariant else ()),
-                    *(range(7, 10) if self._moebius and free_scale else ())]
+            keep = [*range(3), *(range(3, 6) if self.setup.anisotropy is None else ()),
+                    *([6] if self._scale_invariant else ()), *(range(7, 10) if self._scale_invariant and self._moebius
+                                                               else ())]
             fields = B[np.ix_(free, keep)]
         p = self.params(self.X, 1.0, CONTROL_OFF)
         solver = self.solver if isinstance(self.solver, ReducedSolver) else None

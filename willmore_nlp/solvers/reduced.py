@@ -146,6 +146,12 @@ class ReducedSolver:
             pt.lam, pt.nu = np.concatenate([lam + nu @ mu, mu]), nu
         return pt
 
+    def _with_multipliers(self, pt: _Point, mu: np.ndarray) -> None:
+        """Give the point's step-problem multipliers the outer constraints' multipliers ``mu`` ((nh,)) in place of
+        the least-squares ones :meth:`_point` fitted: [lam + nu mu; mu]."""
+        nh = self.P.nh
+        pt.lam = np.concatenate([pt.lam[:-nh] + pt.nu @ (mu - pt.lam[-nh:]), mu])
+
     def _feasible(self, x: np.ndarray, p: np.ndarray, Y0: np.ndarray) -> _Point:
         """The point at x pulled onto h^ = 0 by Gauss-Newton steps along C^T (module docstring)."""
         pt = self._at(x, p, Y0)
@@ -318,7 +324,7 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     x0 = np.asarray(z0[: red.nxm], float)
     pt = red._at(x0, p, P.unpack_z(z0, P.params.xk(p))[1])
     if P.nh:  # the adjoint alone, the outer constraints' multipliers 0
-        pt.lam = np.concatenate([pt.lu.solve(-pt.gf[red.nxm :], trans="T"), np.zeros(P.nh)])
+        red._with_multipliers(pt, np.zeros(P.nh))
     D = red._distance_hessian(pt.z, p)
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
     n = x0.size
@@ -338,10 +344,9 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     return tau / (1.0 - smallest) if smallest < 1.0 else float("inf")
 
 
-
 def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, normals: np.ndarray,
                     fields: np.ndarray | None = None, count: int = 2,
-                    solver: ReducedSolver | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+                    solver: ReducedSolver | None = None) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """The lowest eigenvalues and modes of the energy's Hessian on normal motions of the free nodes at a state, and
     how far the energy is above the minimum of its quadratic model there.
 
@@ -376,6 +381,7 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     modes : (nX, count) the normal displacements phi of their modes, each scaled to max |phi| = 1
     gap : e(X) minus the minimum of e's quadratic model on these motions (the Newton decrement; energy units): how
         far a state at rest on normal motions is from their minimum; nan when the lowest eigenvalue is not positive
+    newton : (nX,) the normal displacement of the Newton step to that minimum (nan where there is none)
     """
     P = evaluator.problem
     red = ReducedSolver(evaluator, ReducedSettings(), "newton") if solver is None else solver
@@ -384,22 +390,22 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     nX, m = normals.shape
     Nm = sp.csr_matrix((np.ravel(normals), (np.arange(nX * m), np.repeat(np.arange(nX), m))), shape=(nX * m, nX))
     D = red._distance_hessian(pt.z, p)
+    rows = [np.asarray(pt.C) @ Nm] if P.nh else []  # (the constraints' rows on normal motions)
+    gn = Nm.T @ pt.grad  # (the objective's gradient on normal motions)
     if P.nh:  # the multipliers that fit the gradient's normal part (its tangential part, O(1) on a discrete sphere,
         # is the mesh's: fitted too it gave a round sphere's volume a pressure 0.55 and its modes +0.55)
         # (columns of norm 1 and directions below 3e-2 of the largest dropped: on a sphere the volume's and the area's
         # gradients are parallel, singular values 1.5e-2 / 7.7e-3 of the largest at 162 / 642 v, and the exact fit gave
         # them multipliers of +-1e4 and the sphere an eigenvalue of -56,605; a vesicle of v = 0.99: 5e-2, 0.85: 0.16)
-        Cn, gn, w = np.asarray(pt.C) @ Nm, Nm.T @ pt.grad, 1.0 / D.diagonal()[::m] ** 0.5
-        cols = np.linalg.norm(Cn * w, axis=1)
-        mu_h = -np.linalg.lstsq((Cn * w).T / cols, gn * w, rcond=3e-2)[0] / cols
-        pt.lam = np.concatenate([pt.lam[: -P.nh] + pt.nu @ (mu_h - pt.lam[-P.nh :]), mu_h])
+        w = 1.0 / D.diagonal()[::m] ** 0.5
+        cols = np.linalg.norm(rows[0] * w, axis=1)
+        red._with_multipliers(pt, -np.linalg.lstsq((rows[0] * w).T / cols, gn * w, rcond=3e-2)[0] / cols)
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
     HN = np.column_stack([red._hessp(pt, p, Nm[:, i].toarray().ravel()) for i in range(nX)])
     Mn = (Nm.T @ (D @ Nm)).toarray()
     tau = P.params.scalar(p, "tau")
     Rn = (Nm.T @ HN - Mn) / tau
     Rn = 0.5 * (Rn + Rn.T)
-    rows = [np.asarray(pt.C) @ Nm] if P.nh else []
     if fields is not None and fields.size:  # (their span: directions below 1e-2 of the largest are no field's)
         U, s, _ = np.linalg.svd(fields, full_matrices=False)
         rows.append(U[:, s > 1e-2 * s[0]].T @ Mn)
@@ -412,8 +418,9 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     mu, V = la.eigh(RZ, Z.T @ Mn @ Z, subset_by_index=[0, min(count, Z.shape[1]) - 1])
     modes = Z @ V
     # the Newton decrement of e on these motions: e(X) - min of its quadratic model, g^T R^-1 g / (4 tau^2) with g the
-    # projected gradient of the objective (2 tau grad e at X^k); nan where the model has no minimum
-    g = Z.T @ (gn + Cn.T @ mu_h) if P.nh else Z.T @ (Nm.T @ pt.grad)
+    # projected gradient of the objective (2 tau grad e at X^k; Z is orthogonal to the constraints' rows, so their
+    # multipliers' part of the gradient drops out); nan where the model has no minimum
+    g = Z.T @ gn
     step = -la.solve(RZ, g, assume_a="sym") / tau if mu[0] > 0 else np.full(len(g), np.nan)
     gap = -float(g @ step) / (4 * tau)
     return mu, modes / np.abs(modes).max(axis=0), gap, Z @ step
