@@ -14,6 +14,8 @@ Ellipsoid 1:1:2 (an icosphere stretched along x3; 642 and 2,562 vertices, as in
   step, or raised it without a Delaunay flip: ``FlowSettings.relax``);
 * ``relax_nk``: the same with ``solver="newton-krylov"``;
 * ``relax_nk_quarter``: ``relax_nk`` started at tau = h/4 (then doubling as above);
+* ``relax_newton``: ``relax=true, relax_newton=true``: Newton steps on normal motions of the scheme's energy (the
+  flow's step where there is none), the relaxation's test and check as for ``relax``;
 * ``evolver``: Surface Evolver 2.70 on the same mesh (zero tension, ``star_perp_sq_mean_curvature``
   as the only energy, :mod:`willmore_nlp.evolver`), ``hessian_seek`` repeated 40 times.
 
@@ -138,6 +140,7 @@ def cases() -> dict[str, Any]:
                                                         solver="newton-krylov")
         out[f"relax_nk_quarter_{n}"] = lambda sub=sub: run_flow(ellipsoid(sub), 30, False, tau_factor=0.25,
                                                                 relax=True, solver="newton-krylov")
+        out[f"relax_newton_{n}"] = lambda sub=sub: run_flow(ellipsoid(sub), 30, False, relax=True, relax_newton=True)
         out[f"evolver_{n}"] = lambda sub=sub: run_evolver(ellipsoid(sub))
     return out
 

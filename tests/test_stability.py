@@ -5,12 +5,13 @@ a finite-difference second derivative of the scheme's energy, and Surface Evolve
 
 from __future__ import annotations
 
+import itertools
 import re
 
 import numpy as np
 import pytest
 
-from willmore_nlp import WillmoreFlow, cli, load_run
+from willmore_nlp import WillmoreFlow, cli, geometry, load_run
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.fem.assembly import mass_stiffness
 from willmore_nlp.flow import SADDLE_TOL
@@ -48,6 +49,39 @@ def test_round_sphere_spectrum_converges_to_the_willmore_operator() -> None:
     for s in (2, 3):
         both = _sphere_flow(s, volume="initial", area="initial").stability(count=1).eigenvalues[0]
         assert 23.0 < both < 27.0, both  # (25.59, 24.11)
+
+
+@pytest.mark.parametrize(("stretch", "constraints"), [
+    (1.5, {"volume": "initial", "area": "initial"}),  # a saddle: -15.93, -15.89, -0.95, 7.33, ...
+    (1.3, {"volume": "initial"}),
+    (1.6, {}),  # ten fields left out (translations, rotations, dilation, special conformal)
+])
+def test_iterative_spectrum_is_the_dense_one(stretch: float, constraints: dict[str, str]) -> None:
+    """The matrix-free path (lobpcg on the constraints' tangent space, the Newton step by CG) against the dense one on
+    642-vertex ellipsoids not at rest: the six lowest eigenvalues (measured to 1e-10), the gap, the Newton step and
+    the mode of an isolated eigenvalue agree."""
+    sphere = shapes.icosphere(3)
+    mesh = sphere.with_vertices(sphere.vertices * np.array([1.0, 1.0, stretch]))
+    flow = WillmoreFlow(mesh, 0.1 * mesh.h, mesh.h**2 / 100, **constraints)
+    dense, it = flow.stability(6, method="dense"), flow.stability(6, method="iterative")
+    assert np.allclose(it.eigenvalues, dense.eigenvalues, rtol=1e-8, atol=1e-8), (it.eigenvalues, dense.eigenvalues)
+    if dense.eigenvalues[0] > 0:
+        assert it.gap == pytest.approx(dense.gap, rel=1e-8)
+        assert np.abs(it.newton - dense.newton).max() < 1e-6 * np.abs(dense.newton).max()
+    else:
+        assert np.isnan(it.gap) and np.isnan(dense.gap) and np.isnan(it.newton).all()
+    i = 2 if stretch == 1.5 else 0  # (an isolated eigenvalue: its mode up to sign)
+    a, b = it.modes[i], dense.modes[i]
+    assert min(np.abs(a - b).max(), np.abs(a + b).max()) < 1e-5
+
+
+def test_iterative_spectrum_of_finer_spheres_converges() -> None:
+    """The iterative path past the dense one's sizes: the l = 2 eigenvalue of icospheres 3-5 (642-10,242 v,
+    'auto' is iterative from 2,562 v on) tends to 24 at order 2 (errors 0.526, 0.133, 0.0333)."""
+    err = [_sphere_flow(s).stability(1, method="iterative").eigenvalues[0] - 24.0 for s in (3, 4, 5)]
+    h = [shapes.icosphere(s).h for s in (3, 4, 5)]
+    order = np.polyfit(np.log(h), np.log(err), 1)[0]
+    assert all(e > 0 for e in err) and 1.9 < order < 2.1, (err, order)
 
 
 def test_eigenpair_matches_a_finite_difference_second_derivative() -> None:
@@ -123,6 +157,8 @@ def test_stability_refuses_curves_large_meshes_and_bad_counts(monkeypatch: pytes
     for bad in (0, -1, 2.5, True):
         with pytest.raises(UserInputError, match=f"count must be an integer >= 1, got {bad!r}"):
             _sphere_flow(1).stability(count=bad)
+    with pytest.raises(UserInputError, match="method must be 'auto', 'dense' or 'iterative', got 'lu'"):
+        _sphere_flow(1).stability(method="lu")
 
     circle = shapes.regular_polygon(32)
     with pytest.raises(UserInputError, match="surfaces in R\\^3 only"):
@@ -134,6 +170,24 @@ def test_stability_refuses_curves_large_meshes_and_bad_counts(monkeypatch: pytes
     flow.run(steps=20)
     assert flow.relaxed and flow.relax_message().endswith(
         "; not tested for a saddle: 162 vertices, above STABILITY_MAX_VERTICES = 100")
+
+
+def test_a_failed_iterative_check_leaves_the_state_untested(monkeypatch: pytest.MonkeyPatch) -> None:
+    """When lobpcg does not converge (here: one iteration allowed) stability() raises ArithmeticError, and a
+    relaxation that ends keeps its state (no kick, no polish), with the reason in its message."""
+    import willmore_nlp.solvers.reduced as reduced
+
+    monkeypatch.setattr(reduced, "SPECTRUM_DENSE_MAX", 0)
+    monkeypatch.setattr(reduced, "SPECTRUM_MAX_ITER", 1)
+    monkeypatch.setattr(reduced, "SPECTRUM_CHUNK", 1)
+    with pytest.raises(ArithmeticError, match="lobpcg did not converge"):
+        _sphere_flow(2).stability()
+    flow = _sphere_flow(2, relax=True)
+    last = flow.run(steps=20)[-1]
+    assert flow.relaxed and not {"saddle", "polish"} & set(last.remeshed.split("+"))
+    assert np.isnan(last.stats["stability"])
+    assert re.search(r"; not tested for a saddle: normal_spectrum: lobpcg did not converge \(residuals \[.+\] of the "
+                     r"tolerance\)$", flow.relax_message()), flow.relax_message()
 
 
 @pytest.mark.slow
@@ -208,3 +262,34 @@ def test_a_state_far_from_rest_on_normal_motions_is_not_polished() -> None:
     assert flow.relaxed and flow.last_gap > 1e-2 and "polish" not in last.remeshed
     assert "; not at rest on normal motions: lowest eigenvalue" in flow.relax_message()
     assert "(above POLISH_MAX_GAP = 0.01: not polished)" in flow.relax_message() and "nan" not in flow.relax_message()
+
+
+def test_relax_newton_reaches_the_equilibrium_in_newton_steps(tmp_path) -> None:
+    """relax_newton on the ellipsoid 1:1:2 of the relax study (a 642-vertex icosphere stretched, as an OBJ file
+    through the file problem): every step is a Newton step on normal motions (solver "normal-newton"), each lowers the
+    scheme's energy (the step's row: before the mesh control against the last state), within 1 % of the mesh-matched
+    sphere (the vertices projected onto a sphere) by step 3 (the time steps of relax = true: 2 steps, whose first
+    is an IPOPT solve of 36 iterations), and the relaxation ends at a minimum whose lowest eigenvalue is the round
+    sphere's l = 2 value at this size (24.5) and whose W is that sphere's to 0.2 %. The command line's run stopped at
+    step 2 and resumed ends bit for bit there."""
+    import trimesh
+
+    sphere = shapes.icosphere(3)
+    f = tmp_path / "ellipsoid.obj"
+    trimesh.Trimesh(sphere.vertices * np.array([1.0, 1.0, 2.0]), sphere.simplices).export(f)
+    pb, _ = build("file", path=str(f))
+    flow = pb.make_flow(relax=True, relax_newton=True)
+    results = flow.run(steps=30)
+    V = sphere.vertices * np.array([1.0, 1.0, 2.0])  # (onto the sphere: reports/mesh_quality_study.sphere_reference)
+    w_eq = geometry.willmore_energy(sphere.with_vertices(V / np.linalg.norm(V, axis=1, keepdims=True)))  # 24.997
+    assert flow.relaxed and all(r.stats["solver"] == "normal-newton" for r in results[1:])
+    assert all(b.stats["energy_before_remesh"] < a.energy for a, b in itertools.pairwise(results))
+    assert next(r.step for r in results if r.willmore <= 1.01 * w_eq) <= 3
+    assert abs(results[-1].willmore / w_eq - 1) < 2e-3 and abs(flow.last_stability - 24.5) < 0.3
+    assert "a minimum on normal motions" in flow.relax_message()
+    out = tmp_path / "r"
+    args = ["run", str(f), "--set", "relax=true", "--set", "relax_newton=true", "--quiet"]
+    assert cli.main([*args, "--steps", "2", "--out", str(out)]) == 0
+    assert cli.main(["run", "--resume", str(out), "--steps", "30", "--quiet"]) == 0
+    run = load_run(out)
+    assert len(run.states) == flow.k + 1 and np.array_equal(run.states[-1].vertices, flow.X)

@@ -32,6 +32,7 @@ from willmore_nlp.settings import (
     route_solver_options,
 )
 from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
+from willmore_nlp.solvers.base import SolveResult
 from willmore_nlp.solvers.ipopt import UNIT_WIDTHS, length_unit
 from willmore_nlp.tangential import TangentialControl, default_weight, resolve_method
 
@@ -206,10 +207,21 @@ POLISH_STEPS = 4
 """Newton steps on normal motions of the polish of a relaxed minimum (each costs one :meth:`WillmoreFlow.stability`)."""
 POLISH_CAP = 0.25
 """Longest nodal move of one polishing Newton step, in mean edge lengths h."""
-STABILITY_MAX_VERTICES = 3000
-"""Largest surface :meth:`WillmoreFlow.stability` takes (a dense Hessian on normal motions: one Hessian-vector product
-per free node and a generalised eigenproblem of that size; measured 0.4 s at 534 vertices, 13 s at 2,562, 119 s at
-5,000)."""
+STABILITY_MAX_VERTICES = 50000
+"""Largest surface :meth:`WillmoreFlow.stability` takes. Up to
+:data:`~willmore_nlp.solvers.reduced.SPECTRUM_DENSE_MAX` free nodes the Hessian on normal motions is dense (one
+Hessian-vector product per node: 0.4 s at 534 vertices, 13 s at 2,562, 119 s at 5,000), above it iterative
+(lobpcg and CG, matrix-free): measured at the ellipsoid 1:1:1.3 with ``newton-krylov``'s factorisations, 4.0 s at
+10,242 vertices (8.6 s with IPOPT's flow, whose products use a sparse LU) and 33 s at 40,962 (0.8 GB peak); a
+relaxation's check and each polishing step cost one."""
+RELAX_NEWTON_CAP = 1.0
+"""Longest nodal move of a relaxation's Newton step on normal motions (``relax_newton``), in mean edge lengths h.
+Measured on the ellipsoid 1:1:2 (reports/relax_study.py), steps to within 1 % of the equilibrium energy at 642 /
+2,562 vertices: cap 0.5: 6 / 12; 1: 3 / 6; 2: the 642-vertex one's first step left no Newton step, 3 at 2,562; 4:
+the 2,562-vertex one's step lowered e by wrecking the mesh (W 25.5 -> 76.8, 5.6 deg; hence the repair thresholds'
+test). A trust region (the cap doubled after a capped step taken whole, up to 2 or 4) took 4 steps at 2,562 but left
+a 1,513-vertex trimesh torus at a minimum on normal motions 0.45 % above the one of the fixed cap (e 39.771 against
+39.593; the time steps: 39.595)."""
 REPAIR_SPEED = 1.0
 """Each pass of the light repair moves a vertex by at most this factor times the distance the step moved it."""
 
@@ -702,6 +714,8 @@ class WillmoreFlow:
         self._kicks = 0  # saddles left (relax_check; counted by the relax test, replayed on restart)
         self.last_stability = self.last_gap = float("nan")  # stability()'s lowest eigenvalue and gap when a
         # relaxation last ended
+        self.untested = ""  # why that test failed ("": it ran, or did not run)
+        self._spectral: Any = None  # stability()'s reduced solver in a flow whose step solver is not one
         self._saddle_mode = self._newton = np.zeros_like(self.X)
         self._relax_start(self._relax_value(self.X, self.Y))
         self._X_prev = self.X
@@ -898,7 +912,7 @@ class WillmoreFlow:
         Y = self.evaluator.solve_y(X, p) if Y is None else Y
         return self.evaluator.f(self.problem.pack_z(X, Y), p) / 2.0
 
-    def stability(self, count: int = 2) -> Stability:
+    def stability(self, count: int = 2, method: str = "auto") -> Stability:
         """The lowest eigenvalues of the scheme's energy's Hessian on normal motions of the current state: is it a
         minimum (all positive) or a saddle (a negative one, whose mode lowers the energy)?
 
@@ -908,26 +922,44 @@ class WillmoreFlow:
         the translations, the rotations (isotropic energies), the dilation (scale-invariant energies: W or an
         anisotropic W without lam, c0 or outer constraints) and the special conformal fields (a Moebius-invariant
         energy without outer constraints). The eigenvalues are made dimensionless by L^4 (L^2 =
-        area / 4 pi; 24 on a round sphere). Meaningful where the state is at rest (the gradient near 0); dense, for
-        surfaces in R^3 of at most :data:`STABILITY_MAX_VERTICES` vertices.
+        area / 4 pi; 24 on a round sphere). Meaningful where the state is at rest (the gradient near 0); for
+        surfaces in R^3 of at most :data:`STABILITY_MAX_VERTICES` vertices (dense up to
+        :data:`~willmore_nlp.solvers.reduced.SPECTRUM_DENSE_MAX` free nodes, above matrix-free).
 
         Parameters
         ----------
         count : how many of the lowest eigenvalues (at most the free nodes less the motions left out)
+        method : "auto", "dense" or "iterative" (:func:`~willmore_nlp.solvers.reduced.normal_spectrum`; auto: dense up
+            to :data:`~willmore_nlp.solvers.reduced.SPECTRUM_DENSE_MAX` free nodes)
 
         Returns
         -------
         Stability
+
+        Raises
+        ------
+        ArithmeticError
+            When the iterative eigensolver or the Newton step's CG does not converge (a relaxation's check then says
+            the state was not tested, and why)
         """
         mesh = self.mesh.with_vertices(self.X)
         if mesh.d != 2 or mesh.m != 3:
             raise UserInputError("stability(): surfaces in R^3 only")
         if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
             raise UserInputError(f"stability(): count must be an integer >= 1, got {count!r}")
+        if method not in ("auto", "dense", "iterative"):
+            raise UserInputError(f"stability(): method must be 'auto', 'dense' or 'iterative', got {method!r}")
         if mesh.n_vertices > STABILITY_MAX_VERTICES:
             raise UserInputError(f"stability(): {mesh.n_vertices} vertices, above STABILITY_MAX_VERTICES = "
-                                 f"{STABILITY_MAX_VERTICES} (a dense Hessian on normal motions)")
+                                 f"{STABILITY_MAX_VERTICES}")
+        return self._normal_spectrum(count, method)
+
+    def _normal_spectrum(self, count: int, method: str) -> Stability:
+        """:meth:`stability` without its checks of the input; ``count = 0``: the gap and the Newton step alone (nan
+        where CG finds no minimum of the quadratic model)."""
         from willmore_nlp.solvers.reduced import ReducedSolver, normal_spectrum
+
+        mesh = self.mesh.with_vertices(self.X)
 
         free = self.problem.x_free
         n = geometry.vertex_normals(mesh)
@@ -941,9 +973,9 @@ class WillmoreFlow:
                                                                else ())]
             fields = B[np.ix_(free, keep)]
         p = self.params(self.X, 1.0, CONTROL_OFF)
-        solver = self.solver if isinstance(self.solver, ReducedSolver) else None
+        solver = self.solver if isinstance(self.solver, ReducedSolver) else self._spectrum_solver()
         z = self.problem.pack_z(self.X, self.Y)
-        mu, phi, gap, newton = normal_spectrum(self.evaluator, z, p, n[free], fields, count, solver)
+        mu, phi, gap, newton = normal_spectrum(self.evaluator, z, p, n[free], fields, count, solver, method)
         L = geometry.length_scale(geometry.measure(mesh), 2, True)
         modes = np.zeros((len(mu), *self.X.shape))
         modes[:, free] = phi.T[:, :, None] * n[free][None]
@@ -1064,6 +1096,10 @@ class WillmoreFlow:
         if self.settings.relax:
             grown = self.tau if np.isinf(self._tau_adapt) else self._tau_adapt
             tau = min(self.relax_max_tau, self._time_left, grown)
+            if self.settings.relax_newton and self._checks_saddles(ignore_check=True):
+                newton = self._newton_relax_step(tau, t0)
+                if newton is not None:
+                    return newton
         else:
             tau = min(self.tau, self._tau_adapt) if self.settings.adaptive else self.tau
         rejected: list[str] = []
@@ -1230,16 +1266,17 @@ class WillmoreFlow:
             for k, v in last.stats.items()})
 
     def _accept(self, X: np.ndarray, Y: np.ndarray, tau: float, res: Any, moved: dict[str, float], t0: float,
-                tries: int, rejected: list[str], spent: int) -> StepResult:
+                tries: int, rejected: list[str], spent: int, solver: str | None = None) -> StepResult:
         """Make the attempt's state (X, Y) at ``tau`` the flow's, control its mesh and return the step's result
         (``t0``: the step's start on the perf counter; ``tries``: its retries; ``rejected``: the rejected attempts'
-        reasons; ``spent``: the solver iterations of all its attempts)."""
+        reasons; ``spent``: the solver iterations of all its attempts; ``solver``: the state's maker when it is not
+        the step solver, whose iteration count then stays out of the budget's median)."""
         self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
         self.lam_g = res.lam_g
         self._grow_tau(tau, tries)
-        if self.solver.name == self.main_solver(self.mesh.n_vertices):  # (another solver's count is no measure)
-            self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
-        solver_name = self.solver.name
+        if solver is None and self.solver.name == self.main_solver(self.mesh.n_vertices):  # (another solver's count
+            self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]  # is no
+        solver_name = solver or self.solver.name  # measure)
         t_control = time.perf_counter()
         action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
         mstats["t_wall_control"] = time.perf_counter() - t_control
@@ -1288,19 +1325,67 @@ class WillmoreFlow:
                     result = new
         return result
 
-    def _checks_saddles(self) -> bool:
-        """Whether an ended relaxation tests its state for a saddle (``relax_check``: surfaces in R^3 of at most
-        :data:`STABILITY_MAX_VERTICES` vertices)."""
-        return (self.settings.relax_check and self.mesh.d == 2 and self.mesh.m == 3
+    def _checks_saddles(self, ignore_check: bool = False) -> bool:
+        """Whether an ended relaxation tests its state for a saddle (``relax_check``, or ``ignore_check``: surfaces in
+        R^3 of at most :data:`STABILITY_MAX_VERTICES` vertices)."""
+        return ((self.settings.relax_check or ignore_check) and self.mesh.d == 2 and self.mesh.m == 3
                 and self.mesh.n_vertices <= STABILITY_MAX_VERTICES)
 
     def _stability_at_rest(self) -> float:
         """The lowest eigenvalue of :meth:`stability` at the relaxed state (kept with its mode for the move off a
         saddle)."""
-        st = self.stability(1)
+        try:
+            st = self.stability(1)
+        except ArithmeticError as err:  # (the iterative eigensolver's or CG's failure: the state is not tested)
+            self.untested, self.last_stability, self.last_gap = str(err), float("nan"), float("nan")
+            return self.last_stability
         self._saddle_mode, self._newton = st.modes[0], st.newton
-        self.last_stability, self.last_gap = float(st.eigenvalues[0]), st.gap
+        self.last_stability, self.last_gap, self.untested = float(st.eigenvalues[0]), st.gap, ""
         return self.last_stability
+
+    def _spectrum_solver(self) -> Any:
+        """The reduced solver whose factorisations serve :meth:`stability` in a flow whose step solver is not one
+        (IPOPT): ``newton-krylov``'s Cholesky of the N x N block of J_Y, kept for the step problem (its symbolic
+        analysis is once per pattern), where the flow's own Y[X] solves stay as they were. At 2,562 vertices a Newton
+        step on normal motions took 0.21 s with the sparse LU of the whole J_Y (None: ``normal_spectrum``'s
+        default) and 0.13 s with it. None where ``newton-krylov`` cannot take the problem."""
+        if self._spectral is None or self._spectral.ev is not self.evaluator:
+            saved = self.evaluator.cholesky
+            try:
+                self._spectral = make_solver("newton-krylov", self.evaluator)
+            except (ValueError, UserInputError):
+                return None
+            finally:
+                self.evaluator.cholesky = saved  # (newton-krylov's constructor gives the evaluator its backend)
+        return self._spectral
+
+    def _newton_relax_step(self, tau: float, t0: float) -> StepResult | None:
+        """A relaxation's step by Newton on normal motions (``relax_newton``): the step of :meth:`stability` (its
+        quadratic model's minimum), at most :data:`RELAX_NEWTON_CAP` h long, halved until the energy falls and the
+        mesh stays above the repair thresholds (onto the outer constraints), then accepted as a step of size ``tau``
+        (the mesh control and the relax test follow as for a time step); None where there is no such step (the
+        Hessian on normal motions not positive definite, or no trial lowered the energy): the time step then."""
+        try:
+            st = self._normal_spectrum(0, "auto")
+        except ArithmeticError:
+            return None
+        d = st.newton
+        if not (np.all(np.isfinite(d)) and np.abs(d).max() > 0):
+            return None
+        e0, h = self.discrete_energy(self.X, self.Y), self.mesh.with_vertices(self.X).h
+        a = min(1.0, RELAX_NEWTON_CAP * h / float(np.abs(d).max()))
+        for _ in range(8):
+            trial = self._trial_move(a * d, tau)
+            if trial is not None and trial[0] < e0 and not self._needs_repair(trial[1], self.mesh.simplices):
+                break
+            trial, a = None, a / 2
+        if trial is None:
+            return None
+        z = self.problem.pack_z(trial[1], trial[2])
+        res = SolveResult(z=z, f=float(self.evaluator.f(z, self.params(self.X, tau))), lam_g=None, converged=True,
+                          status="Newton step on normal motions", iterations=1,
+                          stats={"stability_gap_before_move": st.gap, "newton_fraction": a})
+        return self._accept(trial[1], trial[2], tau, res, {}, t0, 0, [], 1, solver="normal-newton")
 
     def _polish(self, tau: float) -> bool:
         """Newton steps on normal motions from a relaxed minimum (``relax_check``; :meth:`stability`'s ``newton``):
@@ -1329,6 +1414,7 @@ class WillmoreFlow:
             # not is undone and ends the polish
             if not self.last_gap < kept[5] or self._needs_repair(self.X, self.mesh.simplices):
                 self.X, self.Y, self._saddle_mode, self._newton, self.last_stability, self.last_gap = kept
+                self.untested = ""
                 break
             self._X_prev, moved = self.X, True
         return moved
@@ -1823,8 +1909,11 @@ class WillmoreFlow:
             why = (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps over which {what} rose with no edge flip (the "
                    "scheme's drift at rest)")
         lowest, left = self.last_stability, f" ({self._kicks} saddle(s) left on the way)" if self._kicks else ""
-        if not np.isfinite(lowest):  # (not tested: relax_check off, a curve, or a surface above the size limit)
-            big = self.settings.relax_check and self.mesh.d == 2 and self.mesh.m == 3
+        if not np.isfinite(lowest):  # (not tested: relax_check off, a curve, a surface above the size limit, or the
+            # iterative eigensolver failed)
+            if self.untested:
+                return why + f"; not tested for a saddle: {self.untested}"
+            big = self.settings.relax_check and self.mesh.d == 2 and self.mesh.m == 3 and not self._checks_saddles()
             return why + (f"; not tested for a saddle: {self.mesh.n_vertices} vertices, above STABILITY_MAX_VERTICES = "
                           f"{STABILITY_MAX_VERTICES}" if big else "")
         if lowest >= -SADDLE_TOL and not np.isfinite(self.last_gap):

@@ -579,8 +579,16 @@ class FlowSettings(Settings):
         (which ended a c0 = 0.8 vesicle on its saddle), at most ``MAX_SADDLE_KICKS`` times. At a minimum the state
         is polished by Newton steps on normal motions (history action ``polish``, at most ``POLISH_STEPS``) until the
         energy is within ``POLISH_GAP`` (relative) of its quadratic model's minimum there; the message gives that gap
-        (column ``stability_gap``). Curves ignore it; above ``STABILITY_MAX_VERTICES`` the message says the state
-        was not tested. Default true.
+        (column ``stability_gap``). Curves ignore it; above ``STABILITY_MAX_VERTICES`` (50,000), or when the
+        iterative eigensolver of larger surfaces does not converge, the message says the state was not tested (and
+        why). Default true.
+    relax_newton : bool
+        A relaxation of a surface in R^3 (of at most ``STABILITY_MAX_VERTICES`` vertices) takes Newton steps on
+        normal motions of the scheme's energy (:meth:`~willmore_nlp.flow.WillmoreFlow.stability`'s ``newton``, as
+        Surface Evolver's ``hessian_seek``) instead of time steps wherever its Hessian there is positive definite:
+        each at most ``RELAX_NEWTON_CAP`` h long, halved until the energy falls and the mesh stays above the repair
+        thresholds (history solver ``normal-newton``); elsewhere, and when no such step is found, the flow's step.
+        The relax test and ``relax_check`` are unchanged. Default false.
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme: no repair
         between steps and ``tangential_control = "auto"`` is "off"; an explicit "meanratio" is kept).
@@ -725,6 +733,7 @@ class FlowSettings(Settings):
     relax_tol: float = option(1e-4, real(0))
     relax_max_tau: float | None = option(None, real(0, lo_open=True, unset="100 tau"))
     relax_check: bool = option(True, BOOL)
+    relax_newton: bool = option(False, BOOL)
     mesh_control: str = option("auto", one_of("auto", "off"))
     remesh: str = option("auto", one_of("auto", "off"))
     input_repair: bool = option(True, BOOL)

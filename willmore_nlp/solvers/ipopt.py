@@ -293,7 +293,6 @@ class IpoptSolver:
     name = "ipopt"
 
     def __init__(self, evaluator: StepEvaluator, settings: IpoptSettings) -> None:
-        fn = evaluator.fn
         opts = {**IPOPT_DEFAULTS, **dict(settings.ipopt)}
         if settings.ipopt and _refused(tuple(sorted(opts.items()))):  # (before a run directory is written)
             raise UserInputError(f"IPOPT refused the options {dict(settings.ipopt)} (linear_solver = "
@@ -301,7 +300,6 @@ class IpoptSolver:
         self.warm_start = settings.warm_start
         if self.warm_start:
             opts["warm_start_init_point"] = "yes"
-        nlp = {"x": fn["z"], "p": fn["p"], "f": fn["f_expr"], "g": fn["g_expr"]}
         self.options = opts
         self.should_stop: Callable[[], bool] = _never
         self.iteration_limit: int | None = None
@@ -310,15 +308,28 @@ class IpoptSolver:
         self._interrupted: list[int] = []  # Ctrl-C signals during the solve under way (:meth:`_ctrl_c`)
         self._evaluator = evaluator
         self._p = np.zeros(0)
-        self._hook = _StopHook(fn["z"].numel(), fn["g_expr"].numel(), self._poll)
-        self._solver = ca.nlpsol("willmore_step", "ipopt", nlp, self._nlpsol_options(
-            fn["grad_f"], fn["jac_c"], fn["hess_lag"]))
+        self._hook: _StopHook | None = None
+        self._solver: ca.Function | None = None  # the step's NLP (built on first need: :meth:`_plain_solver`)
         self._scaled: ca.Function | None = None  # the same NLP in a unit of length (built on first need)
         self._unit = (1.0, 1.0, 1.0)  # (L, a, b) of the solve under way: z = L z', f' = a f, c' = b c
         self.length = 1.0
         self.ng = evaluator.problem.nc
 
+    def _plain_solver(self) -> ca.Function:
+        """The step's NLP, built at the first solve: the step problem's CasADi functions that it needs cost 0.5 s at
+        2,562 vertices, and a relaxation by Newton steps on normal motions (``relax_newton``) rebuilds the problem
+        after every change of the mesh without solving it."""
+        if self._solver is None:
+            fn = self._evaluator.fn
+            nlp = {"x": fn["z"], "p": fn["p"], "f": fn["f_expr"], "g": fn["g_expr"]}
+            self._solver = ca.nlpsol("willmore_step", "ipopt", nlp, self._nlpsol_options(
+                fn["grad_f"], fn["jac_c"], fn["hess_lag"]))
+        return self._solver
+
     def _nlpsol_options(self, grad_f: ca.Function, jac_g: ca.Function, hess_lag: ca.Function) -> dict[str, Any]:
+        if self._hook is None:
+            fn = self._evaluator.fn
+            self._hook = _StopHook(fn["z"].numel(), fn["g_expr"].numel(), self._poll)
         return {"grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag, "print_time": False, "record_time": True,
                 "error_on_fail": False, "iteration_callback": self._hook, "ipopt": self.options}
 
@@ -392,7 +403,7 @@ class IpoptSolver:
         L = self.length
         a, b = L ** -(P.d + 2), L ** -(P.d + 1)
         self._unit = (L, a, b)
-        solver = self._solver if L == 1 else self._scaled_solver()
+        solver = self._plain_solver() if L == 1 else self._scaled_solver()
         args: dict[str, Any] = {"x0": z0 / L, "p": p if L == 1 else np.concatenate([p, [L, a, b]]),
                                 "lbg": 0.0, "ubg": 0.0}
         if self.warm_start and lam_g0 is not None:

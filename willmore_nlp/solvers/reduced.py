@@ -29,6 +29,7 @@ Hessian-vector products); the last two refuse outer constraints.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -39,6 +40,7 @@ import scipy.optimize as so
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.model.evaluator import StepEvaluator
 from willmore_nlp.model.terms import CAPABILITIES
 from willmore_nlp.settings import SolverSettings, integer, option, real
@@ -107,6 +109,7 @@ class ReducedSolver:
         self.armijo = settings.armijo
         self.nxm = self.P.nX * self.P.m
         self._counts: dict[str, int] = {}
+        self._S: sp.csc_matrix | None = None  # free X dofs -> Y dofs (:meth:`_gauss_newton`)
 
     # -- evaluation -------------------------------------------------------------------
     def _count(self, key: str, n: int = 1) -> None:
@@ -172,6 +175,23 @@ class ReducedSolver:
                                                  np.zeros(self.P.nc))[: self.nxm, : self.nxm])
         self._count("n_eval_hess")
         return (U + sp.triu(U, 1).T).tocsc()
+
+    def _gauss_newton(self, pt: _Point, p: np.ndarray, weight: float = 1.0) -> sp.csr_matrix:
+        """(nX m, nX m) ``weight`` times the Gauss-Newton part of the Hessian of 2 e(X) at ``pt``: 2 K^T Ml^-1 K,
+        K = (J_X + J_Y S) / tt, Ml the lumped mass of the free Y nodes and S the injection of the free X dofs into
+        the Y dofs (the residual (Y[X] - X) / tt of W is -Ml^-1 K to first order; ``newton-krylov``'s preconditioner
+        is D + tau times this, :func:`normal_spectrum`'s its normal part)."""
+        P, m = self.P, self.P.m
+        if self._S is None:
+            nodes = np.flatnonzero(P.x_free)
+            rows = (P.y_index[nodes][:, None] * m + np.arange(m)).ravel()
+            self._S = sp.csc_matrix((np.ones(rows.size), (rows, np.arange(rows.size))), shape=(P.ng, self.nxm))
+        tt = P.params.scalar(p, "tt")
+        X, _ = P.unpack_z(pt.z, P.params.xk(p))
+        ml = lumped_mass(X, P.simplices, P.n_vertices)[P.y_free]
+        K = (pt.Jx + pt.Jy @ self._S).tocsr()  # tt K
+        # K^T (row-scaled K): one sparse product instead of three (0.2 s instead of 0.53-0.75 s at 10,242 v)
+        return (K.T @ K.multiply(np.repeat(2.0 * weight / (tt * tt * ml), m)[:, None]).tocsr()).tocsr()
 
     def _hessp(self, pt: _Point, p: np.ndarray, v: np.ndarray) -> np.ndarray:
         vy = -pt.lu.solve(pt.Jx @ v)
@@ -344,9 +364,27 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     return tau / (1.0 - smallest) if smallest < 1.0 else float("inf")
 
 
+SPECTRUM_DENSE_MAX = 1500
+"""Largest count of free nodes whose :func:`normal_spectrum` is dense (above: ``lobpcg`` and preconditioned CG)."""
+SPECTRUM_BLOCK = 6
+"""Vectors :func:`normal_spectrum`'s ``lobpcg`` iterates beyond the ``count`` asked for (a round sphere's lowest
+eigenvalue has multiplicity 5)."""
+SPECTRUM_RTOL = 1e-4
+"""``lobpcg``'s tolerance on the residual r = Pi^T (R - mu M_n) phi of its M_n-unit eigenvectors, in the norm of M_n^-1
+(a bound on the eigenvalue's error) relative to a round sphere's lowest eigenvalue 24 / L^4; the eigenvalues' error
+is of the residual's square over the spectral gap. Tighter ones are below what the products resolve on fine meshes:
+the residuals stalled at 5e-8 of that unit at 2,562 vertices and at 7e-7 at 10,242, then the iteration broke down."""
+SPECTRUM_SHIFTS = (30.0, 300.0, 3000.0)
+"""Shifts (times 1 / L^4) of :func:`normal_spectrum`'s preconditioner tried in turn (:func:`_spectrum_iterative`)."""
+SPECTRUM_MAX_ITER = 500
+"""Iterations of ``lobpcg`` (per shift) and of the Newton step's CG in :func:`normal_spectrum`."""
+SPECTRUM_CHUNK = 20
+"""``lobpcg`` iterations between two tests of the wanted eigenpairs' residuals in :func:`normal_spectrum`."""
+
+
 def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, normals: np.ndarray,
-                    fields: np.ndarray | None = None, count: int = 2,
-                    solver: ReducedSolver | None = None) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+                    fields: np.ndarray | None = None, count: int = 2, solver: ReducedSolver | None = None,
+                    method: str = "auto") -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """The lowest eigenvalues and modes of the energy's Hessian on normal motions of the free nodes at a state, and
     how far the energy is above the minimum of its quadratic model there.
 
@@ -357,10 +395,16 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     there, the mesh's own instability, which is not the surface's), on the tangent space of the outer constraints and
     M-orthogonal to the normal parts of ``fields`` (a closed surface's rigid motions, the symmetries of its energy),
     the eigenvalues mu of R phi = mu D phi are those of the L^2 Hessian of e (D = 2 M, M the mass matrix of the
-    distance term): negative at a saddle, whose mode lowers the energy at second order. Dense: one Hessian-vector
-    product per free node and one generalised eigenproblem of that size (0.4 s at 534 vertices, 13 s at 2,562). On
-    the unit sphere mu tends to (l - 1) l (l + 1) (l + 2), l >= 2, the Willmore operator's (tested: 24 at l = 2, at
-    order 2 in h).
+    distance term): negative at a saddle, whose mode lowers the energy at second order. On the unit sphere mu tends
+    to (l - 1) l (l + 1) (l + 2), l >= 2, the Willmore operator's (tested: 24 at l = 2, at order 2 in h).
+
+    ``method="dense"``: one Hessian-vector product per free node and one generalised eigenproblem of that size (0.4
+    s at 534 vertices, 13 s at 2,562, 119 s at 5,000). ``"iterative"``: matrix-free, scipy's ``lobpcg`` on the
+    constraints' tangent space (its ``Y``) preconditioned by the Cholesky factor of the normal part of the Gauss-Newton
+    matrix plus M (:meth:`ReducedSolver._gauss_newton`: R's leading part), and the Newton step by CG with the same
+    preconditioner (the same numbers as dense to the tolerances; tested). ``"auto"``: dense up to
+    :data:`SPECTRUM_DENSE_MAX` free nodes, iterative for ``count = 0`` (the gap and the Newton step alone: CG, whose
+    step is taken where it converges to a descent direction of positive curvature, else nan).
 
     Parameters
     ----------
@@ -374,6 +418,7 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     solver : ReducedSolver, optional
         A reduced solver of ``evaluator`` whose factorisations of J_Y serve the products (default: ``newton``'s
         sparse LU)
+    method : "auto", "dense" or "iterative"
 
     Returns
     -------
@@ -401,26 +446,127 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
         cols = np.linalg.norm(rows[0] * w, axis=1)
         red._with_multipliers(pt, -np.linalg.lstsq((rows[0] * w).T / cols, gn * w, rcond=3e-2)[0] / cols)
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
-    HN = np.column_stack([red._hessp(pt, p, Nm[:, i].toarray().ravel()) for i in range(nX)])
-    Mn = (Nm.T @ (D @ Nm)).toarray()
+    Mn = (Nm.T @ (D @ Nm)).tocsc()
     tau = P.params.scalar(p, "tau")
-    Rn = (Nm.T @ HN - Mn) / tau
-    Rn = 0.5 * (Rn + Rn.T)
     if fields is not None and fields.size:  # (their span: directions below 1e-2 of the largest are no field's)
         U, s, _ = np.linalg.svd(fields, full_matrices=False)
         rows.append(U[:, s > 1e-2 * s[0]].T @ Mn)
-    if rows:  # (each row scaled to norm 1: the rank decision must not depend on the units of its constraint)
-        A = np.vstack(rows)
-        Z = la.null_space(A / np.linalg.norm(A, axis=1, keepdims=True), rcond=1e-8)
+    # (each row scaled to norm 1: the rank decision must not depend on the units of its constraint)
+    A = np.vstack(rows) if rows else np.zeros((0, nX))
+    A = A / np.linalg.norm(A, axis=1, keepdims=True)
+
+    def hess(phi: np.ndarray) -> np.ndarray:  # R phi
+        return (Nm.T @ red._hessp(pt, p, Nm @ phi) - Mn @ phi) / tau
+
+    if method not in ("auto", "dense", "iterative"):
+        raise ValueError(f"normal_spectrum: method {method!r}")
+    if method == "dense" or (method == "auto" and count and nX <= SPECTRUM_DENSE_MAX):
+        Rn = np.column_stack([hess(e) for e in np.eye(nX)])
+        Rn = 0.5 * (Rn + Rn.T)
+        Z = la.null_space(A, rcond=1e-8) if len(A) else np.eye(nX)
+        RZ = Z.T @ Rn @ Z
+        mu, V = la.eigh(RZ, Z.T @ Mn.toarray() @ Z, subset_by_index=[0, min(max(count, 1), Z.shape[1]) - 1])
+        # the Newton decrement of e on these motions: e(X) - min of its quadratic model, g^T R^-1 g / (4 tau^2) with g
+        # the projected gradient of the objective (2 tau grad e at X^k; Z is orthogonal to the constraints' rows, so
+        # their multipliers' part of the gradient drops out); nan where the model has no minimum
+        g = Z.T @ gn
+        step = Z @ -la.solve(RZ, g, assume_a="sym") if mu[0] > 0 else np.full(nX, np.nan)
+        mu, modes = mu[:count], Z @ V[:, :count]  # (count = 0: the lowest only told whether there is a minimum)
     else:
-        Z = np.eye(nX)
-    RZ = Z.T @ Rn @ Z
-    mu, V = la.eigh(RZ, Z.T @ Mn @ Z, subset_by_index=[0, min(count, Z.shape[1]) - 1])
-    modes = Z @ V
-    # the Newton decrement of e on these motions: e(X) - min of its quadratic model, g^T R^-1 g / (4 tau^2) with g the
-    # projected gradient of the objective (2 tau grad e at X^k; Z is orthogonal to the constraints' rows, so their
-    # multipliers' part of the gradient drops out); nan where the model has no minimum
-    g = Z.T @ gn
-    step = -la.solve(RZ, g, assume_a="sym") / tau if mu[0] > 0 else np.full(len(g), np.nan)
-    gap = -float(g @ step) / (4 * tau)
-    return mu, modes / np.abs(modes).max(axis=0), gap, Z @ step
+        mu, modes, step = _spectrum_iterative(red, pt, p, Nm, Mn, A, hess, gn, count)
+    gap = -float(gn @ step) / (4 * tau * tau) if np.all(np.isfinite(step)) else float("nan")
+    return mu, modes / np.abs(modes).max(axis=0) if count else modes, gap, step / tau
+
+
+def _spectrum_iterative(red: ReducedSolver, pt: _Point, p: np.ndarray, Nm: sp.csr_matrix, Mn: sp.csc_matrix,
+                        A: np.ndarray, hess: Any, gn: np.ndarray,
+                        count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`normal_spectrum` without dense matrices: (mu, modes, Newton step of R (times tau)).
+
+    On the motions with A phi = 0, i.e. M_n-orthogonal to Y = M_n^-1 A^T (an M_n-orthonormal basis of their span,
+    directions below 1e-8 of the largest dropped as the dense path's null space does), ``lobpcg`` iterates on Pi^T R Pi
+    (Pi = I - Y Y^T M_n; with R itself scipy's constraints ``Y``, which must span an invariant subspace, left the
+    residuals at 0.7 on an ellipsoid) preconditioned by the Cholesky factor of T = N^T G N + s M_n (G the Gauss-Newton
+    matrix, :meth:`ReducedSolver._gauss_newton`). The shift s must lie above the negative eigenvalues of a saddle
+    (with s = 50 / L^4 the iteration broke down on an ellipsoid 1:1:1.5 with V and A fixed, eigenvalue -16 / L^4):
+    :data:`SPECTRUM_SHIFTS` are tried in turn until the ``count`` lowest residuals meet the tolerance. The Newton
+    step solves Pi^T R Pi x = -Pi^T g by CG preconditioned with Pi T^-1 Pi^T.
+
+    Raises
+    ------
+    ArithmeticError
+        when the eigenvalue iteration (at every shift) or, at a minimum, the Newton step's CG does not converge (``count
+        = 0``: the step is nan instead)
+    """
+    nX = Mn.shape[0]
+    Y = SymmetricFactor("auto").factor(Mn).solve(np.ascontiguousarray(A.T)) if len(A) else np.zeros((nX, 0))
+    if Y.shape[1]:
+        w, V = np.linalg.eigh(Y.T @ (Mn @ Y))
+        keep = w > 1e-16 * w.max()
+        Y = Y @ (V[:, keep] / np.sqrt(w[keep]))
+
+    def project(v: np.ndarray) -> np.ndarray:  # Pi v
+        return v - Y @ (Y.T @ (Mn @ v))
+
+    def project_t(v: np.ndarray) -> np.ndarray:  # Pi^T v
+        return v - Mn @ (Y @ (Y.T @ v))
+
+    def hess_t(v: np.ndarray) -> np.ndarray:  # Pi^T R Pi v
+        return project_t(hess(project(v)))
+
+    def operator(f: Any) -> spla.LinearOperator:
+        return spla.LinearOperator((nX, nX), matvec=lambda v: f(np.ravel(v)), dtype=float,
+                                   matmat=lambda V: np.column_stack([f(v) for v in np.asarray(V).reshape(nX, -1).T]))
+
+    G = (Nm.T @ red._gauss_newton(pt, p) @ Nm).tocsc()
+    ones = np.ones(nX)
+    unit = 1.0 / (float(ones @ (Mn @ ones)) / (8 * np.pi)) ** 2  # 1 / L^4 (D = 2 M: 1.D.1 = 2 area)
+    T = SymmetricFactor("auto")
+
+    def newton_cg() -> tuple[np.ndarray, int]:  # Pi^T R Pi x = -Pi^T g, preconditioned by Pi T^-1 Pi^T
+        # (to 1e-8 of the right-hand side, or to the residual of a uniform step error of 1e-12 L (L = unit^-1/4): at
+        # rest the right-hand side is round-off, 1e-19 of the energy on a polished ellipsoid, and CG cannot reduce it)
+        atol = 1e-12 * 24 * unit * unit**-0.25 * float(np.linalg.norm(Mn @ ones))
+        return spla.cg(operator(hess_t), project_t(-gn), rtol=1e-8, atol=atol, maxiter=SPECTRUM_MAX_ITER,
+                       M=operator(lambda v: project(T.solve(project_t(v)))))
+
+    if not count:  # the Newton step alone: CG, and a minimum where it converges to a descent of positive curvature
+        T.factor((G + SPECTRUM_SHIFTS[0] * unit * Mn).tocsc())
+        x, info = newton_cg()
+        ok = not info and float(gn @ x) < 0 and float(x @ hess_t(x)) > 0
+        return np.zeros(0), np.zeros((nX, 0)), project(x) if ok else np.full(nX, np.nan)
+    tol = SPECTRUM_RTOL * 24 * unit * float(np.sqrt(Mn.diagonal().mean()))  # (lobpcg's 2-norm of r)
+    k = min(count + SPECTRUM_BLOCK, nX - Y.shape[1])
+    X0 = project(np.random.default_rng(0).standard_normal((nX, k)))
+
+    def residuals(mu: np.ndarray, V: np.ndarray) -> np.ndarray:  # lobpcg's 2-norms of the wanted pairs' residuals
+        return np.array([np.linalg.norm(hess_t(v) - m * (Mn @ v)) for m, v in zip(mu, V.T, strict=True)])
+
+    for shift in SPECTRUM_SHIFTS:
+        T.factor((G + shift * unit * Mn).tocsc())
+        V, done, res = X0, 0, np.full(count, np.inf)
+        while done < SPECTRUM_MAX_ITER and not np.all(res <= tol):
+            # in chunks from the last Ritz vectors: lobpcg stops when the whole block has converged, and the vectors
+            # beyond ``count`` (higher eigenvalues, whose residuals stall higher) took 200 iterations at 40,962
+            # vertices where the wanted ones had converged in 70
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # (breakdown or not converged: judged by the residuals)
+                mu, V = spla.lobpcg(operator(hess_t), V, B=Mn, M=operator(T.solve), Y=Y if Y.shape[1] else None,
+                                    tol=tol, maxiter=SPECTRUM_CHUNK, largest=False)
+            done += SPECTRUM_CHUNK
+            order = np.argsort(mu)
+            mu, V = mu[order], V[:, order]
+            if not np.all(np.isfinite(V)):
+                break
+            res = residuals(mu[:count], V[:, :count])
+        if np.all(res <= tol):
+            break
+    else:
+        raise ArithmeticError(f"normal_spectrum: lobpcg did not converge (residuals {res / tol} of the tolerance)")
+    mu, V = mu[:count], V[:, :count]
+    if not mu[0] > 0:
+        return mu, V, np.full(nX, np.nan)
+    x, info = newton_cg()
+    if info:
+        raise ArithmeticError(f"normal_spectrum: the Newton step's CG did not converge in {info} iterations")
+    return mu, V, project(x)
