@@ -151,7 +151,7 @@ def test_a_relaxed_minimum_is_polished_by_newton_steps_on_normal_motions(tmp_pat
     assert last.quality["min_angle"] > plain.state().quality["min_angle"] - 1.0
 
 
-def test_stability_refuses_curves_large_meshes_and_bad_counts(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_stability_refuses_curves_large_meshes_bad_counts_lone_relax_newton(monkeypatch: pytest.MonkeyPatch) -> None:
     import willmore_nlp.flow as flow_module
 
     for bad in (0, -1, 2.5, True):
@@ -159,10 +159,19 @@ def test_stability_refuses_curves_large_meshes_and_bad_counts(monkeypatch: pytes
             _sphere_flow(1).stability(count=bad)
     with pytest.raises(UserInputError, match="method must be 'auto', 'dense' or 'iterative', got 'lu'"):
         _sphere_flow(1).stability(method="lu")
+    with pytest.raises(UserInputError, match="relax_newton=True is how a relaxation of a surface in R\\^3 steps: it "
+                                             "needs relax=True and a surface in R\\^3"):
+        _sphere_flow(1, relax_newton=True)
+    # a count of over a fifth of the motions is dense either way (lobpcg's dense path refuses constraints)
+    flow = _sphere_flow(2)
+    many = flow.stability(count=40, method="iterative").eigenvalues
+    assert np.allclose(many, flow.stability(count=40, method="dense").eigenvalues, rtol=1e-12)
 
     circle = shapes.regular_polygon(32)
     with pytest.raises(UserInputError, match="surfaces in R\\^3 only"):
         WillmoreFlow(circle, 1e-3, 1e-4).stability()
+    with pytest.raises(UserInputError, match="needs relax=True and a surface in R"):
+        WillmoreFlow(circle, 1e-3, 1e-4, relax=True, relax_newton=True)
     monkeypatch.setattr(flow_module, "STABILITY_MAX_VERTICES", 100)
     with pytest.raises(UserInputError, match="162 vertices, above STABILITY_MAX_VERTICES = 100"):
         _sphere_flow(2).stability()
@@ -186,8 +195,9 @@ def test_a_failed_iterative_check_leaves_the_state_untested(monkeypatch: pytest.
     last = flow.run(steps=20)[-1]
     assert flow.relaxed and not {"saddle", "polish"} & set(last.remeshed.split("+"))
     assert np.isnan(last.stats["stability"])
-    assert re.search(r"; not tested for a saddle: normal_spectrum: lobpcg did not converge \(residuals \[.+\] of the "
-                     r"tolerance\)$", flow.relax_message()), flow.relax_message()
+    assert re.search(r"; not tested for a saddle: normal_spectrum: lobpcg did not converge in 1 iterations at each "
+                     r"preconditioner shift \(the lowest eigenpairs' residuals \S+ to \S+ times the tolerance; is the "
+                     r"state at rest\?\)$", flow.relax_message()), flow.relax_message()
 
 
 @pytest.mark.slow
@@ -283,6 +293,7 @@ def test_relax_newton_reaches_the_equilibrium_in_newton_steps(tmp_path) -> None:
     V = sphere.vertices * np.array([1.0, 1.0, 2.0])  # (onto the sphere: reports/mesh_quality_study.sphere_reference)
     w_eq = geometry.willmore_energy(sphere.with_vertices(V / np.linalg.norm(V, axis=1, keepdims=True)))  # 24.997
     assert flow.relaxed and all(r.stats["solver"] == "normal-newton" for r in results[1:])
+    assert {r.tau for r in results[1:]} == {flow.tau}  # (Newton steps leave the step size of a later time step)
     assert all(b.stats["energy_before_remesh"] < a.energy for a, b in itertools.pairwise(results))
     assert next(r.step for r in results if r.willmore <= 1.01 * w_eq) <= 3
     assert abs(results[-1].willmore / w_eq - 1) < 2e-3 and abs(flow.last_stability - 24.5) < 0.3

@@ -214,6 +214,8 @@ Hessian-vector product per node: 0.4 s at 534 vertices, 13 s at 2,562, 119 s at 
 (lobpcg and CG, matrix-free): measured at the ellipsoid 1:1:1.3 with ``newton-krylov``'s factorisations, 4.0 s at
 10,242 vertices (8.6 s with IPOPT's flow, whose products use a sparse LU) and 33 s at 40,962 (0.8 GB peak); a
 relaxation's check and each polishing step cost one."""
+NEWTON_SOLVER = "normal-newton"
+"""History ``solver`` of a relaxation's Newton step on normal motions (``relax_newton``)."""
 RELAX_NEWTON_CAP = 1.0
 """Longest nodal move of a relaxation's Newton step on normal motions (``relax_newton``), in mean edge lengths h.
 Measured on the ellipsoid 1:1:2 (reports/relax_study.py), steps to within 1 % of the equilibrium energy at 642 /
@@ -625,6 +627,9 @@ class WillmoreFlow:
                                       and s.volume is None and s.area is None):
             raise UserInputError(f"{mesh.source}: conformal_gauge=True is for closed surfaces in R^3 without boundary "
                                  "conditions or volume/area constraints")
+        if s.relax_newton and not (s.relax and mesh.d == 2 and mesh.m == 3):
+            raise UserInputError(f"{mesh.source}: relax_newton=True is how a relaxation of a surface in R^3 steps: it "
+                                 "needs relax=True and a surface in R^3")
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
         # convex_start: the convexity limit tau_c of the first step and the restarts its Lanczos iteration had
         self._tau_c: tuple[float, int] | None = None
@@ -922,8 +927,10 @@ class WillmoreFlow:
         the translations, the rotations (isotropic energies), the dilation (scale-invariant energies: W or an
         anisotropic W without lam, c0 or outer constraints) and the special conformal fields (a Moebius-invariant
         energy without outer constraints). The eigenvalues are made dimensionless by L^4 (L^2 =
-        area / 4 pi; 24 on a round sphere). Meaningful where the state is at rest (the gradient near 0); for
-        surfaces in R^3 of at most :data:`STABILITY_MAX_VERTICES` vertices (dense up to
+        area / 4 pi; on a round sphere they tend to 24: 24.53 / 24.13 at 642 / 2,562 vertices at the defaults'
+        tau_tilde = h^2 / 100, other values at another tau_tilde,
+        :func:`~willmore_nlp.solvers.reduced.normal_spectrum`). Meaningful where the state is at rest (the gradient
+        near 0); for surfaces in R^3 of at most :data:`STABILITY_MAX_VERTICES` vertices (dense up to
         :data:`~willmore_nlp.solvers.reduced.SPECTRUM_DENSE_MAX` free nodes, above matrix-free).
 
         Parameters
@@ -1270,10 +1277,12 @@ class WillmoreFlow:
         """Make the attempt's state (X, Y) at ``tau`` the flow's, control its mesh and return the step's result
         (``t0``: the step's start on the perf counter; ``tries``: its retries; ``rejected``: the rejected attempts'
         reasons; ``spent``: the solver iterations of all its attempts; ``solver``: the state's maker when it is not
-        the step solver, whose iteration count then stays out of the budget's median)."""
+        the step solver (a Newton step on normal motions), whose iteration count then stays out of the budget's
+        median and which leaves the step size as it was)."""
         self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
         self.lam_g = res.lam_g
-        self._grow_tau(tau, tries)
+        if solver is None:  # (doubled by Newton steps, a time step after them began at 32 h and failed 5 times: a
+            self._grow_tau(tau, tries)  # new user's 2,562-v noisy ellipsoid, 29 s instead of 18.5 s)
         if solver is None and self.solver.name == self.main_solver(self.mesh.n_vertices):  # (another solver's count
             self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]  # is no
         solver_name = solver or self.solver.name  # measure)
@@ -1385,7 +1394,7 @@ class WillmoreFlow:
         res = SolveResult(z=z, f=float(self.evaluator.f(z, self.params(self.X, tau))), lam_g=None, converged=True,
                           status="Newton step on normal motions", iterations=1,
                           stats={"stability_gap_before_move": st.gap, "newton_fraction": a})
-        return self._accept(trial[1], trial[2], tau, res, {}, t0, 0, [], 1, solver="normal-newton")
+        return self._accept(trial[1], trial[2], tau, res, {}, t0, 0, [], 1, solver=NEWTON_SOLVER)
 
     def _polish(self, tau: float) -> bool:
         """Newton steps on normal motions from a relaxed minimum (``relax_check``; :meth:`stability`'s ``newton``):
@@ -2078,7 +2087,8 @@ class WillmoreFlow:
             elif int(float(r["step"])) == 0:
                 self._relax_start(float(r[column]))
             else:
-                self._grow_tau(float(r["tau"]), int(float(r["retries"])))
+                if r.get("solver") != NEWTON_SOLVER:
+                    self._grow_tau(float(r["tau"]), int(float(r["retries"])))
                 self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""))
                 if r.get("stability") not in (None, "") and np.isfinite(float(r["stability"])):
                     self.last_stability, self.last_gap = float(r["stability"]), float(r.get("stability_gap", "nan"))

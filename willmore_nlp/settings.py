@@ -588,7 +588,8 @@ class FlowSettings(Settings):
         Surface Evolver's ``hessian_seek``) instead of time steps wherever its Hessian there is positive definite:
         each at most ``RELAX_NEWTON_CAP`` h long, halved until the energy falls and the mesh stays above the repair
         thresholds (history solver ``normal-newton``); elsewhere, and when no such step is found, the flow's step.
-        The relax test and ``relax_check`` are unchanged. Default false.
+        The relax test and ``relax_check`` are unchanged, and Newton steps leave the step size as it was. Needs
+        ``relax`` and a surface in R^3 (refused otherwise). Default false.
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme: no repair
         between steps and ``tangential_control = "auto"`` is "off"; an explicit "meanratio" is kept).

@@ -376,8 +376,9 @@ is of the residual's square over the spectral gap. Tighter ones are below what t
 the residuals stalled at 5e-8 of that unit at 2,562 vertices and at 7e-7 at 10,242, then the iteration broke down."""
 SPECTRUM_SHIFTS = (30.0, 300.0, 3000.0)
 """Shifts (times 1 / L^4) of :func:`normal_spectrum`'s preconditioner tried in turn (:func:`_spectrum_iterative`)."""
-SPECTRUM_MAX_ITER = 500
-"""Iterations of ``lobpcg`` (per shift) and of the Newton step's CG in :func:`normal_spectrum`."""
+SPECTRUM_MAX_ITER = 200
+"""Iterations of ``lobpcg`` (per shift) and of the Newton step's CG in :func:`normal_spectrum` (converged: 40-130;
+a raw noisy 10,242-vertex ellipsoid, far from rest, failed after 3 x 500 in 210 s)."""
 SPECTRUM_CHUNK = 20
 """``lobpcg`` iterations between two tests of the wanted eigenpairs' residuals in :func:`normal_spectrum`."""
 
@@ -404,7 +405,10 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
     matrix plus M (:meth:`ReducedSolver._gauss_newton`: R's leading part), and the Newton step by CG with the same
     preconditioner (the same numbers as dense to the tolerances; tested). ``"auto"``: dense up to
     :data:`SPECTRUM_DENSE_MAX` free nodes, iterative for ``count = 0`` (the gap and the Newton step alone: CG, whose
-    step is taken where it converges to a descent direction of positive curvature, else nan).
+    step is taken where it converges to a descent direction of positive curvature, else nan). A ``count`` of over a
+    fifth of the motions is dense either way (lobpcg's block would be). The eigenvalues are the scheme's at its
+    tau_tilde: the round sphere's 24.53 / 24.13 / 24.03 at 642 / 2,562 / 10,242 vertices are at tau_tilde = h^2 / 100
+    (the defaults); at h^2 / 10 23.15 / 23.79 / 23.95, at h^2 / 1000 24.67 / 24.17 (a new user's check).
 
     Parameters
     ----------
@@ -460,7 +464,10 @@ def normal_spectrum(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, nor
 
     if method not in ("auto", "dense", "iterative"):
         raise ValueError(f"normal_spectrum: method {method!r}")
-    if method == "dense" or (method == "auto" and count and nX <= SPECTRUM_DENSE_MAX):
+    dense = method == "dense" or (method == "auto" and count > 0 and nX <= SPECTRUM_DENSE_MAX)
+    # (lobpcg solves a block of over a fifth of the motions densely, which refuses constraints: a new user's
+    # count = 28 on 162 vertices raised scipy's NotImplementedError)
+    if dense or (count and 5 * (count + SPECTRUM_BLOCK) > nX - len(A)):
         Rn = np.column_stack([hess(e) for e in np.eye(nX)])
         Rn = 0.5 * (Rn + Rn.T)
         Z = la.null_space(A, rcond=1e-8) if len(A) else np.eye(nX)
@@ -562,7 +569,9 @@ def _spectrum_iterative(red: ReducedSolver, pt: _Point, p: np.ndarray, Nm: sp.cs
         if np.all(res <= tol):
             break
     else:
-        raise ArithmeticError(f"normal_spectrum: lobpcg did not converge (residuals {res / tol} of the tolerance)")
+        raise ArithmeticError(f"normal_spectrum: lobpcg did not converge in {SPECTRUM_MAX_ITER} iterations at each "
+                              f"preconditioner shift (the lowest eigenpairs' residuals {np.min(res / tol):.3g} to "
+                              f"{np.max(res / tol):.3g} times the tolerance; is the state at rest?)")
     mu, V = mu[:count], V[:, :count]
     if not mu[0] > 0:
         return mu, V, np.full(nX, np.nan)
