@@ -1281,11 +1281,13 @@ class WillmoreFlow:
         median and which leaves the step size as it was)."""
         self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
         self.lam_g = res.lam_g
-        if solver is None:  # (doubled by Newton steps, a time step after them began at 32 h and failed 5 times: a
-            self._grow_tau(tau, tries)  # new user's 2,562-v noisy ellipsoid, 29 s instead of 18.5 s)
-        if solver is None and self.solver.name == self.main_solver(self.mesh.n_vertices):  # (another solver's count
-            self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]  # is no
-        solver_name = solver or self.solver.name  # measure)
+        # (a Newton step leaves the step size: doubled by three of them, a new user's noisy 2,562-v ellipsoid began
+        # its next time step at 32 h, which failed five times, 29 s instead of 18.5 s)
+        if solver is None:
+            self._grow_tau(tau, tries)
+            if self.solver.name == self.main_solver(self.mesh.n_vertices):  # (another solver's count is no measure)
+                self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
+        solver_name = solver or self.solver.name
         t_control = time.perf_counter()
         action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
         mstats["t_wall_control"] = time.perf_counter() - t_control
