@@ -1103,7 +1103,7 @@ class WillmoreFlow:
         if self.settings.relax:
             grown = self.tau if np.isinf(self._tau_adapt) else self._tau_adapt
             tau = min(self.relax_max_tau, self._time_left, grown)
-            if self.settings.relax_newton and self._checks_saddles(ignore_check=True):
+            if self.settings.relax_newton and self._spectrum_fits():
                 newton = self._newton_relax_step(tau, t0)
                 if newton is not None:
                     return newton
@@ -1336,11 +1336,14 @@ class WillmoreFlow:
                     result = new
         return result
 
-    def _checks_saddles(self, ignore_check: bool = False) -> bool:
-        """Whether an ended relaxation tests its state for a saddle (``relax_check``, or ``ignore_check``: surfaces in
-        R^3 of at most :data:`STABILITY_MAX_VERTICES` vertices)."""
-        return ((self.settings.relax_check or ignore_check) and self.mesh.d == 2 and self.mesh.m == 3
-                and self.mesh.n_vertices <= STABILITY_MAX_VERTICES)
+    def _spectrum_fits(self) -> bool:
+        """Whether :meth:`stability` takes the current mesh: a surface in R^3 of at most
+        :data:`STABILITY_MAX_VERTICES` vertices (the relaxation's test for a saddle, its Newton steps)."""
+        return self.mesh.d == 2 and self.mesh.m == 3 and self.mesh.n_vertices <= STABILITY_MAX_VERTICES
+
+    def _checks_saddles(self) -> bool:
+        """Whether an ended relaxation tests its state for a saddle (``relax_check``, :meth:`_spectrum_fits`)."""
+        return self.settings.relax_check and self._spectrum_fits()
 
     def _stability_at_rest(self) -> float:
         """The lowest eigenvalue of :meth:`stability` at the relaxed state (kept with its mode for the move off a
@@ -1383,20 +1386,29 @@ class WillmoreFlow:
         d = st.newton
         if not (np.all(np.isfinite(d)) and np.abs(d).max() > 0):
             return None
-        e0, h = self.discrete_energy(self.X, self.Y), self.mesh.with_vertices(self.X).h
-        a = min(1.0, RELAX_NEWTON_CAP * h / float(np.abs(d).max()))
-        for _ in range(8):
-            trial = self._trial_move(a * d, tau)
-            if trial is not None and trial[0] < e0 and not self._needs_repair(trial[1], self.mesh.simplices):
-                break
-            trial, a = None, a / 2
+        trial = self._halved_move(d, RELAX_NEWTON_CAP * self.mesh.with_vertices(self.X).h, tau, 8, healthy=True)
         if trial is None:
             return None
-        z = self.problem.pack_z(trial[1], trial[2])
+        _, X, Y, a = trial
+        z = self.problem.pack_z(X, Y)
         res = SolveResult(z=z, f=float(self.evaluator.f(z, self.params(self.X, tau))), lam_g=None, converged=True,
                           status="Newton step on normal motions", iterations=1,
                           stats={"stability_gap_before_move": st.gap, "newton_fraction": a})
-        return self._accept(trial[1], trial[2], tau, res, {}, t0, 0, [], 1, solver=NEWTON_SOLVER)
+        return self._accept(X, Y, tau, res, {}, t0, 0, [], 1, solver=NEWTON_SOLVER)
+
+    def _halved_move(self, d: np.ndarray, longest: float, tau: float, tries: int,
+                     healthy: bool = False) -> tuple[float, np.ndarray, np.ndarray, float] | None:
+        """The move by a ``d`` ((N, m)), a = min(1, ``longest`` / max |d|) halved until the energy falls (and, with
+        ``healthy``, the mesh stays above the repair thresholds), at most ``tries`` trials, onto the outer constraints
+        (:meth:`_trial_move`): (e, X', Y[X'], a), or None. A polishing step's and a relaxation's Newton step's."""
+        e0, a = self.discrete_energy(self.X, self.Y), min(1.0, longest / float(np.abs(d).max()))
+        for _ in range(tries):
+            trial = self._trial_move(a * d, tau)
+            if trial is not None and trial[0] < e0 and not (healthy and self._needs_repair(trial[1],
+                                                                                           self.mesh.simplices)):
+                return (*trial, a)
+            a /= 2
+        return None
 
     def _polish(self, tau: float) -> bool:
         """Newton steps on normal motions from a relaxed minimum (``relax_check``; :meth:`stability`'s ``newton``):
@@ -1409,13 +1421,7 @@ class WillmoreFlow:
         for _ in range(POLISH_STEPS):
             if not POLISH_GAP < self.last_gap <= POLISH_MAX_GAP:  # (nan: no minimum of the model)
                 break
-            e0, a = self.discrete_energy(self.X, self.Y), min(1.0, POLISH_CAP * h / float(np.abs(self._newton).max()))
-            best = None
-            for _ in range(6):
-                best = self._trial_move(a * self._newton, tau)
-                if best is not None and best[0] < e0:
-                    break
-                best, a = None, a / 2
+            best = self._halved_move(self._newton, POLISH_CAP * h, tau, 6)
             if best is None:
                 break
             kept = (self.X, self.Y, self._saddle_mode, self._newton, self.last_stability, self.last_gap)
@@ -1924,7 +1930,7 @@ class WillmoreFlow:
             # iterative eigensolver failed)
             if self.untested:
                 return why + f"; not tested for a saddle: {self.untested}"
-            big = self.settings.relax_check and self.mesh.d == 2 and self.mesh.m == 3 and not self._checks_saddles()
+            big = self.settings.relax_check and self.mesh.d == 2 and self.mesh.m == 3 and not self._spectrum_fits()
             return why + (f"; not tested for a saddle: {self.mesh.n_vertices} vertices, above STABILITY_MAX_VERTICES = "
                           f"{STABILITY_MAX_VERTICES}" if big else "")
         if lowest >= -SADDLE_TOL and not np.isfinite(self.last_gap):
