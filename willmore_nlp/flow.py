@@ -216,14 +216,18 @@ Hessian-vector product per node: 0.4 s at 534 vertices, 13 s at 2,562, 119 s at 
 relaxation's check and each polishing step cost one."""
 NEWTON_SOLVER = "normal-newton"
 """History ``solver`` of a relaxation's Newton step on normal motions (``relax_newton``)."""
-RELAX_NEWTON_CAP = 1.0
+RELAX_NEWTON_CAP = 2.0
 """Longest nodal move of a relaxation's Newton step on normal motions (``relax_newton``), in mean edge lengths h.
 Measured on the ellipsoid 1:1:2 (reports/relax_study.py), steps to within 1 % of the equilibrium energy at 642 /
-2,562 vertices: cap 0.5: 6 / 12; 1: 3 / 6; 2: the 642-vertex one's first step left no Newton step, 3 at 2,562; 4:
-the 2,562-vertex one's step lowered e by wrecking the mesh (W 25.5 -> 76.8, 5.6 deg; hence the repair thresholds'
-test). A trust region (the cap doubled after a capped step taken whole, up to 2 or 4) took 4 steps at 2,562 but left
-a 1,513-vertex trimesh torus at a minimum on normal motions 0.45 % above the one of the fixed cap (e 39.771 against
-39.593; the time steps: 39.595)."""
+2,562 vertices: cap 0.5: 6 / 12; 1: 3 / 6; 1.5: 3 / 4; 2: 3 / 3 (2026-11-30, night; that evening, before the flow's Y[X]
+solves of such a relaxation used the Cholesky factor, the 642-vertex one's first step at cap 2 left no Newton step);
+4: the 2,562-vertex one's step lowered e by wrecking the mesh (W 25.5 -> 76.8, 5.6 deg; hence the repair thresholds'
+test). Cap 2 against 1 on other inputs (file and vesicle defaults, ``relax``), final e: trimesh tori 64 x 24 (r 0.35)
+39.613 / 39.593 and 72 x 28 (r 0.45) 39.555 / 39.586, capsule 25.1489 / 25.1477, vesicles v = 0.85 32.2298 /
+32.2292, v = 0.65 46.147 / 46.168, v = 0.65 with c0 = 0.8 23.510 / 23.507; v = 0.75 ended at a minimum (37.638)
+where cap 1 ended on a saddle (39.632, lowest eigenvalue -0.03). A trust region (the cap doubled after a capped step
+taken whole, up to 2 or 4) took 4 steps at 2,562 but left a 1,513-vertex trimesh torus at a minimum on normal motions
+0.45 % above the one of the fixed cap 1 (e 39.771 against 39.593; the time steps: 39.595)."""
 REPAIR_SPEED = 1.0
 """Each pass of the light repair moves a vertex by at most this factor times the distance the step moved it."""
 
@@ -671,6 +675,7 @@ class WillmoreFlow:
                               "(slower; set $CC or install gcc to compile them)", stacklevel=2)
         self._codegen = bool(codegen)
         self._compiled: dict[str, Any] | None = None
+        self._kernel_maps: dict[tuple[str, int], Any] = {}  # (the evaluators' mapped kernels, kept across rebuilds)
         self.stop_requested: Callable[[], bool] = _never
         self.on_retry: Callable[[str], None] = _ignore
         self._length_unit = length_unit(mesh.vertices)  # (IPOPT's, for every step: a scaled mesh scales it)
@@ -763,7 +768,9 @@ class WillmoreFlow:
                               f"(slower); set codegen=false to skip compiling", stacklevel=3)
         if self._compiled is not None:
             kernels = self._compiled
-        self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels))
+        self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels), self._kernel_maps)
+        if self.settings.relax_newton:  # Y[X] of the Newton steps' trials and of the mesh control by the sparse
+            self.evaluator.cholesky = "auto"  # Cholesky of the N x N block: 2,562 v, 0.30 -> 0.26 s per step
         self._make_solver(self._step_solvers()[0])
 
     def _solver_names(self) -> set[str]:

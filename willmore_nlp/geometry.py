@@ -189,9 +189,12 @@ def willmore_energy(mesh: Mesh, nodes: np.ndarray | None = None, vertices: np.nd
     """
     V = mesh.vertices if vertices is None else np.asarray(vertices, float)
     S = mesh.simplices if simplices is None else np.asarray(simplices)
-    _, L = mass_stiffness(V, S)
-    LX = L @ V
-    mi = lumped_mass(V, S)
+    # L X and the lumped mass element by element from one element_geometry: the assembled L and M and a second
+    # element_geometry for the mass took 6.7 ms instead of 3.6 ms at 2,562 vertices (four calls per relaxation step)
+    vol, Lloc = element_geometry(V, S)
+    nv = S.shape[1]
+    LX = scatter_sum(V.shape[0], [(S.ravel(), np.einsum("kab,kbm->kam", Lloc, V[S]).reshape(-1, V.shape[1]))])
+    mi = np.bincount(S.ravel(), weights=np.repeat(vol / nv, nv), minlength=V.shape[0])
     e = 0.5 * np.sum(LX**2, axis=1) / mi
     if not mesh.is_closed:
         e[mesh.boundary_vertices] = 0.0

@@ -42,17 +42,31 @@ class StepEvaluator:
     functions : GlobalFunctions
         The output of :meth:`StepProblem.functions` (symbolic or compiled kernels); its kernels are the
         ones evaluated here.
+    maps : dict, optional
+        The kernels mapped over element blocks, by (kernel name, block size): a cache that the evaluators of one
+        flow share across its rebuilds (the same kernels on a new connectivity), where CasADi's map costs about 4 ms
+        per kernel and block size (0.03 s of every rebuild after Delaunay flips at 2,562 vertices). An entry serves
+        only the kernel object it was made from.
     """
 
-    def __init__(self, problem: StepProblem, functions: GlobalFunctions) -> None:
+    def __init__(self, problem: StepProblem, functions: GlobalFunctions,
+                 maps: dict[tuple[str, int], tuple[ca.Function, ca.Function]] | None = None) -> None:
         self.problem = problem
         self.fn = functions
         self.kernels = functions.kernels
+        self._maps = {} if maps is None else maps
         self._buffers: dict[str, tuple[Any, ...]] = {}
         self._xe = np.zeros(problem.gather.size)  # the element inputs, shared by every kernel's buffer
         self.cholesky: str | None = None  # backend of the inner solves' Cholesky (:meth:`linear_solve`); None: LU
         self._emaps: dict[str, np.ndarray] = {}
         self._sym: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # full pattern, source in the upper
+
+    def _mapped(self, name: str, f: ca.Function, n: int) -> ca.Function:
+        """``f`` mapped over ``n`` elements, from the shared cache when it holds that map of this very kernel."""
+        hit = self._maps.get((name, n))
+        if hit is None or hit[0] is not f:
+            hit = self._maps[(name, n)] = (f, f.map(n))
+        return hit[1]
 
     def _kernel(self, name: str, z: np.ndarray, p: np.ndarray, *rest: Any) -> list[np.ndarray]:
         """Nonzeros of every output of kernel ``name`` mapped over the elements (element-major order) at ``z``.
@@ -74,11 +88,10 @@ class StepEvaluator:
             ins = [self._xe] + [np.zeros(P.K * f.sparsity_in(i).nnz()) for i in range(1, f.n_in())]
             outs = [np.zeros((min(ELEMENT_BLOCK, P.K) if i == mat else P.K) * f.sparsity_out(i).nnz())
                     for i in range(f.n_out())]
-            maps: dict[int, ca.Function] = {}
             runs = []
             for start in range(0, P.K, ELEMENT_BLOCK):  # the map in element blocks: a map over all K elements
                 n = min(ELEMENT_BLOCK, P.K - start)  # kept sparsities of K x (entries) int64 in CasADi (0.3 GB
-                buf, run = maps.setdefault(n, f.map(n)).buffer()  # at 40,962 vertices); the values are the same
+                buf, run = self._mapped(name, f, n).buffer()  # at 40,962 vertices); the values are the same
                 for i, a in enumerate(ins):
                     w = f.sparsity_in(i).nnz()
                     buf.set_arg(i, memoryview(a)[start * w : (start + n) * w])
@@ -250,8 +263,8 @@ class StepEvaluator:
     def linear_solve(self, Jy: sp.csc_matrix, r: np.ndarray) -> np.ndarray:
         """J_Y^-1 r for the inner Jacobian J_Y ((ng, ng)): the default solver of :meth:`inner_solve`.
 
-        With :attr:`cholesky` set (``newton-krylov`` sets it to its backend) and a linear inner equation,
-        J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one sparse Cholesky
+        With :attr:`cholesky` set (``newton-krylov`` sets it to its backend, a ``relax_newton`` flow to "auto") and a
+        linear inner equation, J_Y = (M[X] + tt L[X]) (x) I_m in node-major order, so one sparse Cholesky
         (:mod:`willmore_nlp.solvers.cholesky`) of the N x N block serves the m coordinates: at 10,242
         vertices Y[X] took 0.11-0.14 s instead of 1.24 s, and the flow's construction peaked at 0.39 GB
         instead of 0.49 GB. Otherwise scipy's sparse LU of the whole J_Y, as before: IPOPT's iterates depend

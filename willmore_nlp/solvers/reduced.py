@@ -364,8 +364,13 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     return tau / (1.0 - smallest) if smallest < 1.0 else float("inf")
 
 
-SPECTRUM_DENSE_MAX = 1500
-"""Largest count of free nodes whose :func:`normal_spectrum` is dense (above: ``lobpcg`` and preconditioned CG)."""
+SPECTRUM_DENSE_MAX = 700
+"""Largest count of free nodes whose :func:`normal_spectrum` is dense (above: ``lobpcg`` and preconditioned CG).
+Measured (one thread, relaxed states): count 1 at 642 vertices with V and A fixed 0.29 s dense, 0.25 s iterative; count
+6 on a 642-vertex ellipsoid 0.31 / 0.14 s, on a 1,424-vertex trimesh torus 1.8 / 0.53 s (the same eigenvalues to 1e-6),
+on a 2,562-vertex vesicle 6.9 / 2.6 s. The dense one cannot fail to converge (a state far from rest can make lobpcg
+fail); until 2026-11-30 (night) it ran up to 1,500 free nodes, where a relaxed torus of 1,434 vertices spent 3.6 s of
+its last step in it."""
 SPECTRUM_BLOCK = 6
 """Vectors :func:`normal_spectrum`'s ``lobpcg`` iterates beyond the ``count`` asked for (a round sphere's lowest
 eigenvalue has multiplicity 5)."""
