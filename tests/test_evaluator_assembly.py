@@ -110,6 +110,36 @@ def test_assembly_in_element_blocks_is_bitwise_the_whole_map(name: str, monkeypa
         assert np.array_equal(a, b)
 
 
+def test_evaluators_of_one_flow_share_the_mapped_kernels(monkeypatch) -> None:
+    """A flow's evaluators (one per connectivity) take the kernels mapped over element blocks from one cache: the
+    rebuild after Delaunay flips maps nothing again and evaluates bit for bit as the first evaluator; a kernel object
+    other than the cached one's gets its own map, and the cache holds two entries per kernel (block and remainder)."""
+    import casadi as ca
+
+    from willmore_nlp.model import evaluator as evaluator_module
+
+    monkeypatch.setattr(evaluator_module, "ELEMENT_BLOCK", 7)
+    setup, mesh = _problem("volume-area")
+    P = setup.problem
+    z, p, lam = _point(setup, mesh)
+    maps: dict = {}
+
+    def values(ev: StepEvaluator) -> list[np.ndarray]:
+        return [np.array([ev.f(z, p)]), ev.c_jac(z, p)[1].toarray(), ev.hess_lag_upper(z, p, 0.7, lam).toarray()]
+
+    fn = P.functions()
+    first = values(StepEvaluator(P, fn, maps))
+    assert P.K % 7 and len(maps) == 2 * len({name for name, _ in maps})
+    mapped = []
+    original = ca.Function.map
+    monkeypatch.setattr(ca.Function, "map", lambda f, *a: mapped.append(f.name()) or original(f, *a))
+    again = values(StepEvaluator(P, fn, maps))
+    assert not mapped and all(np.array_equal(a, b) for a, b in zip(first, again, strict=True))
+    kernels = dict(fn.kernels, k_f=fn.kernels["k_f"].expand())  # (another object of the same kernel)
+    assert StepEvaluator(P, P.functions(kernels), maps).f(z, p) == pytest.approx(first[0][0], rel=1e-14)
+    assert len(mapped) == 2 and maps[("k_f", True)][0] is kernels["k_f"] and len(maps) == 2 * len({n for n, _ in maps})
+
+
 def test_functions_are_built_only_when_asked() -> None:
     """A newton-krylov flow never builds an MX function (the evaluator assembles in numpy); an IPOPT flow builds
     the ones nlpsol takes and nothing it does not use (g, h)."""

@@ -675,7 +675,7 @@ class WillmoreFlow:
                               "(slower; set $CC or install gcc to compile them)", stacklevel=2)
         self._codegen = bool(codegen)
         self._compiled: dict[str, Any] | None = None
-        self._kernel_maps: dict[tuple[str, int], Any] = {}  # (the evaluators' mapped kernels, kept across rebuilds)
+        self._kernel_maps: dict[tuple[str, bool], Any] = {}  # (the evaluators' mapped kernels, kept across rebuilds)
         self.stop_requested: Callable[[], bool] = _never
         self.on_retry: Callable[[str], None] = _ignore
         self._length_unit = length_unit(mesh.vertices)  # (IPOPT's, for every step: a scaled mesh scales it)

@@ -43,14 +43,14 @@ class StepEvaluator:
         The output of :meth:`StepProblem.functions` (symbolic or compiled kernels); its kernels are the
         ones evaluated here.
     maps : dict, optional
-        The kernels mapped over element blocks, by (kernel name, block size): a cache that the evaluators of one
+        The kernels mapped over element blocks, by kernel name and block size: a cache that the evaluators of one
         flow share across its rebuilds (the same kernels on a new connectivity), where CasADi's map costs about 4 ms
         per kernel and block size (0.03 s of every rebuild after Delaunay flips at 2,562 vertices). An entry serves
         only the kernel object it was made from.
     """
 
     def __init__(self, problem: StepProblem, functions: GlobalFunctions,
-                 maps: dict[tuple[str, int], tuple[ca.Function, ca.Function]] | None = None) -> None:
+                 maps: dict[tuple[str, bool], tuple[ca.Function, int, ca.Function]] | None = None) -> None:
         self.problem = problem
         self.fn = functions
         self.kernels = functions.kernels
@@ -62,11 +62,13 @@ class StepEvaluator:
         self._sym: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # full pattern, source in the upper
 
     def _mapped(self, name: str, f: ca.Function, n: int) -> ca.Function:
-        """``f`` mapped over ``n`` elements, from the shared cache when it holds that map of this very kernel."""
-        hit = self._maps.get((name, n))
-        if hit is None or hit[0] is not f:
-            hit = self._maps[(name, n)] = (f, f.map(n))
-        return hit[1]
+        """``f`` mapped over ``n`` elements, from the shared cache when it holds that map of this very kernel (two
+        entries per kernel: the full block and the last remainder, so that remeshings do not grow it)."""
+        key = (name, n == ELEMENT_BLOCK)
+        hit = self._maps.get(key)
+        if hit is None or hit[0] is not f or hit[1] != n:
+            hit = self._maps[key] = (f, n, f.map(n))
+        return hit[2]
 
     def _kernel(self, name: str, z: np.ndarray, p: np.ndarray, *rest: Any) -> list[np.ndarray]:
         """Nonzeros of every output of kernel ``name`` mapped over the elements (element-major order) at ``z``.
