@@ -310,6 +310,30 @@ def test_relaxed_run_directory(tmp_path) -> None:
     assert 2 < len(rows) < 21 and rows[-1]["relaxed"] == "1" and all(r["relaxed"] == "0" for r in rows[:-1])
 
 
+def test_a_relaxation_without_a_length_runs_until_relaxed_and_a_cut_one_says_so(tmp_path, capsys) -> None:
+    """relax = true without steps or t_end: a problem that is not itself a relaxation (the file problem's 10 steps,
+    the sphere's t_end) runs RELAX_RUN_STEPS steps at most, ended by its relax test (a new user's trimesh torus stopped
+    at step 10 "completed" where its relaxation takes 64); a given length is kept. A relaxation that its length ends
+    before the relax test says so in status.json and on stderr, with the command that continues it."""
+    import json
+
+    from willmore_nlp.config import RELAX_RUN_STEPS
+    from willmore_nlp.runner import start
+
+    sphere = resolve("sphere", {"subdivisions": "2", "relax": "true"})
+    assert (sphere.steps, sphere.t_end) == (RELAX_RUN_STEPS, None)
+    assert resolve("sphere", {"subdivisions": "2"}).steps != RELAX_RUN_STEPS
+    assert resolve("sphere", {"subdivisions": "2", "relax": "true", "steps": "7"}).steps == 7
+    assert resolve("sphere", {"subdivisions": "2", "relax": "true", "t_end": "0.5"}).t_end == 0.5
+    assert resolve("vesicle", {"relax": "true"}).steps == resolve("vesicle", {}).steps  # (a relaxation of its own)
+    out = tmp_path / "run"
+    assert start(resolve("sphere", {"subdivisions": "2", "relax": "true", "steps": "2"}), out, quiet=True) == 0
+    message = json.loads((out / "status.json").read_text())["message"]
+    assert message == (f"not relaxed: the run's length ended it at step 2 before its relax test; continue with "
+                       f"'willmore-nlp run --resume {out} --steps N' (N a larger total)")
+    assert f"willmore-nlp: warning: {message}" in capsys.readouterr().err
+
+
 def test_relaxed_run_resumes_to_the_same_stop(tmp_path) -> None:
     """A relaxation cut short (fewer steps) and resumed ends at the same step with the same history as one
     that ran through: the relax window is rebuilt from history.csv."""

@@ -49,6 +49,12 @@ MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".npz", ".txt", ".curve", ".xy"
 MAX_TOML_BYTES = 1_000_000
 """Larger .toml files are refused before they are read (a config is a few lines)."""
 
+RELAX_RUN_STEPS = 300
+"""Length of a run given ``relax = true`` but neither ``steps`` nor ``t_end``, for a problem that is not itself a
+relaxation (the vesicle problem's 300): the relaxation ends the run when it is relaxed, and the problem's trajectory
+length would end it on the way (the file problem's 10 steps: a new user's trimesh torus of R 1, r 0.3 stopped at step
+10 "completed", where its relaxation by time steps takes 64 steps)."""
+
 
 class ConfigError(UserInputError):
     """A configuration file or override is invalid; the message names the file and key."""
@@ -206,6 +212,8 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
         t_end = None
     if t_end is not None and steps is not None and "t_end" in run and "steps" not in run:
         steps = None
+    if flow.get("relax") is True and not problem.flow_options.get("relax") and not {"steps", "t_end"} & run.keys():
+        steps, t_end = max(int(steps or 0), RELAX_RUN_STEPS), None
     spec = RunSpec(name, problem, resolved, flow, steps, t_end)
     check_spec(spec, {k: src for k, (_, src) in merged.items()})
     spec.steps = None if steps is None else int(steps)

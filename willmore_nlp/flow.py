@@ -942,7 +942,8 @@ class WillmoreFlow:
 
         Parameters
         ----------
-        count : how many of the lowest eigenvalues (at most the free nodes less the motions left out)
+        count : how many of the lowest eigenvalues; above the number of normal motions (the free nodes less the motions
+            left out) all of them (``eigenvalues`` is then shorter than ``count``)
         method : "auto", "dense" or "iterative" (:func:`~willmore_nlp.solvers.reduced.normal_spectrum`; auto: dense up
             to :data:`~willmore_nlp.solvers.reduced.SPECTRUM_DENSE_MAX` free nodes)
 

@@ -364,13 +364,14 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     return tau / (1.0 - smallest) if smallest < 1.0 else float("inf")
 
 
-SPECTRUM_DENSE_MAX = 700
+SPECTRUM_DENSE_MAX = 400
 """Largest count of free nodes whose :func:`normal_spectrum` is dense (above: ``lobpcg`` and preconditioned CG).
-Measured (one thread, relaxed states): count 1 at 642 vertices with V and A fixed 0.29 s dense, 0.25 s iterative; count
-6 on a 642-vertex ellipsoid 0.31 / 0.14 s, on a 1,424-vertex trimesh torus 1.8 / 0.53 s (the same eigenvalues to 1e-6),
-on a 2,562-vertex vesicle 6.9 / 2.6 s. The dense one cannot fail to converge (a state far from rest can make lobpcg
-fail); until 2026-11-30 (night) it ran up to 1,500 free nodes, where a relaxed torus of 1,434 vertices spent 3.6 s of
-its last step in it."""
+Measured (one thread, states near rest, the lowest eigenvalue): trimesh tori of 390 / 527 / 617 / 1,101 vertices
+0.108 / 0.19 / 0.26 / 0.96 s dense, 0.083 / 0.097 / 0.14 / 0.19 s iterative (the same eigenvalues to 1e-6); a 642-vertex
+vesicle with V and A fixed 0.29 / 0.25 s; six on the 162-vertex sphere 0.03 / 0.06 s, on a 2,562-vertex
+vesicle 6.9 / 2.6 s. The dense one cannot fail to converge (a state far from rest can make lobpcg fail); until
+2026-11-30 (night) it ran up to 1,500 free nodes, where a relaxed torus of 1,434 vertices spent 3.6 s of its last
+step in it."""
 SPECTRUM_BLOCK = 6
 """Vectors :func:`normal_spectrum`'s ``lobpcg`` iterates beyond the ``count`` asked for (a round sphere's lowest
 eigenvalue has multiplicity 5)."""
