@@ -9,7 +9,8 @@ Ellipsoid 1:1:2 (an icosphere stretched along x3; 642 and 2,562 vertices, as in
   (``iteration_budget=0, stall_iterations=0``: the behaviour before they existed);
 * ``flow``: the ordinary flow with the defaults (budget 2 x median, floor 30, none before the first
   accepted step; stall test 15);
-* ``relax``: ``relax=true`` with the defaults (tau doubles while steps are accepted, stop after the
+* ``relax``: ``relax=true`` with the defaults of its time (time steps: ``relax_newton=false``, the default until
+  2026-12-01; tau doubles while steps are accepted, stop after the
   first state whose last 3 steps lowered the Willmore energy by less than 1e-4 relative per nominal
   step, or raised it without a Delaunay flip: ``FlowSettings.relax``);
 * ``relax_nk``: the same with ``solver="newton-krylov"``;
@@ -63,7 +64,8 @@ def run_flow(mesh: Mesh, max_steps: int, stop_in_band: bool, tau_factor: float =
     t0 = time.perf_counter()
     # the cached tables predate tangential_control = auto (the surface default since then)
     flow = WillmoreFlow(mesh, tau_factor * mesh.h, 0.01 * mesh.h**2,
-                        **{"tangential_control": "off", "rest_dilation": False, **options})  # (the cached table's)
+                        **{"tangential_control": "off", "rest_dilation": False, "relax_newton": False,
+                           **options})  # (the cached table's: time steps unless relax_newton is asked for)
     build = time.perf_counter() - t0
     s0 = flow.state()
     rows: list[dict[str, Any]] = []

@@ -172,6 +172,9 @@ def test_stability_refuses_curves_large_meshes_bad_counts_lone_relax_newton(monk
         WillmoreFlow(circle, 1e-3, 1e-4).stability()
     with pytest.raises(UserInputError, match="needs relax=True and a surface in R"):
         WillmoreFlow(circle, 1e-3, 1e-4, relax=True, relax_newton=True)
+    # unset (the default): on for a relaxation of a surface in R^3 only
+    assert not WillmoreFlow(circle, 1e-3, 1e-4, relax=True).relax_newton and not _sphere_flow(1).relax_newton
+    assert _sphere_flow(1, relax=True).relax_newton and not _sphere_flow(1, relax=True, relax_newton=False).relax_newton
     monkeypatch.setattr(flow_module, "STABILITY_MAX_VERTICES", 100)
     with pytest.raises(UserInputError, match="162 vertices, above STABILITY_MAX_VERTICES = 100"):
         _sphere_flow(2).stability()
@@ -267,7 +270,7 @@ def test_a_state_far_from_rest_on_normal_motions_is_not_polished() -> None:
     to -0.03, and the message called it a minimum with a gap of nan (a new user's check). Above POLISH_MAX_GAP the
     state is left as the flow made it and the message says it is not at rest."""
     pb, _ = build("vesicle", reduced_volume=0.65, start="oblate", c0=0.8, subdivisions=2)
-    flow = pb.make_flow(relax=True)
+    flow = pb.make_flow(relax=True, relax_newton=False)  # (time steps: their relaxation ends off rest)
     last = flow.run(steps=60)[-1]
     assert flow.relaxed and flow.last_gap > 1e-2 and "polish" not in last.remeshed
     assert "; not at rest on normal motions: lowest eigenvalue" in flow.relax_message()

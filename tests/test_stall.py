@@ -174,7 +174,7 @@ def test_relax_stops_by_its_criterion_at_the_sphere(mesh_control: str) -> None:
     (reports/mesh_quality_study.md): an O(h^2) gap of the discretisation, checked here as below 1e-2."""
     mesh = _ellipsoid()
     tau, tt = mesh.h, 0.01 * mesh.h**2
-    flow = WillmoreFlow(mesh, tau, tt, relax=True, mesh_control=mesh_control)
+    flow = WillmoreFlow(mesh, tau, tt, relax=True, relax_newton=False, mesh_control=mesh_control)
     out = flow.run(steps=30)
     assert flow.relaxed and out[-1].relaxed and not any(r.relaxed for r in out[:-1])
     assert len(out) < 30 and out[-1].row()["relaxed"] == 1
@@ -214,7 +214,8 @@ def test_relax_watches_the_energy_the_flow_decreases() -> None:
 def _held_flow(mesh: Mesh, limit: float, control: str = "relax") -> WillmoreFlow:
     """A relaxing (or ``control="adaptive"``) flow (tau = h, paper's scheme) whose solver fails every attempt
     with tau > ``limit``."""
-    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, mesh_control="off", **{control: True})
+    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, mesh_control="off", **{control: True},
+                        **({"relax_newton": False} if control == "relax" else {}))  # (time steps held)
     state = {"tau": 0.0}
     params, solve = flow.params, flow.solver.solve
 
@@ -332,6 +333,29 @@ def test_a_relaxation_without_a_length_runs_until_relaxed_and_a_cut_one_says_so(
     assert message == (f"not relaxed: the run's length ended it at step 2 before its relax test; continue with "
                        f"'willmore-nlp run --resume {out} --steps N' (N a larger total)")
     assert f"willmore-nlp: warning: {message}" in capsys.readouterr().err
+
+
+def test_a_relaxation_of_a_surface_takes_newton_steps_unless_its_run_was_written_before(tmp_path) -> None:
+    """relax_newton unset (the default since 2026-12-01) is on for a relaxation of a surface in R^3: the run's steps
+    are Newton steps on normal motions and config.json records it; a run directory written before the record existed
+    resumes with time steps (its relaxation took them), one that asked for the Newton steps with them."""
+    import csv
+    import json
+
+    from willmore_nlp.runner import resume, start, stored_control
+
+    out = tmp_path / "run"
+    assert start(resolve("sphere", {"subdivisions": "2", "relax": "true", "steps": "2"}), out, quiet=True) == 0
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["relax_newton"] is True
+    assert {r["solver"] for r in csv.DictReader((out / "history.csv").open()) if r["step"] != "0"} == {"normal-newton"}
+    assert stored_control({"effective_flow_options": {}, "input_repair": ""})["relax_newton"] is False
+    assert stored_control({"effective_flow_options": {"relax_newton": True}, "input_repair": ""})["relax_newton"]
+    del cfg["relax_newton"]  # (a run directory of before the record)
+    (out / "config.json").write_text(json.dumps(cfg))
+    assert resume(out, steps=4, quiet=True) == 0
+    rows = list(csv.DictReader((out / "history.csv").open()))
+    assert [r["solver"] for r in rows[3:]] and "normal-newton" not in {r["solver"] for r in rows[3:]}
 
 
 def test_relaxed_run_resumes_to_the_same_stop(tmp_path) -> None:

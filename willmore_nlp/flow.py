@@ -600,6 +600,9 @@ class WillmoreFlow:
         next (``"step 1: tau=0.05 rejected (ipopt: solver did not converge ...); attempt 2: ipopt at
         tau=0.025"``): the command line shows it in its progress bar, so that a first step of many minutes is
         not silent. Default: nothing.
+    relax_newton : bool
+        Whether this flow's relaxation takes Newton steps on normal motions (the setting ``relax_newton``; unset:
+        a relaxation of a surface in R^3 does).
     """
 
     def __init__(self, mesh: Mesh, tau: float, tau_tilde: float, *, lam: float = 0.0, boundary: Any = None,
@@ -634,6 +637,8 @@ class WillmoreFlow:
         if s.relax_newton and not (s.relax and mesh.d == 2 and mesh.m == 3):
             raise UserInputError(f"{mesh.source}: relax_newton=True is how a relaxation of a surface in R^3 steps: it "
                                  "needs relax=True and a surface in R^3")
+        # (unset: on for a relaxation of a surface in R^3)
+        self.relax_newton = s.relax and mesh.d == 2 and mesh.m == 3 and s.relax_newton is not False
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
         # convex_start: the convexity limit tau_c of the first step and the restarts its Lanczos iteration had
         self._tau_c: tuple[float, int] | None = None
@@ -769,8 +774,8 @@ class WillmoreFlow:
         if self._compiled is not None:
             kernels = self._compiled
         self.evaluator = StepEvaluator(self.problem, self.problem.functions(kernels), self._kernel_maps)
-        if self.settings.relax_newton:  # Y[X] of the Newton steps' trials and of the mesh control by the sparse
-            self.evaluator.cholesky = "auto"  # Cholesky of the N x N block: 2,562 v, 0.30 -> 0.26 s per step
+        if self.relax_newton:  # Y[X] of the Newton steps' trials and of the mesh control by the sparse Cholesky
+            self.evaluator.cholesky = "auto"  # of the N x N block: 2,562 v, 0.30 -> 0.26 s per step
         self._make_solver(self._step_solvers()[0])
 
     def _solver_names(self) -> set[str]:
@@ -1111,7 +1116,7 @@ class WillmoreFlow:
         if self.settings.relax:
             grown = self.tau if np.isinf(self._tau_adapt) else self._tau_adapt
             tau = min(self.relax_max_tau, self._time_left, grown)
-            if self.settings.relax_newton and self._spectrum_fits():
+            if self.relax_newton and self._spectrum_fits():
                 newton = self._newton_relax_step(tau, t0)
                 if newton is not None:
                     return newton

@@ -335,6 +335,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     cfg["rest_dilation"] = flow.settings.rest_dilation
     cfg["flip_rest"] = flow.settings.flip_rest
     cfg["adaptive_max_wait"] = flow.settings.adaptive_max_wait
+    cfg["relax_newton"] = flow.relax_newton
     cfg["flow_steps"] = {"tau": flow.tau, "tau_tilde": flow.tau_tilde, "h": flow.mesh.h}  # of the mesh flowed
     with SignalGuard(ignore_late_signals) as guard:
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
@@ -366,7 +367,8 @@ def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]
     without either record, 2026-11-29: their refinements were global); its ``rest_dilation`` record (false for runs
     written before it existed, 2026-11-29: their drift was kept); its ``flip_rest`` record (0 for runs written before it
     existed, 2026-11-30: every non-Delaunay edge was flipped); its ``adaptive_max_wait`` record (0, no limit, for runs
-    written before it existed, 2026-11-30); and
+    written before it existed, 2026-11-30); its ``relax_newton`` record (for runs written before it existed, 2026-12-01,
+    the option they gave, else false: their relaxations took time steps); and
     ``input_repair = false`` for runs written before the input repair existed (no ``input_repair`` record: their initial
     state is the input as given, and the repair would give the flow another connectivity) and for runs whose repair did
     nothing (an empty record: the input as given, also when a later rule would remesh it, as a ``remesh_target`` does
@@ -385,7 +387,8 @@ def stored_control(cfg: dict[str, Any], clamped: bool = False) -> dict[str, Any]
            "refine_local": (cfg["refine_scope"] == "local" if "refine_scope" in cfg
                             else bool(cfg.get("refine_local", False)) and not clamped),
            "rest_dilation": bool(cfg.get("rest_dilation", False)), "flip_rest": float(cfg.get("flip_rest", 0.0)),
-           "adaptive_max_wait": int(cfg.get("adaptive_max_wait", 0))}
+           "adaptive_max_wait": int(cfg.get("adaptive_max_wait", 0)),
+           "relax_newton": bool(cfg.get("relax_newton", given.get("relax_newton", False)))}
     return out if cfg.get("input_repair") else {**out, "input_repair": False}
 
 

@@ -582,14 +582,16 @@ class FlowSettings(Settings):
         (column ``stability_gap``). Curves ignore it; above ``STABILITY_MAX_VERTICES`` (50,000), or when the
         iterative eigensolver of larger surfaces does not converge, the message says the state was not tested (and
         why). Default true.
-    relax_newton : bool
+    relax_newton : bool or None
         A relaxation of a surface in R^3 (of at most ``STABILITY_MAX_VERTICES`` vertices) takes Newton steps on
         normal motions of the scheme's energy (:meth:`~willmore_nlp.flow.WillmoreFlow.stability`'s ``newton``, as
         Surface Evolver's ``hessian_seek``) instead of time steps wherever its Hessian there is positive definite:
         each at most ``RELAX_NEWTON_CAP`` h long, halved until the energy falls and the mesh stays above the repair
         thresholds (history solver ``normal-newton``); elsewhere, and when no such step is found, the flow's step.
-        The relax test and ``relax_check`` are unchanged, and Newton steps leave the step size as it was. Needs
-        ``relax`` and a surface in R^3 (refused otherwise). Default false.
+        The relax test and ``relax_check`` are unchanged, and Newton steps leave the step size as it was. Unset (the
+        default since 2026-12-01): on for every relaxation of a surface in R^3, off otherwise; true needs ``relax``
+        and a surface in R^3 (refused otherwise); false: time steps only (the vesicle problem's default, with which
+        its reports were made).
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme: no repair
         between steps and ``tangential_control = "auto"`` is "off"; an explicit "meanratio" is kept).
@@ -734,7 +736,7 @@ class FlowSettings(Settings):
     relax_tol: float = option(1e-4, real(0))
     relax_max_tau: float | None = option(None, real(0, lo_open=True, unset="100 tau"))
     relax_check: bool = option(True, BOOL)
-    relax_newton: bool = option(False, BOOL)
+    relax_newton: bool | None = option(None, BOOL_OR_UNSET)
     mesh_control: str = option("auto", one_of("auto", "off"))
     remesh: str = option("auto", one_of("auto", "off"))
     input_repair: bool = option(True, BOOL)
