@@ -224,13 +224,14 @@ def test_resume_keeps_the_tangential_control_the_run_started_with(tmp_path) -> N
     del cfg["rest_dilation"], cfg["flow_options"]["rest_dilation"], cfg["effective_flow_options"]["rest_dilation"]
     del cfg["flip_rest"], cfg["flow_options"]["flip_rest"], cfg["effective_flow_options"]["flip_rest"]
     assert cfg.pop("adaptive_max_wait") == 64
+    assert cfg.pop("relax_newton") is False  # (no relaxation)
     (old / "config.json").write_text(json.dumps(cfg))
     assert stored_control(cfg) == {"tangential_control": "off", "tangential_control_weight": 0.3,
                                    "conformal_gauge": False, "steps_from_h": "none", "solver": "ipopt",
                                    "first_step_solver": "", "fallback_solver": "", "large_solver": "",
                                    "large_vertices": 0, "remesh_repair": 2, "refine_local": False,
                                    "rest_dilation": False, "flip_rest": 0.0, "adaptive_max_wait": 0,
-                                   "input_repair": False}
+                                   "relax_newton": False, "input_repair": False}
     r = subprocess.run([*CLI, "run", "--resume", str(old), "--steps", "4", "--quiet"], capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr
