@@ -4,7 +4,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from willmore_nlp.fem.assembly import mass_stiffness
+from willmore_nlp.fem.assembly import lumped_mass, mass_stiffness, stiffness_action
 from willmore_nlp.fem.element import mass_matrix, measure, stiffness_matrix
 from willmore_nlp.mesh import shapes
 
@@ -65,3 +65,15 @@ def test_global_matrices_properties() -> None:
     np.testing.assert_allclose(L @ np.ones(mesh.n_vertices), 0, atol=1e-12)
     # Dirichlet energy of the coordinate functions: int |grad_M x|^2 = d * area for a surface
     np.testing.assert_allclose(np.einsum("ic,ic->", V, L @ V), 2 * area, rtol=1e-12)
+
+
+@pytest.mark.parametrize("mesh", [shapes.icosphere(2), shapes.regular_polygon(24, m=3), shapes.spherical_cap(4)],
+                         ids=["sphere", "curve-in-R3", "cap"])
+def test_stiffness_action_is_the_assembled_stiffness_applied(mesh) -> None:
+    """stiffness_action (element by element, nothing assembled) gives the assembled L V and the lumped mass, on a
+    closed surface, a curve in R^3 and a surface with boundary, to rounding."""
+    V = mesh.vertices + 0.01 * np.random.default_rng(1).normal(size=mesh.vertices.shape)
+    LV, mass = stiffness_action(V, mesh.simplices)
+    L = mass_stiffness(V, mesh.simplices)[1]
+    np.testing.assert_allclose(LV, L @ V, rtol=0, atol=1e-13 * np.abs(L @ V).max())
+    np.testing.assert_allclose(mass, lumped_mass(V, mesh.simplices), rtol=1e-14)

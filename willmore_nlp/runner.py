@@ -242,14 +242,15 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
             flow.run(t_end=t_end, steps=remaining, callback=on_step)
         if guard.signum is None:
             relaxed = flow.relax_message()
-            if flow.settings.relax and not relaxed:
+            cut = flow.settings.relax and not relaxed  # (a relaxation that its length ended)
+            if cut:
                 relaxed = (f"not relaxed: the run's length ended it at step {flow.k} before its relax test; continue "
                            f"with 'willmore-nlp run --resume {out} --steps N' (N a larger total)")
             writer.set_status("completed", **({"message": relaxed} if relaxed else {}))
             if not quiet:
                 bar.close()
                 print(f"wrote {out} ({flow.k} steps, t = {flow.t:.6g}{'; ' + relaxed if relaxed else ''})")
-            if relaxed.startswith("not relaxed") and quiet:
+            elif cut:
                 print(f"willmore-nlp: warning: {relaxed}", file=sys.stderr)
             last = flow.mesh.with_vertices(flow.X)
             coarse = resolution_warning(last, willmore_energy(last))
