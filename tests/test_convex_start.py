@@ -312,3 +312,35 @@ def test_a_first_look_that_finds_nothing_is_followed_by_the_full_one_after_a_fai
     assert looks == [reduced.CONVEXITY_FIRST_RESTARTS, reduced.CONVEXITY_RESTARTS]
     assert (two.retries, one.retries) == (2, 1) and one.tau == two.tau
     assert np.array_equal(one.vertices, two.vertices)
+
+
+def test_a_refinement_lowers_the_floor_to_the_edge_of_its_finest_part(tmp_path) -> None:
+    """trimesh's box subdivided 3 times (386 v) with V and A fixed, the ``file`` problem's defaults: the flow sharpens
+    the corners into cones and refines near them after steps 1 and 9 (386 -> 646 -> 681 v, edge there / 1.41 each),
+    and the refined state's step problem is convex only below tau_c = 1.42e-6 (measured), under the initial mesh's floor
+    0.01 h^4 = 4.1e-6: step 10 failed with that floor. The floor follows the finest edge (/ 4 per refinement, as
+    tau_tilde / 2), step 10 is taken below the initial floor, V and A are kept; a flow restarted from a history with
+    those refinements has the same floor."""
+    trimesh.creation.box().subdivide().subdivide().subdivide().export(tmp_path / "box.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "box.obj"))
+    flow = pb.make_flow(volume="initial", area="initial")
+    floor0 = flow.min_tau
+    assert floor0 == pytest.approx(1e-2 * flow.mesh.h**4, rel=1e-12)
+    V0, A0 = geometry.enclosed_volume(flow.mesh), geometry.measure(flow.mesh)
+    with pytest.warns(UserWarning, match="refined"):
+        steps = flow.run(steps=10)
+    refined = [r.step for r in steps if "refine" in r.remeshed.split("+")]
+    assert refined[:2] == [1, 9]
+    assert flow.min_tau == pytest.approx(floor0 / 4 ** len(refined), rel=1e-12)
+    assert steps[9].tau < floor0 and steps[9].tau >= flow.min_tau
+    state = flow.mesh.with_vertices(flow.X)
+    assert geometry.enclosed_volume(state) == pytest.approx(V0, rel=1e-10)
+    assert geometry.measure(state) == pytest.approx(A0, rel=1e-10)
+    again = pb.make_flow(volume="initial", area="initial")
+    rows = [{"step": r.step, "remesh_action": r.remeshed} for r in steps]
+    again.restart(flow.X, flow.Y, flow.t, flow.k, simplices=flow.mesh.simplices, history=rows,
+                  last_tau=steps[-1].tau, tau_tilde=flow.tau_tilde)
+    assert again.min_tau == flow.min_tau
+    given = pb.make_flow(volume="initial", area="initial", min_tau=1e-5)
+    given.restart(flow.X, flow.Y, flow.t, flow.k, simplices=flow.mesh.simplices, history=rows)
+    assert given.min_tau == 1e-5  # (a given floor is kept as given)

@@ -640,8 +640,10 @@ class WillmoreFlow:
         # (unset: on for a relaxation of a surface in R^3)
         self.relax_newton = s.relax and mesh.d == 2 and mesh.m == 3 and s.relax_newton is not False
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
-        # convex_start: the convexity limit tau_c of the first step and the restarts its Lanczos iteration had
+        # convex_start: the convexity limit tau_c of the first step (or of the first after a refinement) and the
+        # restarts its Lanczos iteration had
         self._tau_c: tuple[float, int] | None = None
+        self._refined_at = -1  # the step after which the mesh was last refined (-1: never)
         self.initial_mesh = mesh
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
         self.relaxed = False
@@ -1132,13 +1134,13 @@ class WillmoreFlow:
         for name in solvers:
             if self.solver.name != name:  # after a first step of first_step_solver, or the fallback_solver's turn
                 self._make_solver(name)
-            if self.k == 0 and name == solvers[0] == "newton-krylov" and self.settings.max_retries \
+            if self._new_state() and name == solvers[0] == "newton-krylov" and self.settings.max_retries \
                     and not self.problem.nh:  # (outer constraints: below tau_c only for the last attempt, see below)
                 start = self._convex_start(tau0, 0)  # (its failed attempts are the costly ones: look first)
                 tau_c = self._convex_far(tau0) if start is None and len(solvers) > 1 else None
                 if tau_c is not None:
-                    warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = "
-                                  f"{tau_c:.3g}, under the step-size floor min_tau = {floor:.3g}: "
+                    warnings.warn(f"step {self.k + 1}: the step problem is convex at {self._state_name()} only "
+                                  f"below tau = {tau_c:.3g}, under the step-size floor min_tau = {floor:.3g}: "
                                   f"{solvers[1]} takes the step", stacklevel=2)
                     rejected.append(f"tau={tau0:.6g}: {name}: {SKIP_REASON} = {floor:.3g}")
                     continue  # (its attempts failed at tau / 2^j, all far above tau_c: the fallback's turn)
@@ -1165,7 +1167,7 @@ class WillmoreFlow:
                 # with outer constraints tau_c is a lower bound (convexity_limit) and only the last attempt goes below
                 # it: a vesicle cup (v = 0.55, 642 v, tau_c = tau / 128) takes its first step at tau / 4
                 looks = attempt == self.settings.max_retries - 1 if self.problem.nh else attempt <= 1
-                jump = self._convex_start(tau0, min(attempt + 1, 2)) if looks and self.k == 0 and start is None \
+                jump = self._convex_start(tau0, min(attempt + 1, 2)) if looks and self._new_state() and start is None \
                     and not last else None
                 tau = tau / 2 if jump is None else jump
         if below is not None:
@@ -1673,6 +1675,7 @@ class WillmoreFlow:
             return "", {}
         if "refine" in actions:
             self._refinements += 1
+            self._refined_at, self._tau_c = self.k, None  # (convex_start: the next step is on a new discretisation)
             where = (f"near its sharp edges, {old[0].n_vertices} -> {self.mesh.n_vertices} vertices, edge there / "
                      f"{REFINE_FACTOR:.3g}" if fine is not None else
                      f"{old[0].n_vertices} -> {self.mesh.n_vertices} vertices, mean edge {h_old:.3g} -> "
@@ -1847,13 +1850,36 @@ class WillmoreFlow:
                 f"length): above about h^2 the step loses tangential convexity and the optimiser clusters "
                 f"nodes (docs/theory/tau_tilde.md); use tau_tilde <= h^2 and take large steps in tau instead"),
                 stacklevel=3)
-        self.min_tau = 1e-2 * h**4 if s.min_tau is None else s.min_tau
+        self._min_tau = 1e-2 * h**4 if s.min_tau is None else s.min_tau
         self.relax_max_tau = 100 * self.tau if s.relax_max_tau is None else s.relax_max_tau
         if self.relax_max_tau < self.tau:
             raise UserInputError(f"relax_max_tau must be a number >= tau = {self.tau:g}, got {s.relax_max_tau!r}")
 
+    @property
+    def min_tau(self) -> float:
+        """The step-size floor: ``min_tau`` when given, else 0.01 h^4 with h the mean edge of the mesh the flow started
+        on, divided by :data:`REFINE_FACTOR` for each refinement (``refine_dihedral``), the edge of its finest part (as
+        a refinement divides tau_tilde, ~ h^2, by REFINE_FACTOR^2). Measured: trimesh's box subdivided 3 times (386
+        v) with V and A fixed, refined at steps 1 and 9 (386 -> 646 -> 681 v) near the corners that the flow sharpens
+        into cones: its step problem after the second refinement is convex only below tau_c = 1.42e-6 (2.29e-5 /
+        16.1) where the floor of the initial h was 4.1e-6, and the run failed at step 10; with the floor of the
+        finest part (2.6e-7) it goes on (docs/guide/terms.md)."""
+        if self.settings.min_tau is not None:
+            return self._min_tau
+        return self._min_tau / REFINE_FACTOR ** (4 * self._refinements)
+
+    def _new_state(self) -> bool:
+        """Whether the next step starts on a new discretisation: the first step, or the first after a refinement
+        (``convex_start`` looks at its convexity limit)."""
+        return self.k == 0 or self._refined_at == self.k
+
+    def _state_name(self) -> str:
+        """The state of :meth:`_new_state` in messages."""
+        return "the initial state" if self.k == 0 else f"the state refined at step {self.k}"
+
     def _convex_start(self, tau: float, failed: int) -> float | None:
-        """``convex_start``: the first step's next step size below the step problem's convexity limit tau_c at X^0
+        """``convex_start``: the next step size of the first step (or of the first after a refinement,
+        :meth:`_new_state`) below the step problem's convexity limit tau_c at X^k
         (:func:`~willmore_nlp.solvers.reduced.convexity_limit`), with adaptive or relax steps, after ``failed`` failed
         attempts: when a first look (:data:`~willmore_nlp.solvers.reduced.CONVEXITY_FIRST_RESTARTS`) finds tau_c <
         tau / :data:`CONVEX_FAR`, before the first attempt (``failed`` 0: newton-krylov's) or after it (1: other
@@ -1889,18 +1915,19 @@ class WillmoreFlow:
         for limit in (tau_c / 2, tau_c):
             j = int(np.ceil(np.log2(tau / limit)))
             if tau / 2**j >= floor:
-                warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = {tau_c:.3g} "
-                              f"= tau / {tau / tau_c:.3g}; the {'next' if failed else 'first'} attempt is at tau / "
-                              f"2^{j} = {tau / 2**j:.3g} (convex_start=false "
+                warnings.warn(f"step {self.k + 1}: the step problem is convex at {self._state_name()} only below "
+                              f"tau = {tau_c:.3g} = tau / {tau / tau_c:.3g}; the {'next' if failed else 'first'} "
+                              f"attempt is at tau / 2^{j} = {tau / 2**j:.3g} (convex_start=false "
                               f"{'halves instead' if failed else 'starts at tau'})", stacklevel=4)
                 return tau / 2**j
         if failed == 2:  # (once: after the second failure)
             last = tau / 2**s.max_retries
-            warnings.warn(f"step 1: the step problem is convex at the initial state only below tau = {tau_c:.3g} = tau "
-                          f"/ {tau / tau_c:.3g}, and the step sizes tau / 2^j below it are under the step-size floor "
-                          f"min_tau = {floor:.3g}: the attempts go on halving to tau / 2^{s.max_retries} = {last:.3g} "
-                          f"(max_retries), {last / tau_c:.3g} times tau_c, where they may all fail (--set "
-                          f"min_tau={tau_c / 4:.2g} lets the next one start below tau_c)", stacklevel=4)
+            warnings.warn(f"step {self.k + 1}: the step problem is convex at {self._state_name()} only below tau = "
+                          f"{tau_c:.3g} = tau / {tau / tau_c:.3g}, and the step sizes tau / 2^j below it are under the "
+                          f"step-size floor min_tau = {floor:.3g}: the attempts go on halving to tau / "
+                          f"2^{s.max_retries} = {last:.3g} (max_retries), {last / tau_c:.3g} times tau_c, where they "
+                          f"may all fail (--set min_tau={tau_c / 4:.2g} lets the next one start below tau_c)",
+                          stacklevel=4)
         return None
 
     def _convex_far(self, tau: float) -> float | None:
@@ -2098,8 +2125,9 @@ class WillmoreFlow:
         self._relax_start(w0)
         self._kicks, self.last_stability, self.last_gap = 0, float("nan"), float("nan")
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
-        self._refinements = sum("refine" in str(r.get("remesh_action") or "").split("+") for r in history or []
-                                if int(float(r["step"])) <= self.k)
+        refines = [int(float(r["step"])) for r in history or []
+                   if "refine" in str(r.get("remesh_action") or "").split("+") and int(float(r["step"])) <= self.k]
+        self._refinements, self._refined_at, self._tau_c = len(refines), max(refines, default=-1), None
         column = self._relax_column
         for r in history or []:
             replayed = "willmore_energy" in r and int(float(r["step"])) == self.k

@@ -505,7 +505,8 @@ class FlowSettings(Settings):
         2 (tau_c when that is below ``min_tau``) instead of at tau / 4, when tau_c < tau / 16 (``flow.CONVEX_JUMP``:
         beyond the default four halvings), and already before newton-krylov's first attempt (after IPOPT's or another
         solver's first failure) when a first, cheap Lanczos look finds tau_c < tau / 10^5 (``flow.CONVEX_FAR``); the
-        adaptive steps then grow from there (a warning names it). A noisy input's step problem is convex only below tau
+        adaptive steps then grow from there (a warning names it). The first step after a refinement
+        (``refine_dihedral``), a new discretisation, is treated as a first step. A noisy input's step problem is convex only below tau
         / 10^3 - tau / 10^7 (its noise is smoothed on that time scale, about 0.01-0.04 h^4): its first step at tau / 2^j
         is a non-convex problem that the solvers took after several failed attempts or not at all, where from tau_c the
         steps converge at their first attempt in 4-9 Newton iterations while tau doubles (docs/guide/mesh_quality.md,
@@ -518,7 +519,10 @@ class FlowSettings(Settings):
         Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
         fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
         (h = initial mean edge): below the paper's smallest step h^4 by more than the four
-        default halvings, and so small that reaching t = O(1) would take > 100 h^-4 steps.
+        default halvings, and so small that reaching t = O(1) would take > 100 h^-4 steps. Each
+        refinement (``refine_dihedral``) divides the default by 4, the edge of the finest part being
+        h / sqrt 2 there (a refined cube corner's step problem was convex only below a third of the
+        initial floor, and the run failed there; :attr:`WillmoreFlow.min_tau`).
     iteration_budget : float
         Iteration budget of a step's solve, as a multiple of the median iteration count of the
         last 20 accepted steps (default 2; 0 turns the budget off): a solve still unconverged after
