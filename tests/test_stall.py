@@ -9,7 +9,7 @@ from willmore_nlp import WillmoreFlow, geometry
 from willmore_nlp.analysis import sphere_step_radius
 from willmore_nlp.config import ConfigError, resolve
 from willmore_nlp.errors import UserInputError
-from willmore_nlp.flow import RELAX_WINDOW, StepInterrupted
+from willmore_nlp.flow import NEWTON_SOLVER, RELAX_WINDOW, StepInterrupted
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.references import sphere_nodes
@@ -209,6 +209,30 @@ def test_relax_watches_the_energy_the_flow_decreases() -> None:
         assert message.startswith(f"relaxed: step {flow.k} ended {RELAX_WINDOW} steps")
         assert ("the scheme's energy" in message) == (c0 != 0) and flow.relax_reason in ("small", "rose")
         assert ("relax_tol" in message) == (flow.relax_reason == "small")
+
+
+
+def test_a_newton_step_counts_as_one_nominal_step_whatever_tau_the_time_steps_were_held_at() -> None:
+    """The relax test counts a time step of tau_i < tau as tau_i / tau steps, a Newton step on normal motions
+    (``relax_newton``) as one. A new user's cylinder with V and A fixed (315 v) was held at tau / 256 by its first
+    time steps, and its Newton steps, whose length does not depend on tau, then had to change W 256 times less than
+    relax_tol to end: 100 steps crawled toward a saddle found at step 141, and the run failed at step 161. The same
+    window of W (relative changes 5e-5 per step, below relax_tol = 1e-4) ends as Newton steps and not as time steps
+    at tau / 256; a restart replays the history's solver column to the same window."""
+    mesh = _ellipsoid()
+    w = [30.0 * (1 - 5e-5 * k) for k in range(RELAX_WINDOW + 1)]
+    rows = [{"step": 0, "t": 0.0, "tau": mesh.h, "willmore_energy": w[0], "retries": 0}]
+    for newton in (True, False):
+        flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, relax=True)
+        flow._relax_start(w[0])
+        ends = [flow._relax_test(v, flow.tau / 256, "repair", newton) for v in w[1:]]
+        assert ends == [False] * (RELAX_WINDOW - 1) + [newton]
+        history = rows + [{"step": k, "t": k * flow.tau / 256, "tau": flow.tau / 256, "willmore_energy": v,
+                           "retries": 0, "remesh_action": "repair", "solver": NEWTON_SOLVER if newton else "ipopt"}
+                          for k, v in enumerate(w[1:], 1)]
+        again = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, relax=True)
+        again.restart(flow.X, flow.Y, history[-1]["t"], RELAX_WINDOW, last_tau=flow.tau / 256, history=history)
+        assert again._relax_window == flow._relax_window
 
 
 def _held_flow(mesh: Mesh, limit: float, control: str = "relax") -> WillmoreFlow:

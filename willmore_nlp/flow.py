@@ -1321,7 +1321,7 @@ class WillmoreFlow:
             # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
             # energy changed by less than relax_tol relative per nominal step, or rose without a flip
             value = self._watched(result)
-            result.relaxed = self.relaxed = self._relax_test(value, tau, action)
+            result.relaxed = self.relaxed = self._relax_test(value, tau, action, solver_name == NEWTON_SOLVER)
             if self.relaxed and self._checks_saddles():
                 lowest = self._stability_at_rest()
                 result.stats.update(stability=lowest, stability_gap=self.last_gap)
@@ -1344,7 +1344,8 @@ class WillmoreFlow:
                     new.remeshed = "+".join([*filter(None, [action]), moved])
                     value = self._watched(new)
                     if moved == "saddle":  # (the window restarts from the state off the saddle)
-                        new.relaxed = self.relaxed = self._relax_test(value, tau, new.remeshed)
+                        new.relaxed = self.relaxed = self._relax_test(value, tau, new.remeshed,
+                                                                      solver_name == NEWTON_SOLVER)
                     else:  # (the window ends at the polished state, as a restart replays it)
                         self._relax_window[-1] = (value, *self._relax_window[-1][1:])
                         new.relaxed = True
@@ -1797,11 +1798,12 @@ class WillmoreFlow:
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "+".join(actions)
         self._input_min_angle = q0["min_angle"]
-        warnings.warn(f"{mesh.source}: the input mesh is below the mesh control's thresholds (smallest angle "
+        patch = "" if b1 is None or b1.free.all() else " of its moving patch"  # (a clamped strip keeps its own)
+        warnings.warn(f"{mesh.source}: the input mesh is below the mesh control's thresholds (smallest angle{patch} "
                       f"{q0['min_angle']:.3g} deg, edge ratio {q0['edge_ratio']:.3g}); repaired before the first step "
-                      f"by {' and '.join(actions)}: {mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle "
-                      f"{q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g} (input_repair=false flows it as "
-                      f"given)", stacklevel=3)
+                      f"by {' and '.join(actions)}: {mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle"
+                      f"{patch} {q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g} (input_repair=false "
+                      f"flows it as given)", stacklevel=3)
         return new, b1
 
     def _remesh_input(self, mesh: Mesh, boundary: Any, target: float,
@@ -2043,19 +2045,23 @@ class WillmoreFlow:
         self._rest_steps = 0
         return True
 
-    def _relax_test(self, willmore: float, tau: float, action: str) -> bool:
+    def _relax_test(self, willmore: float, tau: float, action: str, newton: bool = False) -> bool:
         """Record an accepted state in the relax window and say whether the relaxation has ended.
 
         A state counts unless its step was followed by smoothing, remeshing or a move off a saddle (``action``; the
         light repair follows every step and counts); such a state restarts the window from itself (and a move off a
         saddle is counted, ``relax_check``). The relaxation ends when over the window the Willmore energy changed by
         less than ``relax_tol`` relative per nominal step (a step of tau_i < tau counts as tau_i / tau steps: a flow
-        held at small steps by retries still ends), or rose with no Delaunay flip in the window (the scheme's own
-        drift at rest; a flip alone moves the energy by ~1e-3 on 642 vertices; not after a move off a saddle, from
-        which the energy may rise first).
+        held at small steps by retries still ends; a Newton step on normal motions, ``newton``, as one step whatever
+        the step size its time steps were held at: counted as tau_i / tau, a new user's cylinder with V and A fixed
+        crawled 100 Newton steps at tau / 256 toward a saddle that the test found at step 141 and failed at step 161;
+        counted as one step, its relaxation ended at step 77 in 18 s, on a saddle that it had left MAX_SADDLE_KICKS
+        times, w = 1.404 8 pi, where time steps throughout end at step 248 in 110 s, w = 1.322 8 pi), or rose with no
+        Delaunay flip in the window (the scheme's own drift at rest; a flip alone moves the energy by ~1e-3 on 642
+        vertices; not after a move off a saddle, from which the energy may rise first).
         """
         parts = set(action.split("+"))
-        entry = (willmore, "flips" in parts, min(1.0, tau / self.tau))
+        entry = (willmore, "flips" in parts, 1.0 if newton else min(1.0, tau / self.tau))
         self._kicks += "saddle" in parts
         ok = not ({"smooth", "saddle"} | NEW_VERTICES) & parts
         w = self._relax_window = [*self._relax_window, entry][-RELAX_WINDOW - 1:] if ok else [entry]
@@ -2136,9 +2142,10 @@ class WillmoreFlow:
             elif int(float(r["step"])) == 0:
                 self._relax_start(float(r[column]))
             else:
-                if r.get("solver") != NEWTON_SOLVER:
+                newton = r.get("solver") == NEWTON_SOLVER
+                if not newton:
                     self._grow_tau(float(r["tau"]), int(float(r["retries"])))
-                self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""))
+                self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""), newton)
                 if r.get("stability") not in (None, "") and np.isfinite(float(r["stability"])):
                     self.last_stability, self.last_gap = float(r["stability"]), float(r.get("stability_gap", "nan"))
         if not replayed:

@@ -506,13 +506,13 @@ class FlowSettings(Settings):
         beyond the default four halvings), and already before newton-krylov's first attempt (after IPOPT's or another
         solver's first failure) when a first, cheap Lanczos look finds tau_c < tau / 10^5 (``flow.CONVEX_FAR``); the
         adaptive steps then grow from there (a warning names it). The first step after a refinement
-        (``refine_dihedral``), a new discretisation, is treated as a first step. A noisy input's step problem is convex only below tau
-        / 10^3 - tau / 10^7 (its noise is smoothed on that time scale, about 0.01-0.04 h^4): its first step at tau / 2^j
-        is a non-convex problem that the solvers took after several failed attempts or not at all, where from tau_c the
-        steps converge at their first attempt in 4-9 Newton iterations while tau doubles (docs/guide/mesh_quality.md,
-        "Below the convexity limit"). With a volume or area constraint tau_c is that of the step problem without them,
-        a lower bound, and only the last attempt (``max_retries``) goes below it, with no first look
-        (docs/guide/terms.md, "Volume and area of closed surfaces"). A first step taken at tau or tau / 2,
+        (``refine_dihedral``), a new discretisation, is treated as a first step. A noisy input's step problem is convex
+        only below tau / 10^3 - tau / 10^7 (its noise is smoothed on that time scale, about 0.01-0.04 h^4): its first
+        step at tau / 2^j is a non-convex problem that the solvers took after several failed attempts or not at all,
+        where from tau_c the steps converge at their first attempt in 4-9 Newton iterations while tau doubles
+        (docs/guide/mesh_quality.md, "Below the convexity limit"). With a volume or area constraint tau_c is that of the
+        step problem without them, a lower bound, and only the last attempt (``max_retries``) goes below it, with no
+        first look (docs/guide/terms.md, "Volume and area of closed surfaces"). A first step taken at tau or tau / 2,
         and every smooth input, are unchanged (the first look costs 0.1-10 s: on newton-krylov's first step, on other
         solvers' where a first attempt failed). Default true.
     min_tau : float, optional
@@ -552,23 +552,21 @@ class FlowSettings(Settings):
         wandering solve is left to the budget (a test on the best values so far cut solves of the
         Fig. 11 bunny that wander for 90 iterations and then converge). IPOPT only.
     relax : bool
-        Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after
-        every step accepted at its first attempt (like ``adaptive``) up to ``relax_max_tau``; after a
-        failed doubling it is held for 2, 4, 8, ... steps before the next try. :meth:`run` stops early,
-        with ``relaxed`` set, after the first state whose last 3 steps (``RELAX_WINDOW``) lowered the
-        Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale invariant; with an anisotropy alone
-        the anisotropic Willmore energy, also scale invariant; with ``lam``, ``c0``, outer constraints or a user's term
-        that is not Moebius invariant the scheme's energy e, which the flow lowers) by less than ``relax_tol``
-        relative per nominal step (a step of tau_i < tau counts as tau_i / tau steps),
-        or raised it with no Delaunay flip (not counting steps after which the mesh was smoothed or remeshed;
-        the light repair, ``remesh_repair``, follows every step and counts; one step is too noisy a measure: a
-        Delaunay flip alone moves the energy by ~1e-3 on 642 vertices). Near the
-        equilibrium the scheme keeps moving the nodes: tangentially (the Willmore energy then
-        rises by ~1e-3 on a 162-vertex sphere) and by an O(tau_tilde) drift that shrinks closed
-        surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere, docs/theory/pitfalls.md), which ends in
-        a collapse after long times (t ~ 10-100 for unit surfaces with tau_tilde = h^2/100;
-        docs/guide/solver_studies.md). The discrete energy e falls all along it, so it cannot serve
-        as the stopping test.
+        Equilibrium mode, for a minimiser rather than a trajectory: the step size doubles after every step accepted at
+        its first attempt (like ``adaptive``) up to ``relax_max_tau``; after a failed doubling it is held for 2, 4, 8,
+        ... steps before the next try. :meth:`run` stops early, with ``relaxed`` set, after the first state whose last 3
+        steps (``RELAX_WINDOW``) lowered the Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale
+        invariant; with an anisotropy alone the anisotropic Willmore energy, also scale invariant; with ``lam``, ``c0``,
+        outer constraints or a user's term that is not Moebius invariant the scheme's energy e, which the flow lowers)
+        by less than ``relax_tol`` relative per nominal step (a time step of tau_i < tau counts as tau_i / tau steps, a
+        Newton step of ``relax_newton`` as one), or raised it with no Delaunay flip (not counting steps after which the
+        mesh was smoothed or remeshed; the light repair, ``remesh_repair``, follows every step and counts; one step is
+        too noisy a measure: a Delaunay flip alone moves the energy by ~1e-3 on 642 vertices). Near the equilibrium the
+        scheme keeps moving the nodes: tangentially (the Willmore energy then rises by ~1e-3 on a 162-vertex sphere) and
+        by an O(tau_tilde) drift that shrinks closed surfaces (dR/dt = -16 tau_tilde / R^5 for a sphere,
+        docs/theory/pitfalls.md), which ends in a collapse after long times (t ~ 10-100 for unit surfaces with tau_tilde
+        = h^2/100; docs/guide/solver_studies.md). The discrete energy e falls all along it, so it cannot serve as the
+        stopping test.
     relax_tol : float
         Relative decrease of the watched energy (the Willmore energy, or e: ``relax``) per nominal step (of size
         tau) below which a relaxation ends (default 1e-4).
