@@ -111,6 +111,34 @@ def test_surface_evolver_reference_or_clean_skip(tmp_path, monkeypatch) -> None:
         write_datafile(shapes.regular_polygon(8, m=3), tmp_path / "c.fe")
 
 
+def test_a_surface_read_from_a_file_has_an_evolver_reference_and_a_helfrich_case_none(tmp_path) -> None:
+    """A new user's check: ``compare file --set path=capsule.off --evolver N`` always recorded "skipped" (the file
+    problem sets step-size and solver options, and any option but three path options skipped it). Now a closed surface
+    from a file gets Evolver's reference (its initial energy close to this library's, the final one lower and above
+    8 pi), and a case whose ``--option`` sets c0 or a volume constraint is skipped with a reason naming them."""
+    import numpy as np
+    import trimesh
+
+    from willmore_nlp.apps.study import evolver_rows
+    from willmore_nlp.evolver import find_evolver
+
+    trimesh.creation.capsule(height=1.0, radius=0.5, count=[8, 8]).export(tmp_path / "capsule.off")
+    params = {"path": str(tmp_path / "capsule.off")}
+    cases = [*make_grid("file", ["ipopt"], ["h"], params=params, steps=1),
+             *make_grid("file", ["ipopt"], ["h"], params=params, steps=1, options={"c0": 1.0}),
+             *make_grid("file", ["ipopt"], ["h"], params=params, steps=1, options={"volume": "initial"})]
+    with pytest.warns(UserWarning):
+        rows = evolver_rows(cases, 100)
+    assert len(rows) == 3 and [r.get("options") for r in rows] == [None, {"c0": 1.0}, {"volume": "initial"}]
+    if find_evolver() is None:
+        assert all("not installed" in r["skipped"] for r in rows)
+        return
+    plain = rows[0]
+    assert "skipped" not in plain and 8 * np.pi < plain["final"] < plain["initial"]
+    assert plain["w_initial"] == pytest.approx(plain["initial"], rel=0.15)  # two discretisations of one energy
+    assert all("Willmore energy alone" in r["skipped"] for r in rows[1:])
+
+
 def test_case_records_the_resolved_tangential_control(tmp_path) -> None:
     """On a surface "auto" resolves per solver: meanratio for IPOPT, off for the semi-implicit baseline."""
     recs = {s: run_case(Case("sphere", s, "h", {"subdivisions": 1}, 1), str(tmp_path))

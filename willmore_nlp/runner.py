@@ -485,8 +485,9 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                     print(f"{d}: the run ended at step {done_k}, {writer.status.get('message', 'relaxed')}; nothing "
                           "to resume (--steps or --t-end continue it past its rest)")
                 return 0
-            for w in built:
-                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+            for w in built:  # (the input repair's, "before the first step", only when the run is still before it)
+                if done_k == 0 or "before the first step" not in str(w.message):
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
             if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
                 raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
                                f"new total length, which cannot be shorter (the run is unchanged)")

@@ -246,9 +246,22 @@ def check_cases(cases: list[Case]) -> None:
             raise StudyError(f"case {_label({'case': asdict(case)})}: {exc}") from exc
 
 
-PATH_OPTIONS = {"tangential_weight", "remesh_repair", "conformal_gauge"}
-"""Flow options of a problem that change the path of its flow (the tangential motion, the mesh repair, the Moebius
-gauge), not the energy that :func:`evolver_rows`' reference minimises."""
+
+
+ENERGY_OPTIONS = ("c0", "anisotropy", "volume", "area", "terms")
+"""Flow options that change the energy a flow lowers (its other options change the path: step sizes, solvers, the mesh
+control, the tangential motion)."""
+
+
+def _willmore_alone(lam: float, options: dict[str, Any]) -> bool:
+    """Whether a flow with ``lam`` and the flow ``options`` (a problem's with a case's) lowers the Willmore energy
+    alone, what Evolver's reference minimises. Before 2026-12-01 any option but three path options skipped the
+    reference, so a file problem, which sets its step-size rules, never had one, while a case's ``--option c0=...``
+    went unseen."""
+    from willmore_nlp.settings import moebius_invariant
+
+    return moebius_invariant(lam, float(options.get("c0") or 0.0), options.get("anisotropy"), options.get("volume"),
+                             options.get("area")) and not options.get("terms")
 
 
 def evolver_rows(cases: list[Case], iterations: int) -> list[dict[str, Any]]:
@@ -263,18 +276,21 @@ def evolver_rows(cases: list[Case], iterations: int) -> list[dict[str, Any]]:
     from willmore_nlp.geometry import willmore_energy
 
     rows: list[dict[str, Any]] = []
-    seen: list[dict[str, Any]] = []
+    seen: list[tuple[dict[str, Any], dict[str, Any]]] = []
     for c in cases:
-        if c.params in seen:
+        energy = {k: c.options[k] for k in ENERGY_OPTIONS if k in c.options}
+        if (c.params, energy) in seen:
             continue
-        seen.append(c.params)
-        row: dict[str, Any] = {"problem": c.problem, "params": c.params}
+        seen.append((c.params, energy))
+        row: dict[str, Any] = {"problem": c.problem, "params": c.params, **({"options": energy} if energy else {})}
         pb, _ = registry.build(c.problem, **c.params)
         mesh = pb.mesh
         if find_evolver() is None:
             row["skipped"] = "Surface Evolver (evolver-nox) is not installed"
-        elif mesh.d != 2 or not mesh.is_closed or set(pb.flow_options) - PATH_OPTIONS:
-            row["skipped"] = "the reference is for closed surfaces without boundary conditions or anisotropy"
+        elif mesh.d != 2 or mesh.m != 3 or not mesh.is_closed or not _willmore_alone(pb.lam,
+                                                                                    {**pb.flow_options, **energy}):
+            row["skipped"] = ("the reference is for the Willmore energy alone of closed surfaces in R^3 (no boundary "
+                              "conditions, anisotropy, lam, c0, volume, area or extra terms)")
         else:
             try:
                 row.update(evolver_reference(mesh, iterations), w_initial=willmore_energy(mesh))
@@ -465,7 +481,7 @@ def write_study(out: str | os.PathLike[str]) -> Path:
                   "| parameters | w here (initial) | Evolver initial | Evolver after g N | N |",
                   "|---|---|---|---|---|"]
         for r in json.loads(ev.read_text(encoding="utf-8")):
-            par = " ".join(f"{k}={v}" for k, v in r["params"].items()) or "defaults"
+            par = " ".join(f"{k}={v}" for k, v in {**r["params"], **r.get("options", {})}.items()) or "defaults"
             if "skipped" in r:
                 lines.append(f"| {par} | skipped: {r['skipped']} | | | |")
             else:
