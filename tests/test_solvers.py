@@ -117,6 +117,10 @@ def test_semi_implicit_baseline_reproduces_the_circle_ode_to_first_order() -> No
     cap, free, _ = cap_mesh(4)
     with pytest.raises(ValueError, match="no clamped boundaries"):
         WillmoreFlow(cap, 0.1, 0.01, solver="semi-implicit", boundary=Boundary(free, "ring"))
+    # (first, before a term it cannot take: a clamped arc was told to drop the tangential weight its problem had set,
+    # and then that the baseline has no clamped boundaries; a new-user check)
+    with pytest.raises(ValueError, match="no clamped boundaries"):
+        WillmoreFlow(cap, 0.1, 0.01, solver="semi-implicit", boundary=Boundary(free, "ring"), tangential_weight=10)
     with pytest.raises(ValueError, match="isotropic"):
         WillmoreFlow(mesh, 0.1, 0.01, solver="semi-implicit", anisotropy="gamma1")
 

@@ -172,8 +172,8 @@ def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,
     lam : length/area energy weight
     tau_tilde : inner step (the discrete equilibrium radius of a k-fold polygon depends on it)
     times : (n_states,) times of the run's states (for the expanding circle)
-    flow_options : the run's effective flow options (``boundary``, ``anisotropy``, ``volume``, ``area`` and a
-        nonzero ``c0`` switch the isotropic references off)
+    flow_options : the run's effective flow options (``boundary``, ``anisotropy``, both ``volume`` and ``area``, a
+        nonzero ``c0``, and one of ``volume`` and ``area`` on a curve switch the isotropic references off)
 
     Returns
     -------
@@ -185,14 +185,17 @@ def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,
     if str(flow_options.get("anisotropy", "gamma0")) != "gamma0":
         return [], "anisotropic energy: no closed-form value (compare with the Wulff shape)"
     held = [k for k in ("volume", "area") if flow_options.get(k) is not None]
-    if held:  # (a vesicle's report showed "Target: sphere", 8 pi and a gap of +19.6: a new-user check)
-        return [], (f"{' and '.join(held)} held fixed: the sphere or circle is not reachable (a vesicle run's "
-                    "report has an axisymmetric reference in its Vesicle section; docs/guide/vesicles.md)")
+    if len(held) == 2:  # (a vesicle's report showed "Target: sphere", 8 pi and a gap of +19.6: a new-user check)
+        return [], ("volume and area held fixed: the sphere is not reachable (a vesicle run's report has an "
+                    "axisymmetric reference in its Vesicle section; docs/guide/vesicles.md)")
     if float(flow_options.get("c0") or 0.0) != 0.0:
         return [], "spontaneous curvature c0: no closed-form target shape"
     if not mesh.is_closed or _components(mesh) != 1:
         return [], "not a single closed curve or surface"
     V, S = mesh.vertices, mesh.simplices
+    if held and mesh.d == 1:
+        return [], (f"a curve with its {'enclosed area' if held == ['volume'] else 'length'} held fixed: not the "
+                    "expanding circle; no closed-form reference used here")
     if mesh.d == 1:
         k = max(1, round(abs(segment_winding(V, S)))) if mesh.m == 2 else 1
         what = f"{k}-fold circle" if k > 1 else "circle"
@@ -223,4 +226,8 @@ def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,
     if not _outward(mesh, target):
         return [Reference("willmore_energy", label, smooth)], f"the mesh does not map onto the {what} without folding"
     w = willmore_energy(mesh, vertices=target)
-    return [Reference("willmore_energy", label, smooth, w, f"this mesh's vertices moved onto the {what}")], what
+    # (one of V and A held: W is scale invariant, and the sphere or Clifford torus of that V or A is the target; a
+    # new-user check, 2026-12-01: the report said "not reachable" while a 162-v ellipsoid with V held reached it)
+    note = what + (f" ({held[0]} held fixed: W is scale invariant, the target is the {what} of that {held[0]})"
+                   if held else "")
+    return [Reference("willmore_energy", label, smooth, w, f"this mesh's vertices moved onto the {what}")], note

@@ -106,6 +106,9 @@ def check_solver(name: str, problem: Any, options: dict[str, Any] | None = None)
     """
     settings = solver_settings(name).from_options(dict(options or {}))
     capabilities, noun = _CAPABILITIES[name]
+    check_problem = getattr(_SOLVERS[name][0], "check_problem", None)  # (what the solver cannot take at all, first)
+    if check_problem is not None:
+        check_problem(problem)
     for cap, term in problem.requires().items():
         if cap not in capabilities:
             able = ", ".join(n for n in solver_names() if cap in _CAPABILITIES[n][0])

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -57,12 +58,18 @@ class SemiImplicitSolver:
     name = "semi-implicit"
 
     def __init__(self, evaluator: StepEvaluator, settings: SemiImplicitSettings) -> None:
-        P = evaluator.problem
+        self.check_problem(evaluator.problem)
+        self.ev = evaluator
+        self.P = evaluator.problem
+
+    @staticmethod
+    def check_problem(P: Any) -> None:
+        """UserInputError unless the step problem ``P`` is a closed curve's or a closed surface's in R^3 (checked before
+        the terms, :func:`~willmore_nlp.solvers.base.check_solver`: a clamped arc was first told to drop the tangential
+        weight that its problem had set, then that the baseline has no clamped boundaries)."""
         if P.nX != P.n_vertices or (P.simplices.shape[1] == 3 and P.m != 3):
             raise UserInputError("solver semi-implicit: the baseline is implemented for closed curves and closed "
-                             "surfaces in R^3 (no clamped boundaries)")
-        self.ev = evaluator
-        self.P = P
+                                 "surfaces in R^3 (no clamped boundaries)")
 
     def solve(self, z0: np.ndarray, p: np.ndarray, lam_g0: np.ndarray | None = None) -> SolveResult:
         """X^{k+1} from X^k = the Xk block of ``p``; ``z0`` is not used."""
