@@ -246,8 +246,6 @@ def check_cases(cases: list[Case]) -> None:
             raise StudyError(f"case {_label({'case': asdict(case)})}: {exc}") from exc
 
 
-
-
 ENERGY_OPTIONS = ("c0", "anisotropy", "volume", "area", "terms")
 """Flow options that change the energy a flow lowers (its other options change the path: step sizes, solvers, the mesh
 control, the tangential motion)."""
