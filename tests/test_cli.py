@@ -339,3 +339,28 @@ def test_a_problem_of_ones_own_runs_and_resumes_from_python_and_the_cli_says_how
     assert r.returncode == 2
     assert "problem 'stretched_ellipsoid' is not registered here" in r.stderr
     assert "willmore_nlp.runner.resume(RUN)" in r.stderr
+
+
+def test_the_progress_bar_is_redrawn_while_a_step_runs(monkeypatch) -> None:
+    """A new user's check: an 8,192-vertex torus showed "0/8 [00:00<?" for the 340 s of its first step (tqdm redraws
+    only on an update). The bar now has a daemon thread that redraws it every HEARTBEAT_SECONDS (so its elapsed time
+    runs) and stops with it; a quiet run has none. A retry's reason in the bar is cut at a word, with "..."."""
+    import time
+
+    from willmore_nlp import runner
+    from willmore_nlp.flow import _shortened
+
+    monkeypatch.setattr(runner, "HEARTBEAT_SECONDS", 0.01)
+    bar = runner._Bar(10, "step", quiet=False)
+    drawn: list[float] = []
+    bar.bar.refresh = lambda *args, **kw: drawn.append(time.monotonic())
+    deadline = time.monotonic() + 30
+    while len(drawn) < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    bar.close()
+    assert len(drawn) >= 3 and bar._beat is not None and not bar._beat.is_alive()
+    assert runner._Bar(10, "step", quiet=True)._beat is None
+    text = "tau=0.0896: newton-krylov: solver did not converge (maximum iterations, 63 iterations) " * 3
+    short = _shortened(text)
+    assert len(short) <= 160 and short.endswith("...") and text.startswith(short[:-3]) and text[len(short) - 3] == " "
+    assert _shortened("short reason") == "short reason"

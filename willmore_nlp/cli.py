@@ -70,8 +70,11 @@ def default_run_dir(target: str, root: str | os.PathLike[str] = "runs") -> Path:
 
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                       file: Any = None, line: str | None = None) -> None:
-    """Show a warning as one line ``willmore-nlp: warning: ...`` on stderr."""
-    print(f"willmore-nlp: warning: {message}", file=sys.stderr)
+    """Show a warning as one line ``willmore-nlp: warning: ...`` on stderr, on a line of its own above a progress bar
+    (tqdm.write; printed directly, it was glued to the bar's line: a new user's check)."""
+    from tqdm import tqdm
+
+    tqdm.write(f"willmore-nlp: warning: {message}", file=sys.stderr)
 
 
 def cmd_problems(args: argparse.Namespace) -> int:

@@ -547,6 +547,15 @@ def _explicit(boundary: Any) -> bool:
     return boundary is not None and (boundary.conormal is not None or boundary.ring is not None)
 
 
+def _shortened(text: str, limit: int = 160) -> str:
+    """``text`` cut at the last word boundary before ``limit`` characters, with "..." (a retry's reason in the progress
+    bar: cut at a fixed character, "36 itera)" read as garbled)."""
+    if len(text) <= limit:
+        return text
+    cut = text.rfind(" ", 0, limit - 3)
+    return text[:cut if cut > 0 else limit - 3] + "..."
+
+
 def _target(value: float | str | None, name: str, mesh: Mesh) -> float | None:
     """Target of the ``volume`` or ``area`` option (validated by FlowSettings); "initial": the initial mesh's."""
     if value == "initial":
@@ -1154,7 +1163,7 @@ class WillmoreFlow:
                     below = tau
                     break
                 if rejected:
-                    self.on_retry(f"step {self.k + 1}: {rejected[-1].replace(': ', ' rejected (', 1)[:160]}); "
+                    self.on_retry(f"step {self.k + 1}: {_shortened(rejected[-1].replace(': ', ' rejected (', 1))}); "
                                   f"attempt {tries + 1}: {name} at tau={tau:.3g}")
                 X, Y, res, reason, moved = self._attempt(tau, attempt >= self.settings.max_retries)
                 spent += res.iterations if res is not None else 0

@@ -27,6 +27,7 @@ import json
 import os
 import signal
 import sys
+import threading
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -191,8 +192,14 @@ class SignalGuard:
 
 
 # -- progress ------------------------------------------------------------------------------
+HEARTBEAT_SECONDS = 1.0
+"""The progress bar is redrawn this often while a step is under way, so that its elapsed time runs (a new user's check,
+2026-12-01: a torus of 8,192 vertices showed "0/8 [00:00<?" for the 340 s of its first step)."""
+
+
 class _Bar:
-    """Progress display: steps or simulated time (tqdm; silent with ``quiet``)."""
+    """Progress display: steps or simulated time (tqdm; silent with ``quiet``), redrawn every
+    :data:`HEARTBEAT_SECONDS` by a daemon thread (display only: it reads nothing of the flow)."""
 
     def __init__(self, total: float | None, unit: str, quiet: bool, initial: float = 0.0) -> None:
         from tqdm import tqdm
@@ -201,6 +208,15 @@ class _Bar:
         self.bar = tqdm(total=total, unit="" if self.by_time else "step", disable=quiet, initial=initial,
                         bar_format="{l_bar}{bar}| {n:.4g}/{total:.4g} [{elapsed}<{remaining}{postfix}]"
                         if self.by_time else None)
+        self._stop = threading.Event()
+        self._beat = None if quiet else threading.Thread(target=self._heartbeat, name="willmore-nlp progress",
+                                                         daemon=True)
+        if self._beat is not None:
+            self._beat.start()
+
+    def _heartbeat(self) -> None:
+        while not self._stop.wait(HEARTBEAT_SECONDS):
+            self.bar.refresh()
 
     def update(self, r: StepResult) -> None:
         self.bar.set_postfix(step=r.step, t=f"{r.t:.4g}", it=r.iterations, W=f"{r.willmore:.5g}",
@@ -215,6 +231,9 @@ class _Bar:
         self.bar.set_postfix_str(text)
 
     def close(self) -> None:
+        self._stop.set()
+        if self._beat is not None:
+            self._beat.join()
         self.bar.close()
 
 
@@ -260,7 +279,8 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
         raise _StopRequestedError
     except (_StopRequestedError, StepInterrupted) as exc:
         name = signal.Signals(guard.signum or signal.SIGINT).name
-        during = f" (step {exc.step} under way was abandoned)" if isinstance(exc, StepInterrupted) else ""
+        during = (f" (step {exc.step} under way was abandoned: a resume starts it over)"
+                  if isinstance(exc, StepInterrupted) else "")
         writer.set_status("interrupted", signal=name, message=f"stopped by {name} after step {flow.k}{during}")
         bar.close()
         print(f"willmore-nlp: interrupted by {name} after step {flow.k} (t = {flow.t:.6g}){during}; {out} is a "
