@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import textwrap
 import time
 import warnings
 from collections.abc import Callable, Collection, Sequence
@@ -120,6 +121,10 @@ def _ignore(text: str) -> None:
 
 class StepSizeWarning(UserWarning):
     """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (docs/theory/tau_tilde.md)."""
+
+
+class InputRepairWarning(UserWarning):
+    """``input_repair`` changed the input before the first step (a resume past that step does not repeat it)."""
 
 
 MAX_MESH_SIZE = 1e5
@@ -548,12 +553,9 @@ def _explicit(boundary: Any) -> bool:
 
 
 def _shortened(text: str, limit: int = 160) -> str:
-    """``text`` cut at the last word boundary before ``limit`` characters, with "..." (a retry's reason in the progress
-    bar: cut at a fixed character, "36 itera)" read as garbled)."""
-    if len(text) <= limit:
-        return text
-    cut = text.rfind(" ", 0, limit - 3)
-    return text[:cut if cut > 0 else limit - 3] + "..."
+    """``text`` cut at a word to at most ``limit`` characters, with "..." (a retry's reason in the progress bar: cut at
+    a fixed character, "36 itera)" read as garbled)."""
+    return textwrap.shorten(text, limit, placeholder="...")
 
 
 def _target(value: float | str | None, name: str, mesh: Mesh) -> float | None:
@@ -1808,11 +1810,12 @@ class WillmoreFlow:
         self.input_repair = "+".join(actions)
         self._input_min_angle = q0["min_angle"]
         patch = "" if b1 is None or b1.free.all() else " of its moving patch"  # (a clamped strip keeps its own)
-        warnings.warn(f"{mesh.source}: the input mesh is below the mesh control's thresholds (smallest angle{patch} "
-                      f"{q0['min_angle']:.3g} deg, edge ratio {q0['edge_ratio']:.3g}); repaired before the first step "
-                      f"by {' and '.join(actions)}: {mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle"
-                      f"{patch} {q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g} (input_repair=false "
-                      f"flows it as given)", stacklevel=3)
+        warnings.warn(InputRepairWarning(
+            f"{mesh.source}: the input mesh is below the mesh control's thresholds (smallest angle{patch} "
+            f"{q0['min_angle']:.3g} deg, edge ratio {q0['edge_ratio']:.3g}); repaired before the first step by "
+            f"{' and '.join(actions)}: {mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle{patch} "
+            f"{q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g} (input_repair=false flows it as given)"),
+            stacklevel=3)
         return new, b1
 
     def _remesh_input(self, mesh: Mesh, boundary: Any, target: float,
@@ -1832,9 +1835,10 @@ class WillmoreFlow:
         new = Mesh(X1, F1, mesh.source)
         self.input_repair = "remesh"
         self._input_min_angle = q0["min_angle"]
-        warnings.warn(f"{mesh.source}: remeshed toward remesh_target = {target:g} before the first step: "
-                      f"{mesh.n_vertices} -> {new.n_vertices} vertices, smallest angle {q1['min_angle']:.3g} deg, edge "
-                      f"ratio {q1['edge_ratio']:.3g} (input_repair=false flows it as given)", stacklevel=4)
+        warnings.warn(InputRepairWarning(
+            f"{mesh.source}: remeshed toward remesh_target = {target:g} before the first step: {mesh.n_vertices} -> "
+            f"{new.n_vertices} vertices, smallest angle {q1['min_angle']:.3g} deg, edge ratio {q1['edge_ratio']:.3g} "
+            "(input_repair=false flows it as given)"), stacklevel=4)
         return new, b1
 
     def _step_scales(self, mesh: Mesh) -> None:
@@ -1868,13 +1872,13 @@ class WillmoreFlow:
 
     @property
     def min_tau(self) -> float:
-        """The step-size floor: ``min_tau`` when given, else 0.01 h^4 with h the mean edge of the mesh the flow started
-        on, divided by :data:`REFINE_FACTOR` for each refinement (``refine_dihedral``), the edge of its finest part (as
-        a refinement divides tau_tilde, ~ h^2, by REFINE_FACTOR^2). Measured: trimesh's box subdivided 3 times (386
-        v) with V and A fixed, refined at steps 1 and 9 (386 -> 646 -> 681 v) near the corners that the flow sharpens
-        into cones: its step problem after the second refinement is convex only below tau_c = 1.42e-6 (2.29e-5 /
-        16.1) where the floor of the initial h was 4.1e-6, and the run failed at step 10; with the floor of the
-        finest part (2.6e-7) it goes on (docs/guide/terms.md)."""
+        """The step-size floor: ``min_tau`` when given, else 0.01 h^4, where h (the mean edge of the mesh the flow
+        started on) is divided by :data:`REFINE_FACTOR` for each refinement (``refine_dihedral``): the edge of its
+        finest part (as a refinement divides tau_tilde, ~ h^2, by REFINE_FACTOR^2). Measured: trimesh's box subdivided 3
+        times (386 v) with V and A fixed, refined at steps 1 and 9 (386 -> 646 -> 681 v) near the corners that the flow
+        sharpens into cones: its step problem after the second refinement is convex only below tau_c = 1.42e-6 (2.29e-5
+        / 16.1) where the floor of the initial h was 4.1e-6, and the run failed at step 10; with the floor of the finest
+        part (2.6e-7) it goes on (docs/guide/terms.md)."""
         if self.settings.min_tau is not None:
             return self._min_tau
         return self._min_tau / REFINE_FACTOR ** (4 * self._refinements)

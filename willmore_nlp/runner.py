@@ -43,6 +43,7 @@ from willmore_nlp.flow import (
     FLOOR_REASON,
     FOLD_REASON,
     FlowError,
+    InputRepairWarning,
     StepInterrupted,
     StepResult,
     WillmoreFlow,
@@ -505,8 +506,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                     print(f"{d}: the run ended at step {done_k}, {writer.status.get('message', 'relaxed')}; nothing "
                           "to resume (--steps or --t-end continue it past its rest)")
                 return 0
-            for w in built:  # (the input repair's, "before the first step", only when the run is still before it)
-                if done_k == 0 or "before the first step" not in str(w.message):
+            for w in built:  # (the input repair's only when the run is still before its first step)
+                if done_k == 0 or not issubclass(w.category, InputRepairWarning):
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
             if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
                 raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
