@@ -122,9 +122,8 @@ def vesicle(reduced_volume: float = 0.65, start: str = "oblate", c0: float = 0.0
         t_end: float | None = CUP_T_END
     else:
         tau_ = h * h / 25 if tau is None else float(tau)
-        # (time steps: the reports and the phase diagram were made with them; relax_newton=true takes Newton steps)
-        options.update(relax=True, relax_max_tau=8 * tau_, relax_tol=1e-5, tangential_control=SPHEROID_CONTROL,
-                       relax_newton=False)
+        # (relax_newton unset: Newton steps on normal motions where the Hessian there is positive definite)
+        options.update(relax=True, relax_max_tau=8 * tau_, relax_tol=1e-5, tangential_control=SPHEROID_CONTROL)
         t_end = None
     return Problem(mesh, tau_, tt_, 0.0, steps=steps, t_end=t_end, flow_options=options,
                    description=f"{start} vesicle of reduced volume {reduced_volume} relaxing at fixed V and A",

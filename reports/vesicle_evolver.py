@@ -43,7 +43,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from willmore_nlp.evolver import DEFAULT_SCHEDULE, evolver_equilibrium, find_evolver
-from willmore_nlp.flow import FlowError
+from willmore_nlp.flow import NEWTON_SOLVER, FlowError
 from willmore_nlp.geometry import enclosed_volume, measure, quality, willmore_energy
 from willmore_nlp.mesh import shapes
 from willmore_nlp.mesh.core import Mesh
@@ -186,7 +186,9 @@ def run_flows(done: dict[tuple[str, float, int], dict[str, Any]], save: Any = No
             "start": start, "v": v, "n": M.n_vertices, "n0": pb.mesh.n_vertices, "mesh": M,
             "w": (res[-1].willmore if res else willmore_energy(M)) / (8 * np.pi), "steps": len(res),
             "relaxed": flow.relaxed, "error": error, "t": flow.t, "wall": time.time() - t,
-            "iterations": sum(r.iterations for r in res), "thick": thick, "offset": off,
+            "iterations": sum(r.iterations for r in res if r.stats.get("solver") != NEWTON_SOLVER),
+            "newton_steps": sum(r.stats.get("solver") == NEWTON_SOLVER for r in res),
+            "energy": (res[-1].energy if res else float("nan")) / (8 * np.pi), "thick": thick, "offset": off,
             "depth": invagination_depth(M), "w_history": [r.willmore / (8 * np.pi) for r in res],
             "dV": max((abs(r.volume / V0 - 1) for r in res), default=0.0),
             "dA": max((abs(r.measure / A0 - 1) for r in res), default=0.0),
@@ -212,23 +214,28 @@ def join_flows(rows: list[dict[str, Any]], done: dict[tuple[str, float, int], di
 
 def flow_section(flows: list[dict[str, Any]]) -> list[str]:
     """Markdown of this library's relaxations against Evolver on the same start mesh and the reference."""
+    ex = next((f for f in flows if (f["start"], f["v"], f["n0"]) == ("oblate", 0.65, 642)), flows[0])
     lines = ["## This library's flow (`willmore-nlp run vesicle`) on the same starts", "",
-             "The registered `vesicle` problem with its defaults (V and A fixed as outer constraints, relax mode, "
-             "mesh control on; from the cup: a run to t = 0.3 at tau = 2e-3, adaptive, with the mean-ratio "
-             "tangential control, see problems/vesicle.py). `flow w` and `ours of Evolver` = this library's "
+             "The registered `vesicle` problem with its defaults (V and A fixed as outer constraints; from a "
+             "spheroid the relax mode, Newton steps on normal motions where the energy's Hessian there is "
+             "positive definite and time steps elsewhere (`relax_newton`); from the cup a run to t = 0.3 at "
+             "tau = 2e-3, adaptive, with the mean-ratio tangential control; mesh control on; see "
+             "problems/vesicle.py). `steps` = Newton + time steps; `IPOPT iterations` are the time steps'. "
+             "`flow w` and `ours of Evolver` = this library's "
              "Willmore energy (`geometry.willmore_energy`, lumped mass; history column `willmore_energy`) of the "
              "flow's last state and of Evolver's final mesh. The flow does not minimise it but the scheme's "
-             "energy (history column `energy`), which differs from it by O(h^2): on the oblate v = 0.65 start at "
-             "642 vertices (7 steps, 532 v at the end; defaults of 2026-11-30) w / 8 pi = 1.7831 against the "
-             "scheme's energy / 8 pi = 1.8358 (+3.0%). So `flow / that - 1` compares two meshes by a quantity "
+             "energy (history column `energy`), which differs from it by O(h^2): on the "
+             f"{ex['start']} v = {ex['v']} start at {ex['n0']} vertices ({ex['steps']} steps, {ex['n']} v at the "
+             f"end) w / 8 pi = {ex['w']:.4f} against the scheme's energy / 8 pi = {ex['energy']:.4f} "
+             f"({ex['energy'] / ex['w'] - 1:+.1%}). So `flow / that - 1` compares two meshes by a quantity "
              "neither run minimises, and may have either sign. `vs ref` = flow / axisymmetric reference - 1 (the "
              "O(h^2) gap of this "
              "library's discretisation at 642 vertices; Evolver's discretisation has its own, above). "
              "dV, dA: largest relative constraint error over all accepted states.", "",
              "`w range` = smallest and largest w of the last 10 accepted states (the discrete energy's noise at a "
              "stomatocyte's neck: Delaunay flips and the light repair move it).", "",
-             "| start | v | vertices | flow w | w range | steps (relaxed) | t | IPOPT iterations | wall s "
-             "| ours of Evolver "
+             "| start | v | vertices | flow w | w range | steps: Newton + time (relaxed) | t | IPOPT iterations "
+             "| wall s | ours of Evolver "
              "| flow / that - 1 "
              "| Evolver | reference | vs ref | axis | shape | dV | dA | min angle |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -237,7 +244,7 @@ def flow_section(flows: list[dict[str, Any]]) -> list[str]:
         n = f"{f['n0']}" if f["n"] == f["n0"] else f"{f['n0']} (-> {f['n']})"
         last = f["w_history"][-10:] or [f["w"]]
         lines.append(f"| {f['start']} | {f['v']} | {n} | **{f['w']:.6f}** | {min(last):.4f}-{max(last):.4f} | "
-                     f"{f['steps']} ({relaxed}) | "
+                     f"{f['newton_steps']} + {f['steps'] - f['newton_steps']} ({relaxed}) | "
                      f"{f['t']:.3g} | {f['iterations']} | {f['wall']:.0f} | {f['ours_of_evolver']:.6f} | "
                      f"{f['w'] / f['ours_of_evolver'] - 1:+.3%} | {f['evolver']:.6f} | {f['ref']:.6f} | "
                      f"{f['w'] / f['ref'] - 1:+.2%} | {f['thick']:.2f}, {f['offset']:+.2f} | "
@@ -430,9 +437,11 @@ def cup_findings(ref: dict[tuple[float, str], dict[str, Any]], rows: list[dict[s
                         for (pv, n), q in sorted(polish.items()) if pv == v)
         out.append(f"- Cup start, v = {v} (stomatocyte reference {e:.4f}{disc_s}): Evolver (5x schedule) {evs}. "
                    f"This library's flow: {fls}." + (f" Evolver from the flow's final mesh: {pol}." if pol else ""))
+    gaps = ", ".join(f"{f['start']} v = {f['v']} {f['w'] / f['ref'] - 1:+.1%}" for f in flows
+                     if f["n0"] == 642 and f["start"] != "cup")
     return [*out, "- The flow closes the cup into a stomatocyte (outer sphere, inner pocket, one neck; figure), "
             "below the discocyte's energy, with the gap to the reference of this discretisation at 642 vertices "
-            "(discocyte -2.2%, prolate -1.1%, table below). At v = 0.5 the cross-section follows the reference "
+            f"(the spheroids' flows: {gaps}; table below). At v = 0.5 the cross-section follows the reference "
             "contour; at v = 0.55 the neck moved sideways (the pocket is not axisymmetric). The axis through the "
             "vertex mean misses the narrow neck in both (column axis); `shape` uses `has_pocket` (vertical "
             "lines near the axis piercing the surface 4 times). Evolver (normal motion, fixed connectivity) "

@@ -219,7 +219,7 @@ def test_vesicle_problem_start() -> None:
         assert pb.flow_options == {"volume": "initial", "area": "initial", "c0": 0.5, "relax": True,
                                    "relax_max_tau": 8 * pb.tau, "relax_tol": 1e-5,
                                    "tangential_weight": SPHEROID_WEIGHT, "tangential_control": "off",
-                                   "input_repair": False, "relax_newton": False}
+                                   "input_repair": False}
         assert resolved["start"] == start and pb.mesh.n_vertices == 162
         X = pb.mesh.vertices
         assert (np.ptp(X[:, 2]) > np.ptp(X[:, 0])) == (start == "prolate")
