@@ -375,6 +375,44 @@ def test_tight_iteration_limit_retries_and_records(tmp_path: Path) -> None:
     assert h[2]["t"] == 2 * 0.05 / 8
 
 
+def test_status_names_the_last_state_and_the_retry_under_way(tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """While a run goes on, status.json names its last state written (at accepted states, at most every
+    STATUS_SECONDS) and the retry under way (``under_way``: the attempt rejected and the one that follows, the progress
+    bar's text), cleared at the next accepted state and at the end. Before, it named the session's first state
+    until the run ended (a new user's check: an 8,192-vertex torus's 190-s attempts showed nowhere but in the bar).
+    Snapshots of the file taken after each refresh of the ellipse run whose steps take 3 retries each."""
+    from willmore_nlp import rundir
+
+    snaps: list[dict[str, object]] = []
+    progress = rundir.RunWriter.progress
+
+    def recorded(self: rundir.RunWriter, under_way: str | None = None) -> None:
+        progress(self, under_way)
+        snaps.append(json.loads((self.out / "status.json").read_text()))
+
+    monkeypatch.setattr(rundir.RunWriter, "progress", recorded)
+    monkeypatch.setattr(rundir, "STATUS_SECONDS", 0.0)  # (every accepted state refreshes it)
+    out = tmp_path / "run"
+    assert cli.main(["run", str(_ellipse_toml(tmp_path, 3)), "--out", str(out), "--steps", "2", "--quiet"]) == 0
+    retries = [s for s in snaps if "under_way" in s]
+    assert [s["step"] for s in retries] == [0, 0, 0, 1, 1, 1] and all(s["state"] == "running" for s in snaps)
+    assert retries[0]["under_way"].startswith("step 1: tau=0.05 rejected (solver did not converge")
+    assert retries[0]["under_way"].endswith("attempt 2: ipopt at tau=0.025")
+    assert retries[-1]["under_way"].startswith("step 2: tau=0.0125 rejected")
+    accepted = [s for s in snaps if "under_way" not in s]
+    assert [s["step"] for s in accepted] == [1, 2] and accepted[1]["t"] == 2 * 0.05 / 8
+    final = json.loads((out / "status.json").read_text())
+    assert final["state"] == "completed" and "under_way" not in final and final["step"] == 2
+    # an accepted state within STATUS_SECONDS of the last write is not written (the states are fsynced already):
+    # a circle's steps without retries: the file is written at the session's start only
+    for seconds, steps in ((3600.0, [None] * 3), (0.0, [1, 2, 3])):  # (None: before state 0 was written)
+        monkeypatch.setattr(rundir, "STATUS_SECONDS", seconds)
+        snaps.clear()
+        assert cli.main(["run", *ARGS, "--steps", "3", "--out", str(tmp_path / f"c{seconds:g}")]) == 0
+        assert [s["step"] for s in snaps] == steps
+
+
 def test_solver_failure_stops_cleanly_and_is_recorded(tmp_path: Path) -> None:
     out = tmp_path / "run"
     r = run_cli("run", _ellipse_toml(tmp_path, 1), "--out", out, "--steps", "2", "--quiet")

@@ -10,7 +10,9 @@ Layout::
                                   ``simplices`` and, for a clamped problem, its ``free`` mask
     RUN/history.csv          one row per state, appended as steps are accepted
     RUN/status.json          running / completed / interrupted / abandoned / failed, with the
-                             sessions (start and resumes) and, for a failure, the rejected attempts
+                             sessions (start and resumes) and, for a failure, the rejected attempts;
+                             while running, the last state written (refreshed at most every
+                             STATUS_SECONDS at accepted steps) and the retry under way (``under_way``)
     RUN/run.lock             held (flock) by the process writing the directory, so that a second
                              writer (e.g. a resume while the run goes on) is refused; the kernel
                              releases it when that process ends, however it ends
@@ -53,6 +55,9 @@ STATE_RE = re.compile(r"^state_(\d{6,})\.npz$")
 SOLVER_STATE = "solver_state.npz"
 """What the step solver carried into the next step after the last state written (:func:`load_solver_state`)."""
 
+STATUS_SECONDS = 10.0
+"""A running run's status.json names its last state at most this often (:meth:`RunWriter.progress`; it is fsynced,
+as the states are)."""
 RUN_FILES = ("config.json", "mesh.npz", "history.csv", "status.json", "run.lock", SOLVER_STATE)
 """Files the program writes at the top of a run directory (besides ``states/``)."""
 
@@ -485,6 +490,7 @@ class RunWriter:
         self.rows: list[dict[str, Any]] = []
         self.keys: list[str] = []
         self.status: dict[str, Any] = {"state": "new", "sessions": []}
+        self._written = -np.inf  # time.monotonic() of the last status.json write
 
     @classmethod
     def resume(cls, out: str | os.PathLike[str]) -> tuple[RunWriter, dict[str, Any], Checkpoint | None, list[str]]:
@@ -616,10 +622,31 @@ class RunWriter:
         elif sessions:
             sessions[-1].update({"ended": now, "state": state, "to_step": last.get("step")})
         self.status.update({"state": state, "step": last.get("step"), "t": last.get("t"), "updated": now})
-        for k in ("message", "signal", "rejected", "failed_step"):
+        for k in ("message", "signal", "rejected", "failed_step", "under_way"):
             self.status.pop(k, None)
         self.status.update(info)
+        self._write_status()
+
+    def progress(self, under_way: str | None = None) -> None:
+        """Refresh a running run's status.json: the last state written (``step``, ``t``, ``updated``) and, with
+        ``under_way``, the retry under way (the progress bar's text: the attempt rejected and the one that follows;
+        cleared at the next accepted state). Without ``under_way`` at most every :data:`STATUS_SECONDS` (an
+        accepted state; the state files are the record, this is for a reader watching a long run: a new user's check
+        found status.json naming the run's first step throughout)."""
+        if under_way is None and "under_way" not in self.status and time.monotonic() - self._written < STATUS_SECONDS:
+            return
+        last = self.rows[-1] if self.rows else {}
+        self.status.update({"step": last.get("step"), "t": last.get("t"),
+                            "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+        if under_way is None:
+            self.status.pop("under_way", None)
+        else:
+            self.status["under_way"] = under_way
+        self._write_status()
+
+    def _write_status(self) -> None:
         write_text_atomic(self.out / "status.json", json.dumps(self.status, indent=2, default=_json_default))
+        self._written = time.monotonic()
 
 
 @dataclass

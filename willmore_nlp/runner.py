@@ -251,12 +251,18 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
     def on_step(r: StepResult) -> None:
         with guard.deferred():
             writer.add(r, flow.lam_g, flow.warm_state())
+            writer.progress()
         bar.update(r)
         if guard.signum is not None:
             raise _StopRequestedError
 
+    def on_retry(text: str) -> None:
+        bar.note(text)
+        with guard.deferred():
+            writer.progress(under_way=text)
+
     flow.stop_requested = guard.stop_requested
-    flow.on_retry = bar.note
+    flow.on_retry = on_retry
     try:
         if guard.signum is None and (remaining is None or remaining > 0):
             flow.run(t_end=t_end, steps=remaining, callback=on_step)
