@@ -260,3 +260,23 @@ def test_a_study_without_a_state_writes_its_figures_without_warnings(tmp_path) -
         warnings.simplefilter("error")
         md = write_study(tmp_path)
     assert "| failed | 0 |" in md.read_text() and (tmp_path / "figures" / "energy.png").exists()
+
+
+def test_compare_vesicle_at_another_tau_scales_its_relax_max_tau(tmp_path, capsys) -> None:
+    """``compare vesicle --taus h`` was refused ("relax_max_tau must be a number >= tau = 0.32 ..., got 0.0329": the
+    problem's relax_max_tau is 8 of its own tau, h^2 / 25, and the case's tau replaced only the tau; a new-user check).
+    A tau among make_flow's overrides now scales a relax_max_tau of the problem's own: 8 of the case's tau, and the
+    two cases run (a given relax_max_tau is kept)."""
+    from willmore_nlp.cli import main
+    from willmore_nlp.registry import build
+
+    pb, _ = build("vesicle", subdivisions=1)
+    h = pb.mesh.h
+    assert pb.make_flow(tau=h).relax_max_tau == pytest.approx(8 * h)
+    assert pb.make_flow().relax_max_tau == pytest.approx(8 * pb.tau)
+    assert pb.make_flow(tau=h, relax_max_tau=2 * h).relax_max_tau == pytest.approx(2 * h)
+    out = tmp_path / "v"
+    assert main(["compare", "vesicle", "--set", "subdivisions=1", "--solvers", "ipopt", "--taus", "h,0.01",
+                 "--steps", "2", "--out", str(out), "--workers", "1"]) == 0, capsys.readouterr().err
+    cases = [json.loads(f.read_text()) for f in sorted((out / "cases").glob("*.json"))]
+    assert len(cases) == 2 and all(c["status"] == "ok" and len(c["rows"]) == 3 for c in cases), cases

@@ -85,7 +85,9 @@ class Problem:
         surfaces) gives way to a ``solver`` among the overrides: ``--set solver=sqp`` runs every step with sqp. A
         ``remesh_target`` of the problem's own (the ``file`` problem's coarse inputs) gives way to ``input_repair =
         false`` among the overrides: ``--set input_repair=false`` flows the input as given, its later remeshings
-        toward their default target."""
+        toward their default target. A ``relax_max_tau`` of the problem's own is a multiple of its tau (the
+        ``vesicle`` problem's 8 tau): a ``tau`` among the overrides scales it (``compare vesicle --taus h`` was refused,
+        "relax_max_tau must be a number >= tau", a new-user check)."""
         clash = sorted(set(overrides) & set(self.held))
         if clash:  # (vesicle --set volume=3 ran at v = 0.716 while its record said 0.65: a new-user check)
             raise ProblemError(f"{self.description or 'this problem'}: {', '.join(clash)} is set by the problem's "
@@ -106,6 +108,8 @@ class Problem:
                 options.pop(key, None)
         if overrides.get("input_repair") is False and "remesh_target" not in overrides:
             options.pop("remesh_target", None)
+        if "tau" in overrides and "relax_max_tau" in options and "relax_max_tau" not in overrides:
+            options["relax_max_tau"] *= float(overrides["tau"]) / self.tau
         return {**options, **overrides}
 
     def _refuse_unconstrained_solvers(self, merged: dict[str, Any]) -> None:
