@@ -310,10 +310,45 @@ def invagination_depth(M: Mesh) -> float:
     return 0.5 - offset - 0.5 * thick
 
 
+def symmetry_axis(M: Mesh) -> tuple[np.ndarray, bool]:
+    """The symmetry axis of a nearly axisymmetric closed surface, from the second moments of its area about its
+    centroid: the principal direction whose moment is farthest from the other two.
+
+    Returns
+    -------
+    axis : (3,) unit vector, its x3 component >= 0
+    elongated : True when that moment is the largest (prolate, dumbbell), False when it is the smallest (oblate,
+        discocyte)
+    """
+    T = M.vertices[M.simplices]  # (K, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]), axis=1)
+    C = T.mean(axis=1)
+    C = C - area @ C / area.sum()
+    lam, vec = np.linalg.eigh((C * area[:, None]).T @ C)  # (ascending; triangle centroids: O(h^2) of the moments)
+    elongated = bool(lam[2] - lam[1] > lam[1] - lam[0])
+    axis = vec[:, 2] if elongated else vec[:, 0]
+    return (axis if axis[2] >= 0 else -axis), elongated
+
+
+def _along_x3(M: Mesh, axis: np.ndarray) -> Mesh:
+    """M rotated (about its vertex mean) so that the unit vector ``axis`` (x3 component >= 0) becomes x3."""
+    e3 = np.array([0.0, 0.0, 1.0])
+    k, c = np.cross(axis, e3), float(axis @ e3)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    R = np.eye(3) + K + K @ K / (1.0 + c)  # (Rodrigues: R axis = e3; c > -1 as axis[2] >= 0)
+    X = M.vertices - M.vertices.mean(axis=0)
+    return M.with_vertices(X @ R.T)
+
+
 def mesh_shape(M: Mesh) -> str:
     """Shape name of a mesh: "stomatocyte" (an inner pocket, :func:`has_pocket`), "cup" (an open invagination
     on one side: :func:`axis_profile`'s offset >= 0.1 without a pocket), "discocyte" (dimples on both sides:
-    axis thickness < 0.95) or "convex"."""
+    axis thickness < 0.95) or "convex", read along the surface's :func:`symmetry_axis` (it was read along x3, and a
+    flow may turn a shape: a new user's oblate v = 0.9 start relaxed into a prolate lying in the x1-x2 plane, and
+    c0 = 0.5 dumbbells along x1 were named discocytes, their waist read as a dimple)."""
+    axis, _ = symmetry_axis(M)
+    if axis[2] < 1 - 1e-9:
+        M = _along_x3(M, axis)
     if has_pocket(M):
         return "stomatocyte"
     thick, offset = axis_profile(M)
