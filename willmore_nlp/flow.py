@@ -1972,7 +1972,8 @@ class WillmoreFlow:
         """Why relax=true ended ("" while it has not)."""
         if not self.relaxed:
             return ""
-        what = {"energy": "the scheme's energy (with lam, c0, an anisotropy or outer constraints)",
+        what = {"energy": "the scheme's energy (with lam, c0, a term that is not Moebius invariant, or an anisotropy "
+                          "and outer constraints)",
                 "willmore_gamma": "the anisotropic Willmore energy"}.get(self._relax_column, "the Willmore energy")
         if self.relax_reason == "small":
             why = (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps that changed {what} by less than relax_tol = "

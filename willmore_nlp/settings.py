@@ -556,8 +556,9 @@ class FlowSettings(Settings):
         its first attempt (like ``adaptive``) up to ``relax_max_tau``; after a failed doubling it is held for 2, 4, 8,
         ... steps before the next try. :meth:`run` stops early, with ``relaxed`` set, after the first state whose last 3
         steps (``RELAX_WINDOW``) lowered the Willmore energy (:func:`willmore_nlp.geometry.willmore_energy`, scale
-        invariant; with an anisotropy alone the anisotropic Willmore energy, also scale invariant; with ``lam``, ``c0``,
-        outer constraints or a user's term that is not Moebius invariant the scheme's energy e, which the flow lowers)
+        invariant; also with outer constraints alone: they fix the scale; with an anisotropy alone the anisotropic
+        Willmore energy, also scale invariant; with ``lam``, ``c0``, a user's term that is not Moebius invariant, or an
+        anisotropy and outer constraints, the scheme's energy e, which the flow lowers)
         by less than ``relax_tol`` relative per nominal step (a time step of tau_i < tau counts as tau_i / tau steps, a
         Newton step of ``relax_newton`` as one), or raised it with no Delaunay flip (not counting steps after which the
         mesh was smoothed or remeshed; the light repair, ``remesh_repair``, follows every step and counts; one step is
@@ -592,8 +593,8 @@ class FlowSettings(Settings):
         thresholds (history solver ``normal-newton``); elsewhere, and when no such step is found, the flow's step.
         The relax test and ``relax_check`` are unchanged, and Newton steps leave the step size as it was. Unset (the
         default since 2026-12-01): on for every relaxation of a surface in R^3, off otherwise; true needs ``relax``
-        and a surface in R^3 (refused otherwise); false: time steps only (the vesicle problem's default, with which
-        its reports were made).
+        and a surface in R^3 (refused otherwise); false: time steps only (the vesicle problem's default until the
+        evening of 2026-12-01).
     mesh_control : {"auto", "off"}
         Master switch of the mesh-quality control of surfaces ("off": the paper's scheme: no repair
         between steps and ``tangential_control = "auto"`` is "off"; an explicit "meanratio" is kept).
