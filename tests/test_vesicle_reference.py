@@ -134,15 +134,14 @@ def test_mesh_shape_reads_a_turned_shape_along_its_own_axis() -> None:
     prolate with the oblate branch, 3.8 % off where the prolate's gap is 1.5 %). The known shapes of
     test_mesh_shape_names_the_branches and the prolate dumbbell of v = 0.6, turned so that their axis is x1 or a
     skew direction: the same names, and symmetry_axis finds the axis (to 1e-3) and whether it is the long one."""
+    from scipy.spatial.transform import Rotation
+
     from willmore_nlp.mesh import shapes
     from willmore_nlp.vesicle_reference import mesh_shape, revolve_contour, solve_axisymmetric, symmetry_axis
 
-    def turned(M: object, to: np.ndarray) -> object:  # x3 -> the unit vector ``to`` (Rodrigues)
-        to = to / np.linalg.norm(to)
-        k = np.cross([0.0, 0.0, 1.0], to)
-        K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-        R = np.eye(3) + K + K @ K / (1.0 + to[2])
-        return M.with_vertices(M.vertices @ R.T + [0.3, -0.2, 0.1])
+    def turned(M: object, to: np.ndarray) -> object:  # x3 -> the direction ``to``, and a shift
+        R, _ = Rotation.align_vectors([to], [[0.0, 0.0, 1.0]])
+        return M.with_vertices(R.apply(np.array(M.vertices)) + np.array([0.3, -0.2, 0.1]))
 
     dumbbell = revolve_contour(solve_axisymmetric(0.6, "prolate", 100), 3)
     cases = {"stomatocyte": (revolve_contour(solve_axisymmetric(0.55, "stomatocyte", 100), 3), None),

@@ -320,9 +320,10 @@ def symmetry_axis(M: Mesh) -> tuple[np.ndarray, bool]:
     elongated : True when that moment is the largest (prolate, dumbbell), False when it is the smallest (oblate,
         discocyte)
     """
-    T = M.vertices[M.simplices]  # (K, 3, 3)
-    area = 0.5 * np.linalg.norm(np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]), axis=1)
-    C = T.mean(axis=1)
+    from willmore_nlp.fem.assembly import element_geometry
+
+    area, _ = element_geometry(M.vertices, M.simplices)
+    C = M.vertices[M.simplices].mean(axis=1)
     C = C - area @ C / area.sum()
     lam, vec = np.linalg.eigh((C * area[:, None]).T @ C)  # (ascending; triangle centroids: O(h^2) of the moments)
     elongated = bool(lam[2] - lam[1] > lam[1] - lam[0])
@@ -331,13 +332,11 @@ def symmetry_axis(M: Mesh) -> tuple[np.ndarray, bool]:
 
 
 def _along_x3(M: Mesh, axis: np.ndarray) -> Mesh:
-    """M rotated (about its vertex mean) so that the unit vector ``axis`` (x3 component >= 0) becomes x3."""
-    e3 = np.array([0.0, 0.0, 1.0])
-    k, c = np.cross(axis, e3), float(axis @ e3)
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    R = np.eye(3) + K + K @ K / (1.0 + c)  # (Rodrigues: R axis = e3; c > -1 as axis[2] >= 0)
-    X = M.vertices - M.vertices.mean(axis=0)
-    return M.with_vertices(X @ R.T)
+    """M rotated (about its vertex mean) so that the unit vector ``axis`` becomes x3."""
+    from scipy.spatial.transform import Rotation
+
+    R, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [axis])
+    return M.with_vertices(R.apply(M.vertices - M.vertices.mean(axis=0)))
 
 
 def mesh_shape(M: Mesh) -> str:
