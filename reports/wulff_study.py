@@ -36,7 +36,12 @@ from typing import Any
 import numpy as np
 
 from willmore_nlp.analysis import fit_order
-from willmore_nlp.anisotropy import anisotropic_willmore_energy, get_anisotropy
+from willmore_nlp.anisotropy import (
+    anisotropic_willmore_energy,
+    gamma1_wulff_energy,
+    gamma1_wulff_gauge,
+    get_anisotropy,
+)
 from willmore_nlp.flow import FlowError
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.registry import build
@@ -45,17 +50,8 @@ OUT = Path(__file__).resolve().parent
 CACHE = OUT / "studies" / "wulff"
 T_END = 67.0
 """Final time of every run (75 steps of tau = h at subdivisions 2, 150 at 3, 300 at 4)."""
-AXES = np.array([1.0, 2.0, 1.0])
-"""Semi-axes of gamma1's unit Wulff shape in R^3."""
-_E = np.sqrt(1.0 - (AXES[0] / AXES[1]) ** 2)
-W_WULFF = float(2 * (2 * np.pi * AXES[0] ** 2 * (1 + AXES[1] / (AXES[0] * _E) * np.arcsin(_E))))
-"""w_gamma of every Wulff shape of gamma1: twice the area of the prolate spheroid with semi-axes 1, 2, 1 (42.96)."""
-
-
-def gauge(X: np.ndarray) -> np.ndarray:
-    """(N,) the Wulff gauge sqrt(x1^2 + x2^2 / 4 + x3^2) of the points X (N, 3) about their centroid."""
-    Y = X - X.mean(axis=0)
-    return np.sqrt(((Y / AXES) ** 2).sum(axis=1))
+W_WULFF = gamma1_wulff_energy()
+"""w_gamma of every Wulff shape of gamma1 (42.96; :func:`willmore_nlp.anisotropy.gamma1_wulff_energy`)."""
 
 
 def run(subdivisions: int, control: bool) -> dict[str, Any]:
@@ -72,7 +68,7 @@ def run(subdivisions: int, control: bool) -> dict[str, Any]:
         error = str(exc).split(";")[0]
     an = get_anisotropy("gamma1", 3)
     X, F = np.array(flow.X), np.array(flow.mesh.simplices)
-    r = gauge(X)
+    r = gamma1_wulff_gauge(X)
     Y = X - X.mean(axis=0)
     ext = Y.max(axis=0) - Y.min(axis=0)
     wg = [s.willmore_gamma for s in res]

@@ -281,3 +281,37 @@ def test_a_clamped_anisotropic_patch_keeps_its_mesh_without_remeshing() -> None:
     assert pb.make_flow().tangential_control.weight == DEFAULT_CONTROL_WEIGHT
     ellipsoid = WillmoreFlow(shapes.icosphere(2), 0.1, 1e-3, anisotropy="gamma1")
     assert ellipsoid.tangential_control.weight == DEFAULT_CONTROL_WEIGHT
+
+
+def test_the_report_of_an_anisotropic_flow_shows_w_gamma_and_the_wulff_reference(tmp_path) -> None:
+    """An anisotropic run's report showed the isotropic W alone (rising: the flow lowers w_gamma) and "no closed-form
+    value" (a new user's check). Now its summary has w_gamma first -> last from history.csv, its energy figure draws
+    it, and a closed gamma1 surface gets the Wulff shape's w_gamma, 2 |W_1|: checked against the arcsin closed form
+    of the prolate spheroid's area (semi-axes 1, 2, 1), and its mesh-matched value against w_gamma of a mesh whose
+    vertices lie on a Wulff shape already (the projection leaves them: the same number). gamma2 has no reference."""
+    from willmore_nlp import load_run
+    from willmore_nlp.anisotropy import gamma1_wulff_energy
+    from willmore_nlp.apps.report import write_report
+    from willmore_nlp.references import references
+
+    e = np.sqrt(3) / 2
+    assert gamma1_wulff_energy() == pytest.approx(2 * 2 * np.pi * (1 + 2 * np.arcsin(e) / e), rel=1e-13)
+    ico = shapes.icosphere(2)
+    wulff = ico.with_vertices(1.7 * ico.vertices * [1.0, 2.0, 1.0] + [0.2, 0.0, -0.1])
+    refs, note = references(wulff, 0.0, 1e-3, np.zeros(1), {"anisotropy": "gamma1"})
+    assert [r.column for r in refs] == ["willmore_gamma"] and "Wulff" in note
+    assert refs[0].smooth == pytest.approx(42.956870655767, rel=1e-12)
+    assert refs[0].matched == pytest.approx(anisotropic_willmore_energy(wulff, get_anisotropy("gamma1", 3)),
+                                            rel=1e-12)
+    assert references(wulff, 0.0, 1e-3, np.zeros(1), {"anisotropy": "gamma2"})[0] == []
+    assert references(wulff, 0.0, 1e-3, np.zeros(1), {"anisotropy": "gamma1", "volume": 1.0})[0] == []
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "willmore_nlp.cli", "run", "anisotropic_sphere", "--set",
+                        "subdivisions=1", "--steps", "2", "--out", str(out), "--quiet"], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    md = write_report(out).read_text()
+    h = load_run(out).history
+    assert (f"| anisotropic Willmore energy w_gamma (first -> last; what the flow lowers) | "
+            f"{h[0]['willmore_gamma']:.6g} -> {h[-1]['willmore_gamma']:.6g} |") in md
+    assert f"| willmore_gamma | {h[-1]['willmore_gamma']:.6g} | 42.9569 (twice the area of the unit Wulff" in md

@@ -198,6 +198,25 @@ def anisotropic_area_gradient(an: Anisotropy, X: np.ndarray, S: np.ndarray) -> n
     return scatter_sum(N, [(S[:, 1], g1), (S[:, 2], g2), (S[:, 0], -(g1 + g2))])
 
 
+GAMMA1_WULFF_AXES = np.array([1.0, 2.0, 1.0])
+"""Semi-axes of gamma1's unit Wulff shape in R^3, the ellipsoid x1^2 + x2^2 / 4 + x3^2 <= 1."""
+
+
+def gamma1_wulff_energy() -> float:
+    """w_gamma of every Wulff shape of gamma1 in R^3, its least value among closed surfaces: 1/2 (2/R)^2 |W_R|_gamma
+    = 2 |W_1| (|W_R|_gamma = 3 vol / R), twice the area of the prolate spheroid with semi-axes 1, 2, 1 (42.9569)."""
+    from willmore_nlp.mesh.shapes import spheroid_area_volume
+
+    return 2 * spheroid_area_volume(GAMMA1_WULFF_AXES[0], GAMMA1_WULFF_AXES[1])[0]
+
+
+def gamma1_wulff_gauge(X: np.ndarray) -> np.ndarray:
+    """(N,) the Wulff gauge sqrt(x1^2 + x2^2 / 4 + x3^2) of the points X ((N, 3)) about their centroid (1 on the
+    unit Wulff shape of gamma1 centred there)."""
+    Y = np.asarray(X, float) - np.mean(X, axis=0)
+    return np.sqrt(((Y / GAMMA1_WULFF_AXES) ** 2).sum(axis=1))
+
+
 def anisotropic_willmore_energy(mesh: Mesh, an: Anisotropy, nodes: np.ndarray | None = None) -> float:
     """w_gamma = 1/2 int h_gamma^2, independent of the scheme.
 

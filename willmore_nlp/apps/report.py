@@ -192,6 +192,11 @@ def status_lines(run: Run) -> list[str]:
     return lines
 
 
+def _anisotropic(run: Run) -> bool:
+    """Whether the run's history has the anisotropic Willmore energy (``willmore_gamma``, NaN for isotropic flows)."""
+    return all(isinstance(r.get("willmore_gamma"), float) and np.isfinite(r["willmore_gamma"]) for r in run.history)
+
+
 def vesicle_lines(run: Run) -> list[str]:
     """The report's vesicle section for a run of the ``vesicle`` problem with c0 = 0 (empty otherwise): the final
     state's reduced volume v, w / 8 pi and shape, and the axisymmetric minimiser's w / 8 pi at that v on the
@@ -254,7 +259,10 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
                                 float(cfg.get("lam") or 0.0), tau_tilde, run.times, flow_options)
     radius = np.array([mean_radius(s.vertices) for s in run.states])
     figs: list[tuple[str, str]] = []
-    _series_figure(run, [("energy", "scheme energy e(X)"), ("willmore_energy", "Willmore energy 1/2 int h^2")],
+    # an anisotropic flow lowers w_gamma, not W: both are drawn (its report had shown W alone, rising; a new user)
+    gamma = _anisotropic(run)
+    _series_figure(run, [("energy", "scheme energy e(X)"), ("willmore_energy", "Willmore energy 1/2 int h^2"),
+                         *([("willmore_gamma", "anisotropic Willmore energy 1/2 int h_gamma^2")] if gamma else [])],
                    "Energies", d / "fig_energy.png", refs=refs)
     figs.append(("Energies against time", "fig_energy.png"))
     geo = [("measure", "length / area"), ("volume", "enclosed area / volume")]
@@ -294,6 +302,8 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
         ["states", len(run.states)], ["final time", float(run.times[-1])],
         ["scheme energy (first -> last)", f"{first['energy']:.6g} -> {last['energy']:.6g}"],
         ["Willmore energy (first -> last)", f"{first['willmore_energy']:.6g} -> {last['willmore_energy']:.6g}"],
+        *([["anisotropic Willmore energy w_gamma (first -> last; what the flow lowers)",
+            f"{first['willmore_gamma']:.6g} -> {last['willmore_gamma']:.6g}"]] if gamma else []),
     ]
     if steps:
         from willmore_nlp.flow import NEWTON_SOLVER
@@ -322,7 +332,8 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
                     ["scheme energy change by repairs (sum / largest)",
                      f"{sum(jumps):.3g} / {max(jumps, key=abs):.3g}"]]
     ref_rows = []
-    final = {"willmore_energy": float(last["willmore_energy"]), "radius": float(radius[-1])}
+    final = {"willmore_energy": float(last["willmore_energy"]), "radius": float(radius[-1]),
+             "willmore_gamma": float(last.get("willmore_gamma", np.nan))}
     for r in refs:
         smooth = float(np.asarray(r.smooth, float).reshape(-1)[-1])
         matched = None if r.matched is None else float(np.asarray(r.matched, float).reshape(-1)[-1])

@@ -445,19 +445,23 @@ def write_study(out: str | os.PathLike[str]) -> Path:
              f"this directory. Regenerate with `willmore-nlp report {out}`; rerun missing cases with "
              "`willmore-nlp compare` and the same options.", "",
              "In-step tangential control: the resolved `tangential_control` of each case (its weight).", "",
-             "| case | h | tau | control | status | steps | mean iterations | mean s/step | final energy | "
+             "`final Willmore`: the Willmore energy of the last state, an anisotropic flow's w_gamma (what it "
+             "lowers); compare the cases at the same `final t`.", "",
+             "| case | h | tau | control | status | steps | final t | mean iterations | mean s/step | final energy | "
              "final Willmore | max KKT residual | max energy rise | error |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for rec in recs:
         steps = rec["rows"][1:]
         it = np.mean([r["iterations"] for r in steps]) if steps else float("nan")
         wt = np.mean([r["wall_time"] for r in steps]) if steps else float("nan")
         kkt = max((r.get("kkt_residual", float("nan")) for r in steps), default=float("nan"))
         last = rec["rows"][-1] if rec["rows"] else {}
+        gamma = last.get("willmore_gamma", float("nan"))  # (an anisotropic flow's: the isotropic W may rise)
+        will = gamma if isinstance(gamma, float) and np.isfinite(gamma) else last.get("willmore_energy", float("nan"))
         lines.append(f"| {_label(rec, varying)} | {rec['h']:.4g} | {rec['tau']:.4g} | {rec.get('control', '')} | "
-                     f"{rec['status']} | {len(steps)} | "
+                     f"{rec['status']} | {len(steps)} | {last.get('t', float('nan')):.4g} | "
                      f"{it:.1f} | {wt:.4f} | {last.get('energy', float('nan')):.6g} | "
-                     f"{last.get('willmore_energy', float('nan')):.6g} | {kkt:.2e} | {_energy_rise(rec):.1e} | "
+                     f"{will:.6g}{' (w_gamma)' if will is gamma else ''} | {kkt:.2e} | {_energy_rise(rec):.1e} | "
                      f"{rec['error'][:120]} |")
     stable: dict[tuple[str, float], float] = {}
     for rec in recs:
