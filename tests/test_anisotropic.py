@@ -315,3 +315,23 @@ def test_the_report_of_an_anisotropic_flow_shows_w_gamma_and_the_wulff_reference
     assert (f"| anisotropic Willmore energy w_gamma (first -> last; what the flow lowers) | "
             f"{h[0]['willmore_gamma']:.6g} -> {h[-1]['willmore_gamma']:.6g} |") in md
     assert f"| willmore_gamma | {h[-1]['willmore_gamma']:.6g} | 42.9569 (twice the area of the unit Wulff" in md
+
+
+def test_an_anisotropy_of_a_huge_scale_is_refused_and_a_large_one_warned() -> None:
+    """gamma -> s gamma acts as tau_tilde -> s tau_tilde. A new user's gamma2:1e20 (s = 3e10 from the regularisation,
+    3e8 h^2 with the default tau_tilde) exited 70 with a CHOLMOD traceback from the first look at tau_c; caught, the
+    IPOPT fallback's attempts then ran for minutes. Above ANISOTROPY_INNER_MAX h^2 the flow is refused (one line
+    naming tau_tilde, the anisotropy and its scale); above 2 h^2 the StepSizeWarning names the scale. The scale is
+    the largest gamma on unit normals: gamma1's 2, gamma2:EPS's sqrt(3 (1 + 3 EPS)) at the diagonals."""
+    from willmore_nlp.errors import UserInputError
+    from willmore_nlp.flow import StepSizeWarning
+
+    assert get_anisotropy("gamma1", 3).scale == pytest.approx(2.0, rel=1e-6)
+    assert get_anisotropy("gamma2:1e4", 3).scale == pytest.approx(np.sqrt(3 * (1 + 3e4)), rel=1e-3)
+    mesh = shapes.icosphere(1)
+    tt = mesh.h**2 / 100
+    with pytest.raises(UserInputError, match=r"^tau_tilde = .* x the scale 3e\+10 of anisotropy gamma2_eps1e20 .* "
+                                             r"above 10000 h\^2, where no step solves"):
+        WillmoreFlow(mesh, mesh.h, tt, anisotropy="gamma2:1e20")
+    with pytest.warns(StepSizeWarning, match=r"x the scale 300 of anisotropy gamma2_eps1e04 .* is 3 h\^2"):
+        WillmoreFlow(mesh, mesh.h, tt, anisotropy="gamma2:1e4")

@@ -87,6 +87,8 @@ class Anisotropy:
     name: str = "custom"
     fn: ca.Function = field(init=False, repr=False)
     grad: ca.Function = field(init=False, repr=False)
+    scale: float = field(init=False, repr=False)
+    """The largest gamma(n) over the unit normals :func:`validate` samples (gamma0: 1, gamma1: 2)."""
 
     def __post_init__(self) -> None:
         if self.m not in (2, 3):
@@ -118,7 +120,8 @@ class Anisotropy:
 
 
 def validate(an: Anisotropy, n_samples: int = 2000, seed: int = 0) -> None:
-    """Check positivity on the unit sphere and 1-homogeneity gamma(s z) = s gamma(z) numerically.
+    """Check positivity on the unit sphere and 1-homogeneity gamma(s z) = s gamma(z) numerically, and set
+    ``an.scale`` (the largest gamma on the sampled unit vectors).
 
     Raises
     ------
@@ -142,6 +145,7 @@ def validate(an: Anisotropy, n_samples: int = 2000, seed: int = 0) -> None:
         if err[i] > 1e-6:
             raise AnisotropyError(f"anisotropy {an.name} is not 1-homogeneous: gamma({s:g} z) = {gs[i]:.6g} but "
                                   f"{s:g} gamma(z) = {s * g[i]:.6g} at z = {np.round(Z[i], 4).tolist()}")
+    object.__setattr__(an, "scale", float(g.max()))
 
 
 def get_anisotropy(spec: str | Anisotropy | GammaFn, m: int) -> Anisotropy:

@@ -278,6 +278,11 @@ the inner solve, the outer constraints, the energy e(X); its per-node data are t
 
 TAU_TILDE_WARN_FACTOR = 2.0
 """WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde > this factor times h^2 (h = mean edge)."""
+ANISOTROPY_INNER_MAX = 1e4
+"""An anisotropy of scale s (the largest gamma(n) on unit normals; gamma0: 1, gamma1: 2) makes the inner step act as
+tau_tilde s (gamma -> s gamma is tau_tilde -> s tau_tilde, the energies scaled): above this many h^2 the flow is
+refused. A new user's gamma2:1e20 (s = 1.7e10, 1.7e8 h^2) exited 70 with a CHOLMOD traceback, and after that was
+caught, the IPOPT fallback's first attempt did not end in 10 minutes on 642 vertices."""
 
 
 @dataclass
@@ -1859,11 +1864,24 @@ class WillmoreFlow:
                           f"mesh's (h {self.initial_mesh.h:.4g} -> {h:.4g}): tau {old[0]:.4g} -> {self.tau:.4g}, "
                           f"tau_tilde {old[1]:.4g} -> {self.tau_tilde:.4g} (steps_from_h = {s.steps_from_h!r})",
                           stacklevel=3)
-        if self.tau_tilde > TAU_TILDE_WARN_FACTOR * h * h:
+        scale, what = 1.0, ""  # (an anisotropy of scale s acts as the inner step tau_tilde s: ANISOTROPY_INNER_MAX)
+        if s.anisotropy is not None:
+            from willmore_nlp.anisotropy import get_anisotropy
+
+            an = get_anisotropy(s.anisotropy, mesh.m)
+            scale, what = an.scale, (f" x the scale {an.scale:.3g} of anisotropy {an.name} (its largest gamma(n) on "
+                                     "unit normals; gamma -> s gamma is tau_tilde -> s tau_tilde)")
+            if self.tau_tilde * scale > ANISOTROPY_INNER_MAX * h * h:
+                raise UserInputError(
+                    f"tau_tilde = {self.tau_tilde:.3g}{what} is {self.tau_tilde * scale / (h * h):.3g} h^2 (h = "
+                    f"{h:.3g}), above {ANISOTROPY_INNER_MAX:g} h^2, where no step solves: scale gamma down or "
+                    "lower tau_tilde")
+        if self.tau_tilde * scale > TAU_TILDE_WARN_FACTOR * h * h:
             warnings.warn(StepSizeWarning(
-                f"tau_tilde = {self.tau_tilde:.3g} is {self.tau_tilde / (h * h):.3g} h^2 (h = {h:.3g}, the mean edge "
-                f"length): above about h^2 the step loses tangential convexity and the optimiser clusters "
-                f"nodes (docs/theory/tau_tilde.md); use tau_tilde <= h^2 and take large steps in tau instead"),
+                f"tau_tilde = {self.tau_tilde:.3g}{what} is {self.tau_tilde * scale / (h * h):.3g} h^2 (h = {h:.3g}, "
+                f"the mean edge length): above about h^2 the step loses tangential convexity and the optimiser "
+                f"clusters nodes (docs/theory/tau_tilde.md); use {'an effective ' if what else ''}tau_tilde <= h^2 "
+                "and take large steps in tau instead"),
                 stacklevel=3)
         self._min_tau = 1e-2 * h**4 if s.min_tau is None else s.min_tau
         self.relax_max_tau = 100 * self.tau if s.relax_max_tau is None else s.relax_max_tau
@@ -1922,7 +1940,11 @@ class WillmoreFlow:
         if self._tau_c is None or (np.isnan(self._tau_c[0]) and self._tau_c[1] < restarts):
             z0 = self.problem.pack_z(self.X, self.Y)
             solver = self.solver if isinstance(self.solver, ReducedSolver) else None  # (newton-krylov: its factors)
-            self._tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver), restarts
+            try:
+                self._tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver), restarts
+            except np.linalg.LinAlgError:  # J_Y not positive definite at X^k (an anisotropy of a huge scale,
+                # gamma2:1e20, exited 70 with this traceback: a new user's check): no look; the attempts say why
+                self._tau_c = float("nan"), restarts
         tau_c = self._tau_c[0]
         if not tau_c < tau / (CONVEX_FAR if failed <= 1 else CONVEX_JUMP):  # (nan: not found)
             return None
