@@ -401,12 +401,12 @@ def test_status_names_the_last_state_and_the_retry_under_way(tmp_path: Path,
     assert retries[0]["under_way"].endswith("attempt 2: ipopt at tau=0.025")
     assert retries[-1]["under_way"].startswith("step 2: tau=0.0125 rejected")
     accepted = [s for s in snaps if "under_way" not in s]
-    assert [s["step"] for s in accepted] == [1, 2] and accepted[1]["t"] == 2 * 0.05 / 8
+    assert [s["step"] for s in accepted] == [0, 1, 2] and accepted[2]["t"] == 2 * 0.05 / 8
     final = json.loads((out / "status.json").read_text())
     assert final["state"] == "completed" and "under_way" not in final and final["step"] == 2
     # an accepted state within STATUS_SECONDS of the last write is not written (the states are fsynced already):
     # a circle's steps without retries: the file is written at the session's start only
-    for seconds, steps in ((3600.0, [None] * 3), (0.0, [1, 2, 3])):  # (None: before state 0 was written)
+    for seconds, steps in ((3600.0, [0] * 4), (0.0, [0, 1, 2, 3])):  # (state 0 is named at once: it was null)
         monkeypatch.setattr(rundir, "STATUS_SECONDS", seconds)
         snaps.clear()
         assert cli.main(["run", *ARGS, "--steps", "3", "--out", str(tmp_path / f"c{seconds:g}")]) == 0

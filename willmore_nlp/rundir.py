@@ -633,7 +633,8 @@ class RunWriter:
         cleared at the next accepted state). Without ``under_way`` at most every :data:`STATUS_SECONDS` (an
         accepted state; the state files are the record, this is for a reader watching a long run: a new user's check
         found status.json naming the run's first step throughout)."""
-        if under_way is None and "under_way" not in self.status and time.monotonic() - self._written < STATUS_SECONDS:
+        named = "under_way" not in self.status and self.status.get("step") is not None  # (null before state 0)
+        if under_way is None and named and time.monotonic() - self._written < STATUS_SECONDS:
             return
         last = self.rows[-1] if self.rows else {}
         self.status.update({"step": last.get("step"), "t": last.get("t"),

@@ -371,6 +371,7 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
             writer.set_status("running")
             with guard.deferred():
                 writer.add(flow.state(), flow.lam_g, flow.warm_state())
+                writer.progress()  # (status.json names state 0 at once)
             return _advance(flow, writer, spec.steps, spec.t_end, guard, quiet)
         except KeyboardInterrupt:
             return _abandoned(writer, guard)
@@ -525,6 +526,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
                 writer.set_status("running")
                 with guard.deferred():
                     writer.add(flow.state(), flow.lam_g, flow.warm_state())
+                    writer.progress()
             else:
                 last = ck.row if ck.step > 0 else {}
                 flow.restart(ck.vertices, ck.Y, ck.t, ck.step, ck.lam_g, last.get("tau"), int(last.get("retries", 0)),
