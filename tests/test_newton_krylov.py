@@ -1,5 +1,8 @@
 """The ``newton-krylov`` step solver against IPOPT, the energy inequality and the circle's radius equation."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import trimesh
@@ -169,6 +172,23 @@ def test_factorisation_solves_spd_systems(backend: str) -> None:
     b = rng.normal(size=(n, 3))
     assert np.abs(A @ F.solve(b) - b).max() <= 1e-12 * np.abs(b).max()
     assert np.abs(A @ F.solve(b[:, 0]) - b[:, 0]).max() <= 1e-12 * np.abs(b).max()
+
+
+def test_cholmod_reports_an_indefinite_matrix_by_the_error_alone() -> None:
+    """A matrix that is not positive definite (a dense 300 x 300, factorised supernodally) raises LinAlgError naming
+    the leading minor, and CHOLMOD prints nothing: it had printed "CHOLMOD warning: matrix not positive definite.
+    file: /project/ext/..." to stderr beside each such error (a new user's check, an anisotropic clamped patch). In a
+    fresh process, whose stderr is read (CHOLMOD's printf writes to the C stream)."""
+    pytest.importorskip("sksparse_minimal")
+    code = ("import numpy as np, scipy.sparse as sp\n"
+            "from willmore_nlp.solvers.cholesky import SymmetricFactor\n"
+            "Q = np.random.default_rng(0).normal(size=(300, 300))\n"
+            "A = sp.csc_matrix(Q @ Q.T / 300 - 0.5 * np.eye(300))\n"
+            "try:\n    SymmetricFactor('cholmod').factor(A)\n"
+            "except np.linalg.LinAlgError as e:\n    print(e)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.startswith("matrix not positive definite (CHOLMOD: leading minor "), r
+    assert r.stderr == "", r.stderr
 
 
 def test_cholmod_with_openblas_solves_like_its_reference_blas(tmp_path) -> None:

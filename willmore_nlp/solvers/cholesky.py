@@ -180,7 +180,23 @@ def _load_cholmod() -> ctypes.CDLL | None:
                             ("cholmod_free_dense", ctypes.c_int, [ctypes.POINTER(ctypes.POINTER(_Dense)), cp])):
         fn = getattr(lib, name)
         fn.restype, fn.argtypes = res, args
+    _silence(lib)
     return lib
+
+
+def _silence(lib: ctypes.CDLL) -> None:
+    """Turn off CHOLMOD's own printing: SuiteSparse 5's global ``SuiteSparse_config`` holds the printf it prints
+    warnings with (its fifth function pointer), set to NULL here when it is the C library's printf (the layout
+    checked). A failed factorisation is reported by its status, which :meth:`SymmetricFactor.factor` raises as
+    LinAlgError and the solvers' messages carry; CHOLMOD had printed each one to stderr as well ("CHOLMOD warning:
+    matrix not positive definite. file: /project/ext/...": a new user's check, an anisotropic clamped patch)."""
+    try:
+        config = (ctypes.c_void_p * 7).in_dll(lib, "SuiteSparse_config")
+        printf = ctypes.cast(ctypes.CDLL(None).printf, ctypes.c_void_p).value
+    except (ValueError, AttributeError, OSError):  # pragma: no cover - another SuiteSparse layout: it keeps printing
+        return
+    if config[4] == printf:
+        config[4] = None
 
 
 _Cholmod = _load_cholmod()
