@@ -280,3 +280,29 @@ def test_compare_vesicle_at_another_tau_scales_its_relax_max_tau(tmp_path, capsy
                  "--steps", "2", "--out", str(out), "--workers", "1"]) == 0, capsys.readouterr().err
     cases = [json.loads(f.read_text()) for f in sorted((out / "cases").glob("*.json"))]
     assert len(cases) == 2 and all(c["status"] == "ok" and len(c["rows"]) == 3 for c in cases), cases
+
+
+def test_compare_takes_a_mesh_file_as_run_does(tmp_path, capsys) -> None:
+    """``compare m/capsule.obj`` said "unknown problem 'm/capsule.obj'"; it is now the file problem with that path, as
+    for ``run``. The input repair's warnings are shown once (by the cases' check, one line each; a worker printed them
+    again in Python's file:line format) and kept in the case's record, and the summary gives the h and tau the case ran
+    at, the repaired mesh's (it gave the input's; a new user's check). The mesh given twice is refused."""
+    import trimesh
+
+    from willmore_nlp.cli import main
+
+    path = tmp_path / "cap.obj"
+    trimesh.creation.capsule(height=1.0, radius=0.5, count=[12, 12]).export(path)
+    out = tmp_path / "study"
+    assert main(["compare", str(path), "--solvers", "ipopt", "--steps", "1", "--out", str(out), "--workers", "1",
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("repaired before the first step") == 1 and "InputRepairWarning" not in err, err
+    (case,) = [json.loads(f.read_text()) for f in (out / "cases").glob("*.json")]
+    assert case["status"] == "ok" and case["case"]["problem"] == "file"
+    assert any("repaired before the first step" in w for w in case["warnings"])
+    h_input = trimesh.load(path).edges_unique_length.mean()
+    assert case["h"] == case["tau"] and abs(case["h"] / h_input - 1) > 1e-3  # (the repaired mesh's h, tau = h)
+    assert f"| {case['h']:.4g} | {case['tau']:.4g} |" in (out / "summary.md").read_text()
+    assert main(["compare", str(path), "--set", f"path={path}", "--out", str(tmp_path / "x")]) == 2
+    assert "the mesh is given twice" in capsys.readouterr().err

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from willmore_nlp import __version__, runner
-from willmore_nlp.config import ConfigError, parse_overrides, resolve
+from willmore_nlp.config import MESH_SUFFIXES, ConfigError, parse_overrides, resolve
 from willmore_nlp.errors import EXIT_BUG, EXIT_IO, EXIT_USAGE, IO_ERRNOS, PATH_ERRNOS, UserInputError, interrupted
 
 __all__ = ["build_parser", "main"]
@@ -169,10 +169,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
     _check_length(args)
     if args.workers < 1:
         raise ConfigError(f"--workers must be an integer >= 1, got {args.workers}")
-    params = check_params(args.problem, parse_overrides(args.set or []))
+    problem, sets = args.problem, parse_overrides(args.set or [])
+    if Path(problem).suffix.lower() in MESH_SUFFIXES:  # a mesh file, as 'run' takes it: the file problem (it was
+        if "path" in sets:  # "unknown problem 'm/capsule.obj'", a new user's check)
+            raise ConfigError(f"{problem}: the mesh is given twice, as the target and as --set path={sets['path']}: "
+                              "give one")
+        problem, sets = "file", {**sets, "path": problem}
+    params = check_params(problem, sets)
     grid_raw = parse_overrides(args.grid or [])
-    grid = {k: [check_params(args.problem, {k: v})[k] for v in vals.split(",")] for k, vals in grid_raw.items()}
-    cases = make_grid(args.problem, [s.strip() for s in args.solvers.split(",") if s.strip()],
+    grid = {k: [check_params(problem, {k: v})[k] for v in vals.split(",")] for k, vals in grid_raw.items()}
+    cases = make_grid(problem, [s.strip() for s in args.solvers.split(",") if s.strip()],
                       [t.strip() for t in args.taus.split(",") if t.strip()], grid, params, args.steps, args.t_end,
                       _flow_options(parse_overrides(args.option or [])))
     check_cases(cases)
@@ -243,7 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(func=cmd_report)
 
     cp = sub.add_parser("compare", help="solver-comparison study: solvers x step sizes (x parameters) on Dask")
-    cp.add_argument("problem", help="registered problem name")
+    cp.add_argument("problem", help="registered problem name, or a mesh file (the 'file' problem, as for 'run')")
     cp.add_argument("--solvers", default="ipopt", help="comma-separated solver names (default ipopt)")
     cp.add_argument("--taus", default="h", help="comma-separated step sizes: numbers or multiples of h (4h)")
     cp.add_argument("--grid", action="append", metavar="KEY=V1,V2", help="problem parameter values to vary")

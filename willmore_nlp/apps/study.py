@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 import traceback
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -145,7 +146,12 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
         rec["h"] = float(pb.mesh.h)
         tau = parse_tau(case.tau, pb.mesh.h)
         rec["tau"] = tau
-        flow = pb.make_flow(tau=tau, **case.options, solver=case.solver)
+        with warnings.catch_warnings(record=True) as caught:  # (check_cases showed them once, in one line each; a
+            warnings.simplefilter("always")  # worker printed them again with Python's file:line format: a new user)
+            flow = pb.make_flow(tau=tau, **case.options, solver=case.solver)
+        rec["warnings"] = [str(w.message) for w in caught if not issubclass(w.category, DeprecationWarning)]
+        rec["h"], rec["tau"] = float(flow.mesh.h), float(flow.tau)  # (an input repair rescales both: the summary
+        # showed the input's h and tau, 0.1702, where the case ran at 0.1698; a new user's check)
         c = flow.tangential_control  # "auto" resolved: it depends on the solver (semi-implicit: off)
         rec["control"] = c.method if c.method == "off" else f"{c.method} {c.weight:g}"
         keep(flow.state())
