@@ -459,9 +459,14 @@ def rest_check(f: dict[str, Any], steps: int = 8) -> dict[str, Any]:
     state): the Willmore energy (w/8pi) each step reaches, before the mesh repair, and after it."""
     pb, _ = build("vesicle", reduced_volume=f["v"], start=f["start"], subdivisions=f["sub"])
     flow = dataclasses.replace(pb, mesh=f["mesh"]).make_flow()
-    res = [flow.step() for _ in range(steps)]
+    res, error = [], ""
+    try:
+        for _ in range(steps):
+            res.append(flow.step())
+    except FlowError as exc:  # (recorded: the findings say where it stopped)
+        error = str(exc).split(";")[0]
     return {"before": [r.stats.get("willmore_before_remesh", r.willmore) / (8 * np.pi) for r in res],
-            "after": [r.willmore / (8 * np.pi) for r in res], "tau": [r.tau for r in res]}
+            "after": [r.willmore / (8 * np.pi) for r in res], "tau": [r.tau for r in res], "error": error}
 
 
 def fine_cup(flows: list[dict[str, Any]], rest: dict[tuple[float, int], dict[str, Any]]) -> list[str]:
@@ -472,7 +477,10 @@ def fine_cup(flows: list[dict[str, Any]], rest: dict[tuple[float, int], dict[str
         if f["start"] != "cup":
             continue
         q = rest.get((f["v"], f["n0"]))
-        if q is not None:
+        if q is not None and q.get("error") and not q["before"]:
+            out.append(f"- Continued from the final state of the {f['n0']}-vertex cup flow at v = {f['v']}: "
+                       f"{q['error']}.")
+        elif q is not None:
             b, a = np.asarray(q["before"]), np.asarray(q["after"])
             out.append(f"- Continued for {len(b)} steps from the final state of the {f['n0']}-vertex cup flow at "
                        f"v = {f['v']} (tau {min(q['tau']):.1e}-{max(q['tau']):.1e}): every step reaches w/8pi "

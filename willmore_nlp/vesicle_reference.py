@@ -312,7 +312,7 @@ def invagination_depth(M: Mesh) -> float:
 
 def symmetry_axis(M: Mesh) -> tuple[np.ndarray, bool]:
     """The symmetry axis of a nearly axisymmetric closed surface, from the second moments of its area about its
-    centroid: the principal direction whose moment is farthest from the other two.
+    centroid: the principal direction whose moment is farthest, by ratio, from the other two.
 
     Returns
     -------
@@ -326,7 +326,8 @@ def symmetry_axis(M: Mesh) -> tuple[np.ndarray, bool]:
     C = M.vertices[M.simplices].mean(axis=1)
     C = C - area @ C / area.sum()
     lam, vec = np.linalg.eigh((C * area[:, None]).T @ C)  # (ascending; triangle centroids: O(h^2) of the moments)
-    elongated = bool(lam[2] - lam[1] > lam[1] - lam[0])
+    elongated = bool(lam[2] * lam[0] > lam[1] ** 2)  # (ratios: lam[2] / lam[1] > lam[1] / lam[0]; with differences
+    # a 162-vertex discocyte whose disc was not round, thin along x3, was read along its long axis and named convex)
     axis = vec[:, 2] if elongated else vec[:, 0]
     return (axis if axis[2] >= 0 else -axis), elongated
 
