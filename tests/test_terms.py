@@ -155,7 +155,10 @@ def test_volume_is_exact_across_mesh_repairs() -> None:
 def test_remeshing_keeps_volume_unless_the_restore_would_build_a_spike() -> None:
     """A forced isotropic remesh of a volume-constrained ellipsoid is moved back onto V0 by an O(h^2)
     correction and kept; a restore that would move a vertex by more than RESTORE_LIMIT h (as a least-norm
-    correction of a coarse remeshed vesicle did, building a spike) drops the repair with a warning instead."""
+    correction of a coarse remeshed vesicle did, building a spike) drops the remeshing and keeps the light repair
+    alone (until 2026-12-01 it dropped the whole repair: a vesicle cup went without any from step 24 on and failed),
+    and when every restoration of the repair, shortened RESTORE_HALVINGS times, would too, the repair is dropped with a
+    warning."""
     from willmore_nlp.flow import RESTORE_LIMIT
 
     mesh = _ellipsoid(2, 2.0)
@@ -165,21 +168,32 @@ def test_remeshing_keeps_volume_unless_the_restore_would_build_a_spike() -> None
     r = flow.step()
     assert "remesh" in r.remeshed and flow.mesh.n_vertices != mesh.n_vertices
     assert abs(r.volume - V0) / V0 < 1e-10
-    spiky = WillmoreFlow(mesh, 5e-3, mesh.h**2 / 100, **opts)
-    restore = spiky._restore
+    for every in (False, True):  # a spike in the remeshed mesh's restoration only, or in every repair's
+        spiky = WillmoreFlow(mesh, 5e-3, mesh.h**2 / 100, **opts)
+        restore, control = spiky._restore, spiky._control_mesh
+        calls: list[int] = []
 
-    def spike(X):
-        Xr = restore(X)
-        if X.shape != mesh.vertices.shape:  # the repaired (remeshed) mesh
-            Xr = Xr.copy()
-            Xr[0] += 2 * RESTORE_LIMIT * spiky.mesh.h
-        return Xr
+        def spike(X, restore=restore, spiky=spiky, every=every, calls=calls):
+            Xr = restore(X)
+            if calls and (every or X.shape != mesh.vertices.shape):  # (a repair's restoration, not the step's)
+                calls.append(X.shape[0])
+                Xr = Xr.copy()
+                Xr[0] += 2 * RESTORE_LIMIT * spiky.mesh.h
+            return Xr
 
-    spiky._restore = spike
-    with pytest.warns(UserWarning, match="moved a vertex"):
-        r = spiky.step()
-    assert "remesh" not in r.remeshed and spiky.mesh.n_vertices == mesh.n_vertices
-    assert abs(r.volume - V0) / V0 < 1e-10
+        def counted(tau, control=control, calls=calls):
+            calls.append(0)
+            return control(tau)
+
+        spiky._restore, spiky._control_mesh = spike, counted
+        if every:
+            with pytest.warns(UserWarning, match="moved a vertex"):
+                r = spiky.step()
+            assert r.remeshed == "" and len(calls) == 1 + 1 + 1 + 3  # (the remeshing, the repair and its 3 halvings)
+        else:
+            r = spiky.step()
+            assert "repair" in r.remeshed and "remesh" not in r.remeshed.split("+")
+        assert spiky.mesh.n_vertices == mesh.n_vertices and abs(r.volume - V0) / V0 < 1e-10
 
 
 def test_volume_target_other_than_initial_moves_the_start_onto_it() -> None:
