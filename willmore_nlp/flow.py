@@ -285,8 +285,8 @@ TAU_TILDE_WARN_FACTOR = 2.0
 ANISOTROPY_INNER_MAX = 1e4
 """An anisotropy of scale s (the largest gamma(n) on unit normals; gamma0: 1, gamma1: 2) makes the inner step act as
 tau_tilde s (gamma -> s gamma is tau_tilde -> s tau_tilde, the energies scaled): above this many h^2 the flow is
-refused. A new user's gamma2:1e20 (s = 1.7e10, 1.7e8 h^2) exited 70 with a CHOLMOD traceback, and after that was
-caught, the IPOPT fallback's first attempt did not end in 10 minutes on 642 vertices."""
+refused. A new user's gamma2:1e20 (s = 3e10, 3e8 h^2 at the default tau_tilde) exited 70 with a CHOLMOD traceback,
+and after that was caught, the IPOPT fallback's attempts ran for more than 10 minutes on 642 vertices."""
 
 
 @dataclass
