@@ -217,12 +217,14 @@ def test_relaxation_leaves_the_saddle_of_a_spontaneous_curvature_vesicle(tmp_pat
     from willmore_nlp.evolver import evolver_equilibrium, find_evolver
 
     pb, _ = build("vesicle", reduced_volume=0.65, start="oblate", c0=0.8)
-    plain = pb.make_flow(relax=True, relax_check=False)
+    # (time steps, as measured: the vesicle problem's relaxation takes Newton steps since 2026-12-01, whose path ends
+    # at another minimum, lowest eigenvalue 4.2-4.3 with one BLAS thread and 4.16 with two)
+    plain = pb.make_flow(relax=True, relax_check=False, relax_newton=False)
     plain.run(steps=40)
     assert plain.relaxed and np.isnan(plain.last_stability)
     saddle = plain.stability(1).eigenvalues[0]
     assert saddle < -SADDLE_TOL
-    flow = pb.make_flow(relax=True)
+    flow = pb.make_flow(relax=True, relax_newton=False)
     results = flow.run(steps=300)
     kicked = [r for r in results if "saddle" in r.remeshed]
     assert kicked and kicked[0].step == plain.k and kicked[0].stats["stability"] == pytest.approx(saddle, rel=1e-9)
@@ -235,7 +237,8 @@ def test_relaxation_leaves_the_saddle_of_a_spontaneous_curvature_vesicle(tmp_pat
     assert extents[2] > 2 * extents[1]  # prolate: one long axis (the saddle is a disc: 0.26, 0.68, 0.70)
     # the command line, stopped after the first move off the saddle and resumed: the same run bit for bit
     out = tmp_path / "v"
-    args = ["--set", "reduced_volume=0.65", "--set", "start=oblate", "--set", "c0=0.8", "--set", "relax=true"]
+    args = ["--set", "reduced_volume=0.65", "--set", "start=oblate", "--set", "c0=0.8", "--set", "relax=true",
+            "--set", "relax_newton=false"]
     assert cli.main(["run", "vesicle", *args, "--steps", "20", "--out", str(out), "--quiet"]) == 0
     assert cli.main(["run", "--resume", str(out), "--steps", "300", "--quiet"]) == 0
     run = load_run(out)
