@@ -40,6 +40,7 @@ from willmore_nlp.anisotropy import (
     anisotropic_willmore_energy,
     gamma1_wulff_energy,
     gamma1_wulff_gauge,
+    gamma1_wulff_nodes,
     get_anisotropy,
 )
 from willmore_nlp.flow import FlowError
@@ -76,7 +77,7 @@ def run(subdivisions: int, control: bool) -> dict[str, Any]:
             "steps": len(res), "t": flow.t, "error": error, "retries": sum(s.retries for s in res),
             "x2/x1": ext[1] / ext[0], "x2/x3": ext[1] / ext[2], "spread": r.max() / r.min() - 1,
             "w_gamma": anisotropic_willmore_energy(Mesh(X, F), an),
-            "w_projected": anisotropic_willmore_energy(Mesh(Y / r[:, None], F), an),
+            "w_projected": anisotropic_willmore_energy(Mesh(gamma1_wulff_nodes(X), F), an),
             "rest": abs(wg[-1] - wg[-2]) / abs(wg[-1]) if len(wg) > 1 else float("nan"),
             "stepped_angle": min((s.stats.get("min_angle_before_remesh", np.nan) for s in res
                                   if np.isfinite(s.stats.get("min_angle_before_remesh", np.nan))), default=np.nan),

@@ -335,3 +335,40 @@ def test_an_anisotropy_of_a_huge_scale_is_refused_and_a_large_one_warned() -> No
         WillmoreFlow(mesh, mesh.h, tt, anisotropy="gamma2:1e20")
     with pytest.warns(StepSizeWarning, match=r"x the scale 300 of anisotropy gamma2_eps1e04 .* is 3 h\^2"):
         WillmoreFlow(mesh, mesh.h, tt, anisotropy="gamma2:1e4")
+
+
+def test_a_flow_builds_and_validates_its_anisotropy_once(monkeypatch) -> None:
+    """The step scales (the anisotropy's scale) and every build of the step problem (the first, and each after a
+    remeshing) read one Anisotropy: its CasADi gamma was built and validated on 2,000 samples twice at start-up and
+    once more at every rebuild. Counted through the validation, and the rebuilt problem's anisotropy is the same
+    object."""
+    import willmore_nlp.anisotropy as anisotropy
+
+    calls = []
+    real = anisotropy.validate
+    monkeypatch.setattr(anisotropy, "validate", lambda an, *a, **k: (calls.append(an.name), real(an, *a, **k)))
+    mesh = shapes.icosphere(1)
+    flow = WillmoreFlow(mesh, 0.2 * mesh.h, mesh.h**2 / 100, anisotropy="gamma1")
+    assert calls == ["gamma1"]
+    first = flow.setup.anisotropy
+    flow._build(flow.mesh, flow.boundary)
+    assert flow.setup.anisotropy is first and calls == ["gamma1"]
+
+
+def test_the_wulff_nodes_lie_on_the_wulff_shape_about_the_centroid() -> None:
+    """gamma1_wulff_nodes moves points along rays from their centroid to gauge 1 about it: each node keeps its
+    direction from the centroid, its gauge about the input's centroid is 1, and points on the unit Wulff shape stay (the
+    mesh-matched reference of such a mesh is its own w_gamma, the report test above)."""
+    from willmore_nlp.anisotropy import gamma1_wulff_gauge, gamma1_wulff_nodes
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(200, 3)) * [1.0, 3.0, 0.5] + [0.4, -1.0, 2.0]
+    c = X.mean(axis=0)
+    W = gamma1_wulff_nodes(X)
+    r = np.sqrt((((W - c) / [1.0, 2.0, 1.0]) ** 2).sum(axis=1))
+    assert np.allclose(r, 1.0, atol=1e-13)
+    assert np.allclose(gamma1_wulff_gauge(X) * np.linalg.norm(W - c, axis=1), np.linalg.norm(X - c, axis=1))
+    cos = np.sum((W - c) * (X - c), axis=1) / np.linalg.norm(W - c, axis=1) / np.linalg.norm(X - c, axis=1)
+    assert np.allclose(cos, 1.0, atol=1e-13)
+    on = shapes.icosphere(2).vertices * [1.0, 2.0, 1.0]
+    assert np.allclose(gamma1_wulff_nodes(on), on, atol=1e-13)

@@ -221,6 +221,14 @@ def gamma1_wulff_gauge(X: np.ndarray) -> np.ndarray:
     return np.sqrt(((Y / GAMMA1_WULFF_AXES) ** 2).sum(axis=1))
 
 
+def gamma1_wulff_nodes(X: np.ndarray) -> np.ndarray:
+    """(N, 3) the points X ((N, 3)) moved along rays from their centroid onto the unit Wulff shape of gamma1 centred
+    there (:func:`gamma1_wulff_gauge` 1): the mesh-matched Wulff shape of a mesh with these vertices."""
+    X = np.asarray(X, float)
+    c = X.mean(axis=0)
+    return c + (X - c) / gamma1_wulff_gauge(X)[:, None]
+
+
 def anisotropic_willmore_energy(mesh: Mesh, an: Anisotropy, nodes: np.ndarray | None = None) -> float:
     """w_gamma = 1/2 int h_gamma^2, independent of the scheme.
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from willmore_nlp import __version__, runner
-from willmore_nlp.config import MESH_SUFFIXES, ConfigError, parse_overrides, resolve
+from willmore_nlp.config import MESH_SUFFIXES, ConfigError, mesh_file_settings, parse_overrides, resolve
 from willmore_nlp.errors import EXIT_BUG, EXIT_IO, EXIT_USAGE, IO_ERRNOS, PATH_ERRNOS, UserInputError, interrupted
 
 __all__ = ["build_parser", "main"]
@@ -171,10 +171,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise ConfigError(f"--workers must be an integer >= 1, got {args.workers}")
     problem, sets = args.problem, parse_overrides(args.set or [])
     if Path(problem).suffix.lower() in MESH_SUFFIXES:  # a mesh file, as 'run' takes it: the file problem (it was
-        if "path" in sets:  # "unknown problem 'm/capsule.obj'", a new user's check)
-            raise ConfigError(f"{problem}: the mesh is given twice, as the target and as --set path={sets['path']}: "
-                              "give one")
-        problem, sets = "file", {**sets, "path": problem}
+        problem, sets = "file", {**sets, **mesh_file_settings(problem, sets)}  # "unknown problem 'm/capsule.obj'",
+        # a new user's check)
     params = check_params(problem, sets)
     grid_raw = parse_overrides(args.grid or [])
     grid = {k: [check_params(problem, {k: v})[k] for v in vals.split(",")] for k, vals in grid_raw.items()}

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import difflib
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -142,6 +143,15 @@ def read_toml(path: Path) -> dict[str, Any]:
     return flat
 
 
+def mesh_file_settings(target: str, overrides: Mapping[str, Any], source: str = "--set") -> dict[str, Any]:
+    """The file problem's ``path`` for a mesh file named as the target of ``run`` or ``compare``; refused when the
+    ``overrides`` (from ``source``) give a path too."""
+    if "path" in overrides:
+        raise ConfigError(f"{target}: the mesh is given twice, as the target and as {source} path="
+                          f"{overrides['path']}: give one")
+    return {"path": target}
+
+
 def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str = "--set") -> RunSpec:
     """Resolve a problem name or TOML path plus overrides into a :class:`RunSpec`."""
     overrides = dict(overrides or {})
@@ -150,10 +160,7 @@ def resolve(target: str, overrides: dict[str, Any] | None = None, *, source: str
         base = read_toml(path)
         where = str(path)
     elif Path(target).suffix.lower() in MESH_SUFFIXES:
-        if "path" in overrides:
-            raise ConfigError(f"{target}: the mesh is given twice, as the target and as {source} path="
-                              f"{overrides['path']}: give one")
-        base = {"problem": "file", "path": target}
+        base = {"problem": "file", **mesh_file_settings(target, overrides, source)}
         where = target
     else:
         base = {"problem": target}

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from willmore_nlp import geometry
-from willmore_nlp.anisotropy import anisotropic_willmore_energy
+from willmore_nlp.anisotropy import Anisotropy, anisotropic_willmore_energy, get_anisotropy
 from willmore_nlp.codegen import compile_kernels, find_compiler
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh import shapes
@@ -679,6 +679,9 @@ class WillmoreFlow:
             mesh, boundary = self._repair_input(mesh, boundary)
         _check_quality(mesh, s.min_angle, s.max_edge_ratio, self.input_repair)  # the limits every step must keep
         _warn_folds(mesh, s.max_dihedral)
+        # the anisotropy, built and validated once (every rebuild of the step problem after a remeshing uses it)
+        self._anisotropy: Anisotropy | None = (None if s.anisotropy is None
+                                                else get_anisotropy(s.anisotropy, mesh.m))
         self._step_scales(mesh)
         self._variational = all("variational" in solver_capabilities(n)  # the semi-implicit baseline is not
                                 for n in self._solver_names())
@@ -777,7 +780,7 @@ class WillmoreFlow:
         self.mesh = mesh
         self.boundary = boundary
         self._h_scale: np.ndarray | None = None  # the outer constraints' own scales on it (constraint_violation)
-        self.setup = build_step(mesh, boundary=boundary, anisotropy=self.settings.anisotropy,
+        self.setup = build_step(mesh, boundary=boundary, anisotropy=self._anisotropy,
                                 tangential_weight=self.settings.tangential_weight, tangential_control=self._control,
                                 c0=self.settings.c0, extra_terms=self._extra_terms, **self._targets)
         self.problem = self.setup.problem
@@ -1893,10 +1896,8 @@ class WillmoreFlow:
                           f"tau_tilde {old[1]:.4g} -> {self.tau_tilde:.4g} (steps_from_h = {s.steps_from_h!r})",
                           stacklevel=3)
         scale, what = 1.0, ""  # (an anisotropy of scale s acts as the inner step tau_tilde s: ANISOTROPY_INNER_MAX)
-        if s.anisotropy is not None:
-            from willmore_nlp.anisotropy import get_anisotropy
-
-            an = get_anisotropy(s.anisotropy, mesh.m)
+        an = self._anisotropy
+        if an is not None:
             scale, what = an.scale, (f" x the scale {an.scale:.3g} of anisotropy {an.name} (its largest gamma(n) on "
                                      "unit normals; gamma -> s gamma is tau_tilde -> s tau_tilde)")
             if self.tau_tilde * scale > ANISOTROPY_INNER_MAX * h * h:

@@ -244,7 +244,7 @@ def _wulff(mesh: Mesh, lam: float, anisotropy: str, held: list[str], c0: float) 
     from willmore_nlp.anisotropy import (
         anisotropic_willmore_energy,
         gamma1_wulff_energy,
-        gamma1_wulff_gauge,
+        gamma1_wulff_nodes,
         get_anisotropy,
     )
 
@@ -256,9 +256,8 @@ def _wulff(mesh: Mesh, lam: float, anisotropy: str, held: list[str], c0: float) 
             + ": the Wulff shape is not the minimiser"
     if not mesh.is_closed or _components(mesh) != 1 or euler_characteristic(mesh.simplices) != 2:
         return [], "anisotropy gamma1: the Wulff shape is the reference of a single closed surface of genus 0 only"
-    V = np.asarray(mesh.vertices, float)
-    nodes = V.mean(axis=0) + (V - V.mean(axis=0)) / gamma1_wulff_gauge(V)[:, None]
-    matched = anisotropic_willmore_energy(mesh.with_vertices(nodes), get_anisotropy("gamma1", 3))
+    matched = anisotropic_willmore_energy(mesh.with_vertices(gamma1_wulff_nodes(mesh.vertices)),
+                                          get_anisotropy("gamma1", 3))
     ref = Reference("willmore_gamma", "twice the area of the unit Wulff shape of gamma1 (its w_gamma at any size)",
                     gamma1_wulff_energy(), matched, "this mesh's vertices moved onto the Wulff shape")
     return [ref], ("the Wulff shape of gamma1, the ellipsoid x1^2 + x2^2 / 4 + x3^2 = R^2 (any R; w_gamma is scale "
