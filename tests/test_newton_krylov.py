@@ -648,6 +648,34 @@ def test_a_guarded_pass_that_the_guard_keeps_refusing_ends_early(tmp_path, monke
     assert cut.iterations < full.iterations
 
 
+@pytest.mark.slow
+def test_the_guarded_pass_runs_in_the_full_space_also_from_a_positive_definite_start(tmp_path) -> None:
+    """A clean trimesh torus (128 x 64 sections, r/R 0.4; 8,192 v, the ``file`` problem) at tau/2: the first Newton
+    system at X^k is positive definite, so the first pass stays in the reduced iteration and fails later (negative
+    curvature, never in the full space). Its guarded pass had replayed that reduced iteration with larger shifts: 50
+    iterations in 75 s, failed (the flow took the step at tau/4). It now runs the full-space iteration from its first
+    step, converges to IPOPT's solution of the same step (measured 7e-9 h apart; the vertices move up to 6 h) and keeps
+    every angle above GUARD_ANGLE x the initial smallest one (about 60 s: the slow mark)."""
+    from willmore_nlp import geometry
+
+    trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=128,
+                           minor_sections=64).export(tmp_path / "torus.obj")
+    pb = registry.build("file", path=str(tmp_path / "torus.obj"))[0]
+    runs = {}
+    for solver, options in (("newton-krylov", {"guarded": False}), ("newton-krylov", {}), ("ipopt", {})):
+        flow = pb.make_flow(solver=solver, **options)
+        res = flow.solver.solve(flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, flow.tau / 2), None)
+        runs[solver, bool(options)] = (flow.problem.unpack_z(res.z, flow.X)[0], res)
+    first, guarded, ipopt = runs["newton-krylov", True][1], runs["newton-krylov", False][1], runs["ipopt", False][1]
+    assert not first.converged and first.stats.get("n_full_space", 0) == 0 and first.stats["delta_max"] > 0
+    assert guarded.converged and ipopt.converged, (guarded.status, ipopt.status)
+    assert guarded.stats["n_guarded"] == 1 and guarded.stats["n_full_space"] > 0
+    X0, h, S = flow.X, flow.mesh.h, flow.mesh.simplices
+    X, Xi = runs["newton-krylov", False][0], runs["ipopt", False][0]
+    assert np.abs(X - Xi).max() <= 1e-6 * h < np.linalg.norm(X - X0, axis=1).max()
+    assert geometry.min_angles(X, S).min() >= newton_krylov.GUARD_ANGLE * geometry.min_angles(X0, S).min()
+
+
 def test_a_factor_that_is_not_positive_definite_ends_the_solve_and_the_flow_retries(monkeypatch) -> None:
     """CHOLMOD's "not positive definite" (a preconditioner at an iterate whose triangles degenerate; the h = 0.07
     double torus of reports/genus2_handles_study.py crashed the run with a traceback) ends the solve unconverged with

@@ -65,19 +65,22 @@ differs is the linear algebra and the globalisation:
   trimesh cone, with local negative modes), and descent on W^ with Y = Y[X] crushes a triangle where IPOPT's
   infeasible iterates go round to a healthy solution 0.7-2.9 h away. A solve that met negative curvature and ended
   "too indefinite" or with a failed line search (without outer constraints and with a linear inner equation: the
-  full-space iteration's domain) is therefore solved once more from X^k, staying in the full-space iteration (no
-  hand-back, no restart; shifts up to ``GUARD_SHIFT``), with trial points that flip a triangle or put an angle below
-  ``GUARD_ANGLE`` times the smallest angle of X^k halved in the merit search, full-space steps of at most
-  ``GUARD_STEP`` h and shifted systems after the first cut at ``GUARD_CG`` CG iterations (the truncated direction
-  taken when it descends); its iterations are bounded by ``max_iter`` alone, not by the flow's first-step budget, and
-  it ends as failed once the guard has refused ``GUARD_REFUSALS`` trial points (converged passes needed 0-4, failed
-  ones ran to 366-477). Measured (first steps, direct solves): it finds IPOPT's solutions (the same smallest angle and
-  largest move) on a noisy torus at h/32 (the first pass: h/64), on a subdivided cylinder at h/8 (h/64) and on the
-  cone at h/8 (the first pass fails at every tau), each solve in 1-5 s; failing, it fails in 1-6 s at these sizes
-  (600-800 vertices); a noisy 10,192-vertex torus's first step at h/32 in 192 s where IPOPT took 939 s
-  (docs/guide/performance.md). Smooth inputs never reach it (the first pass converges): their steps are unchanged bit
-  for bit. The flow allows it per attempt (``guard_allowed``): not for an attempt above the last accepted step size
-  (an adaptive doubling), which is retried at that size instead.
+  full-space iteration's domain) is therefore solved once more from X^k, in the full-space iteration from its first
+  step on, also where the first Newton system is positive definite (a clean trimesh torus 128 x 64 at h/2 meets
+  negative curvature only later: its guarded pass had then replayed the reduced iteration with the larger shifts,
+  crawling through 50 iterations in 75 s to a failure, where the full-space one converges in 24 at 0.3 h per step,
+  17 s for the attempt), staying there (no hand-back, no restart; shifts up to ``GUARD_SHIFT``), with trial points that
+  flip a triangle or put an angle below ``GUARD_ANGLE`` times the smallest angle of X^k halved in the merit search,
+  full-space steps of at most ``GUARD_STEP`` h and shifted systems after the first cut at ``GUARD_CG`` CG iterations
+  (the truncated direction taken when it descends); its iterations are bounded by ``max_iter`` alone, not by the
+  flow's first-step budget, and it ends as failed once the guard has refused ``GUARD_REFUSALS`` trial points
+  (converged passes needed 0-4, failed ones ran to 366-477). Measured (first steps, direct solves): it finds IPOPT's
+  solutions (the same smallest angle and largest move) on a noisy torus at h/32 (the first pass: h/64), on a
+  subdivided cylinder at h/8 (h/64) and on the cone at h/8 (the first pass fails at every tau), each solve in 1-5 s;
+  failing, it fails in 1-6 s at these sizes (600-800 vertices); a noisy 10,192-vertex torus's first step at h/32 in
+  192 s where IPOPT took 939 s (docs/guide/performance.md). Smooth inputs never reach it (the first pass converges):
+  their steps are unchanged bit for bit. The flow allows it per attempt (``guard_allowed``): not for an attempt above
+  the last accepted step size (an adaptive doubling), which is retried at that size instead.
 * Globalisation (reduced iteration). Backtracking (halving) line search with the Armijo condition on W^. A step whose
   predicted decrease is below the rounding level of W^ (100 eps |W^|) is accepted when it reduces
   |grad W^|_inf instead, whatever W^ does there (the last, quadratically convergent iterations:
@@ -576,7 +579,8 @@ class NewtonKrylovSolver(ReducedSolver):
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
-            if shifted and first:  # indefinite at X^k: SQP from the accurately shifted first step on
+            if first and (shifted or self._guard is not None):  # indefinite at X^k: SQP from the accurately
+                # shifted first step on; the guarded pass also from a positive definite one (module docstring)
                 return self._iterate_full(pt, p, D, h, gtol, monitor, d)
             new = self._line_search(pt, p, d)
             if new is None:
