@@ -344,3 +344,41 @@ def test_a_refinement_lowers_the_floor_to_the_edge_of_its_finest_part(tmp_path) 
     given = pb.make_flow(volume="initial", area="initial", min_tau=1e-5)
     given.restart(flow.X, flow.Y, flow.t, flow.k, simplices=flow.mesh.simplices, history=rows)
     assert given.min_tau == 1e-5  # (a given floor is kept as given)
+
+
+def _wobbly_ellipse(tmp_path: Path, n: int = 400) -> str:
+    """A curve file: x = 2 cos s + 0.3 cos 5s, y = 0.7 sin s at n equal steps of s (smooth, two tips of radius 0.05;
+    a new user's input)."""
+    s = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    path = tmp_path / f"wobble{n}.txt"
+    np.savetxt(path, np.column_stack([2 * np.cos(s) + 0.3 * np.cos(5 * s), 0.7 * np.sin(s)]))
+    return str(path)
+
+
+def test_a_smooth_curve_whose_lanczos_look_found_nothing_gets_its_dense_tau_c_and_flows(tmp_path) -> None:
+    """A smooth 400-vertex curve with two sharp tips failed its first step with the file problem's defaults (all 18
+    attempts, IPOPT and newton-krylov down to tau / 256): its step problem is convex only below tau / 11,121 (the
+    tips' time scale), and the Lanczos look did not converge (a wide spectrum whose lowest modes come in pairs), so
+    convex_start saw nothing (a new user's check). A curve's tau_c now comes from the dense reduced Hessian: it is
+    where a finite-difference reduced Hessian (not the second-order adjoint products) stops being positive definite,
+    and the run starts below it and takes its steps, the curve's Willmore energy falling at each."""
+    pb, _ = registry.build("file", path=_wobbly_ellipse(tmp_path))
+    flow = pb.make_flow()
+    z0, P = flow.problem.pack_z(flow.X, flow.Y), flow.problem
+    red = ReducedSolver(flow.evaluator, ReducedSettings(), "newton")
+    x0, Y0, tau = z0[: red.nxm], P.unpack_z(z0, flow.X)[1], flow.tau
+    p = flow.params(flow.X, tau)
+    H = _fd_reduced_hessian(red, x0, p, Y0)
+    D = red._distance_hessian(red._at(x0, p, Y0).z, p).toarray()
+    tau_c = convexity_limit(flow.evaluator, z0, p)
+    assert tau_c < tau / 1e4
+    for factor, definite in ((0.95, True), (1.05, False)):
+        Hf = D + factor * tau_c / tau * (H - D)
+        assert bool(sl.eigh(Hf, D, eigvals_only=True, subset_by_index=[0, 0])[0] > 0) is definite
+    with pytest.warns(UserWarning, match=r"convex at the initial state only below tau = .*the next attempt is at tau"):
+        first = flow.step()
+    assert first.converged and first.tau <= tau_c
+    w = [geometry.willmore_energy(flow.initial_mesh), first.willmore]
+    for _ in range(4):
+        w.append(flow.step().willmore)
+    assert np.all(np.diff(w) < 0)

@@ -54,6 +54,26 @@ def test_vertex_normals_outward() -> None:
     assert np.all(np.einsum("ij,ij->i", n, s.vertices) > 0.999)
 
 
+def test_a_space_curve_exports_its_principal_normal_and_normal_speed() -> None:
+    """A space curve's ``normal`` and ``normal_speed`` were zero at every vertex (a moving trefoil looked motionless
+    in ParaView; a new user's check). A regular 24-gon of radius 2 in a tilted plane of R^3, growing by a factor
+    1 + e in dt: the normal is the principal normal, toward the centre, and the normal speed -2 e / dt (the
+    velocity points away from the centre). A plane curve keeps its outward normal."""
+    from willmore_nlp.export import state_mesh
+
+    c = shapes.regular_polygon(24, 2.0)
+    Q = np.linalg.qr(np.random.default_rng(2).standard_normal((3, 3)))[0]
+    X = np.column_stack([c.vertices, np.zeros(24)]) @ Q.T + [0.5, -1.0, 2.0]
+    curve = shapes.closed_curve(X)
+    e, dt = 1e-3, 0.01
+    prev = [0.5, -1.0, 2.0] + (X - [0.5, -1.0, 2.0]) / (1 + e)
+    data = state_mesh(curve, X, prev, dt).point_data
+    np.testing.assert_allclose(data["normal"], -(X - [0.5, -1.0, 2.0]) / 2.0, atol=1e-12)
+    np.testing.assert_allclose(data["normal_speed"], -2.0 * e / (1 + e) / dt, rtol=1e-10)
+    np.testing.assert_allclose(state_mesh(c, c.vertices, None, dt).point_data["normal"][:, :2], c.vertices / 2.0,
+                               atol=1e-12)
+
+
 def test_one_state_exports_to_a_mesh_file(tmp_path) -> None:
     """``export RUN --out NAME.obj`` (.off, .ply, .stl, .npz, a curve's .txt) writes one state, the last unless
     ``--step`` names another (found by a new-user check: ``--out x.obj`` made a folder named x.obj holding VTU files).

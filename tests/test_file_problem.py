@@ -692,3 +692,41 @@ def test_a_noisy_curve_file_takes_its_first_step(tmp_path) -> None:
         r1 = flow.step()
     assert r1.retries > 4 and r1.tau < pb.tau / 16
     assert r1.willmore * r1.measure < 0.5 * s0.willmore * s0.measure
+
+
+def test_a_curve_stopped_by_its_edge_ratio_names_redistribute(tmp_path, capsys) -> None:
+    """A closed curve's run stopped by the edge-ratio limit said nothing of ``redistribute`` (a new user's noisy space
+    curve: edge ratio 8.7 -> 1000 in 28 steps; with redistribute=true 200 steps). An ellipse 3 : 1 at equal parameter
+    steps (60 v, edge ratio 2.96) with max_edge_ratio 3.2: the nodes bunch toward the ends and the run stops at step
+    4; its error line names redistribute, with which the same run takes its 30 steps, and so does a new run from
+    the failed run's state 1 (the way the refusal of ``--resume --set`` names; redistribution follows each step: from
+    state 2, at edge ratio 3.19, the first step itself goes above 3.2). Not named for a surface, or when the
+    reason is another, or with redistribute on."""
+    from willmore_nlp.cli import main
+    from willmore_nlp.errors import EXIT_FAILED
+    from willmore_nlp.flow import EDGE_RATIO_REASON
+    from willmore_nlp.mesh import shapes
+    from willmore_nlp.runner import spacing_hint
+    from willmore_nlp.settings import FlowSettings
+
+    t = np.linspace(0.0, 2 * np.pi, 60, endpoint=False)
+    np.savetxt(tmp_path / "ellipse.txt", np.column_stack([3 * np.cos(t), np.sin(t)]))
+    base = ["run", str(tmp_path / "ellipse.txt"), "--steps", "30", "--quiet", "--set", "max_edge_ratio=3.2"]
+    assert main([*base, "--out", str(tmp_path / "a")]) == EXIT_FAILED
+    err = capsys.readouterr().err
+    assert EDGE_RATIO_REASON in err and err.rstrip().endswith(
+        "the curve's nodes bunched up along it (edge ratio): --set redistribute=true moves them to equal arc-length "
+        "spacing after every step (not the paper's scheme: docs/theory/scheme.md)")
+    assert main([*base, "--out", str(tmp_path / "b"), "--set", "redistribute=true"]) == 0
+    # a failed run is not resumed with other settings; the refusal says how to go on from one of its states
+    assert main(["run", "--resume", str(tmp_path / "a"), "--set", "redistribute=true"]) == 2
+    err = capsys.readouterr().err
+    assert f"start a new run from one of its states: willmore-nlp export {tmp_path / 'a'} --out state.obj" in err
+    assert main(["export", str(tmp_path / "a"), "--out", str(tmp_path / "state.txt"), "--step", "1"]) == 0
+    assert main(["run", str(tmp_path / "state.txt"), "--steps", "30", "--quiet", "--set", "max_edge_ratio=3.2",
+                 "--set", "redistribute=true", "--out", str(tmp_path / "c")]) == 0
+    curve, reason = shapes.regular_polygon(16), [f"tau=0.1: {EDGE_RATIO_REASON} 3.3 > 3.2"]
+    assert spacing_hint(FlowSettings(), curve, reason)
+    assert not spacing_hint(FlowSettings(redistribute=True), curve, reason)
+    assert not spacing_hint(FlowSettings(), shapes.icosphere(1), reason)
+    assert not spacing_hint(FlowSettings(), curve, ["tau=0.1: mesh quality: min angle 3 deg < 5"])

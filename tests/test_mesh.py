@@ -244,3 +244,21 @@ def test_with_vertices_checks_positions_and_shares_the_topology() -> None:
     with pytest.raises(MeshError, match="shape"):
         disk.with_vertices(V[:-1])
 
+
+
+def test_the_area_of_a_closed_curve_in_r3_is_its_vector_area() -> None:
+    """A closed curve in R^3 had the area of its x1-x2 projection (a turning trefoil's report drew it growing 22 ->
+    116; a new user's check): now the norm of its vector area, the polygon's area n/2 R^2 sin(2 pi/n) in any plane
+    (also a vertical one, whose projection has area 0), unchanged by rotations and translations; a plane curve in
+    R^2 keeps its signed area."""
+    c = shapes.regular_polygon(20, 1.5)
+    exact = 10 * 1.5**2 * np.sin(2 * np.pi / 20)
+    assert enclosed_volume(c) == pytest.approx(exact, rel=1e-13)
+    assert enclosed_volume(shapes.closed_curve(c.vertices[::-1])) == pytest.approx(-exact, rel=1e-13)
+    vertical = np.column_stack([c.vertices[:, 0], np.zeros(20), c.vertices[:, 1]])
+    assert enclosed_volume(shapes.closed_curve(vertical)) == pytest.approx(exact, rel=1e-13)
+    knot = np.array([[np.sin(s) + 2 * np.sin(2 * s), np.cos(s) - 2 * np.cos(2 * s), -np.sin(3 * s)]
+                     for s in np.linspace(0, 2 * np.pi, 90, endpoint=False)])
+    Q = np.linalg.qr(np.random.default_rng(4).standard_normal((3, 3)))[0]
+    a = enclosed_volume(shapes.closed_curve(knot))
+    assert a > 0 and enclosed_volume(shapes.closed_curve(knot @ Q.T + 3.0)) == pytest.approx(a, rel=1e-12)

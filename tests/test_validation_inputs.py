@@ -185,7 +185,7 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("curve-duplicate-vertex", _write("c.txt", "0 0\n1 0\n1 1\n0 1\n1 0\n2 -1\n"),
      ["c.txt", "vertices 1 (line 2) and 4 (line 5) are duplicates"]),
     ("curve-zero-length-segment", _write("c.txt", "0 0\n1 0\n1 0\n0 1\n"),
-     ["c.txt", "simplex 1 (line 2) is degenerate (zero length)"]),
+     ["c.txt", "segment 1 (line 2) is degenerate (zero length): vertices 1 (line 2) and 2 (line 3)"]),
     ("curve-binary", _write("c.txt", b"\x89PNG\r\n\x1a\n\xff\xfe"), ["c.txt:1", "not a UTF-8 text file"]),
     ("curve-late-open", _write("c.txt", "0 0\n1 0\n# open\n0 1\n"), ["c.txt:3", "must come before the first vertex"]),
     # -- npz --------------------------------------------------------------------------------

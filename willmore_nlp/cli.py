@@ -35,7 +35,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.resume:
         if args.target or args.out or args.set or args.overwrite:
             raise ConfigError("--resume DIR continues a run as configured: give no TARGET, --out, --set or --overwrite "
-                              "(--steps/--t-end set a new total length)")
+                              "(--steps/--t-end set a new total length); to go on with other settings, start a new run "
+                              f"from one of its states: willmore-nlp export {args.resume} --out state.obj [--step K] "
+                              "(a curve: state.txt), then willmore-nlp run state.obj --set ... --out NEW")
         return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet,
                              ignore_late_signals=True)
     _check_length(args)

@@ -6,7 +6,9 @@ grid of lines (curves) or triangles (surfaces), 3-D points (curves in R^2 get z 
 * ``Y``: the inner mean-curvature-motion step Y[X] of the state,
 * ``mean_curvature_vector``: -M_lumped^{-1} L X (:func:`willmore_nlp.geometry.mean_curvature_vector`),
 * ``normal``: unit vertex normal (surfaces: area-weighted face normals; planar curves: the tangent
-  turned by -90 degrees, outward for counter-clockwise curves; zero for curves in R^3),
+  turned by -90 degrees, outward for counter-clockwise curves; curves in R^3: the principal normal, the direction
+  of the mean curvature vector (toward the centre of curvature), zero where it vanishes; it was zero everywhere,
+  so that a space curve coloured by ``normal_speed`` looked motionless: a new user's check),
 * ``velocity``: (X^k - X^{k-1}) / (t^k - t^{k-1}) (zero for the initial state and for a state whose
   vertices differ from the previous one's because the mesh control remeshed it; the flips and the
   light repair keep the vertices, and the velocity then includes the repair's tangential moves),
@@ -53,10 +55,14 @@ def _points3(V: np.ndarray) -> np.ndarray:
 
 def state_mesh(mesh: Mesh, Y: np.ndarray, prev: np.ndarray | None, dt: float) -> meshio.Mesh:
     """meshio mesh of one state with its point data (see module docstring)."""
-    nrm = vertex_normals(mesh)
+    H = mean_curvature_vector(mesh)
+    if mesh.d == 1 and mesh.m == 3:  # a space curve: the principal normal
+        size = np.linalg.norm(np.nan_to_num(H), axis=1, keepdims=True)
+        nrm = np.divide(np.nan_to_num(H), size, out=np.zeros_like(size * H), where=size > 0)
+    else:
+        nrm = vertex_normals(mesh)
     same = prev is not None and prev.shape == mesh.vertices.shape
     vel = (mesh.vertices - prev) / dt if same and dt > 0 else np.zeros_like(mesh.vertices)
-    H = mean_curvature_vector(mesh)
     cell = "line" if mesh.d == 1 else "triangle"
     return meshio.Mesh(
         _points3(mesh.vertices),

@@ -100,6 +100,9 @@ FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
 
 FOLD_REASON = "mesh folds"
+EDGE_RATIO_REASON = "mesh quality: edge ratio"
+"""How a rejection by the edge-ratio limit ``max_edge_ratio`` begins (the run's error line then names
+``redistribute`` for a closed curve: :func:`willmore_nlp.runner.spacing_hint`)."""
 """How the reason of an attempt refused by the fold check (``max_dihedral``) begins."""
 
 GROWN_FALL = 0.01
@@ -1100,7 +1103,7 @@ class WillmoreFlow:
         except MeshError as exc:
             return f"mesh collapsed: {exc}"
         if q["edge_ratio"] > self.settings.max_edge_ratio:
-            return f"mesh quality: edge ratio {q['edge_ratio']:.3g} > {self.settings.max_edge_ratio:g}"
+            return f"{EDGE_RATIO_REASON} {q['edge_ratio']:.3g} > {self.settings.max_edge_ratio:g}"
         if "min_angle" in q and q["min_angle"] < self.settings.min_angle:
             return f"mesh quality: min angle {q['min_angle']:.3g} deg < {self.settings.min_angle:g}"
         return self._fold(X, q)
@@ -2240,7 +2243,9 @@ class WillmoreFlow:
         steps: int | None = None,
         callback: Callable[[StepResult], None] | None = None,
     ) -> list[StepResult]:
-        """Step until ``t_end`` (the last step is shortened to hit it) or for ``steps`` steps.
+        """Step until the time ``t_end`` (absolute; the last step is shortened to hit it) or for ``steps`` more steps
+        (counted from the current state: a flow at step 3 ends at step 6 after ``run(steps=3)``, where the command
+        line's ``--steps`` is the run's total).
 
         With ``relax=True`` it stops earlier, after the step that ended the relaxation
         (:attr:`relaxed` is then True). ``callback`` is called with every accepted StepResult.

@@ -22,7 +22,8 @@ def main(n: int = 128, t_end: float = 0.1, tau: float | None = None) -> dict[str
     radius = float(np.linalg.norm(flow.X, axis=1).mean())
     exact = (1.0 + 2 * t_end) ** 0.25
     print(f"t = {t_end}: mean radius {radius:.6f}, exact {exact:.6f}, error {abs(radius - exact):.2e}")
-    print(f"scheme energy {energies[0]:.5f} -> {energies[-1]:.5f}; pi / R(t) = {np.pi / exact:.5f}")
+    print(f"scheme energy after step 1 {energies[0]:.5f} -> after the last {energies[-1]:.5f}; "
+          f"pi / R(t) = {np.pi / exact:.5f}")
     return {"h": h, "error": abs(radius - exact), "energy_drop": energies[0] - energies[-1],
             "monotone": bool(np.all(np.diff(energies) <= 0))}
 

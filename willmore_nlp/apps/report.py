@@ -265,7 +265,9 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
                          *([("willmore_gamma", "anisotropic Willmore energy 1/2 int h_gamma^2")] if gamma else [])],
                    "Energies", d / "fig_energy.png", refs=refs)
     figs.append(("Energies against time", "fig_energy.png"))
-    geo = [("measure", "length / area"), ("volume", "enclosed area / volume")]
+    space = run.states[0].d == 1 and run.states[0].m == 3
+    geo = [("measure", "length / area"),
+           ("volume", "vector area |1/2 sum x_i x x_(i+1)|" if space else "enclosed area / volume")]
     if any(r.column == "radius" for r in refs):
         geo.append(("radius", "mean distance to the centroid"))
     _series_figure(run, geo, "Geometry", d / "fig_geometry.png", refs=refs, extra={"radius": radius})

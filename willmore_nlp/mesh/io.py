@@ -194,7 +194,7 @@ def _locate(exc: MeshError, vlines: Sequence[int], slines: Sequence[int]) -> str
     msg = re.sub(r"\bvertex (\d+)", lambda m: f"vertex {vline(m[1])}", msg)
     msg = re.sub(r"\b(simplices|segments) (\d+) and (\d+)",
                  lambda m: f"{m[1]} {sline(m[2])} and {sline(m[3])}", msg)
-    msg = re.sub(r"\bsimplex (\d+)", lambda m: f"simplex {sline(m[1])}", msg)
+    msg = re.sub(r"\b(simplex|segment) (\d+)", lambda m: f"{m[1]} {sline(m[2])}", msg)
     msg = re.sub(r"\btriangles \[([\d, ]+)\]",
                  lambda m: "triangles [" + ", ".join(sline(x.strip()) for x in m[1].split(",")) + "]", msg)
     return msg

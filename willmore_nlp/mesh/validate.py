@@ -127,8 +127,8 @@ def _check_positions(V: np.ndarray, S: np.ndarray, source: str) -> None:
     degenerate = np.flatnonzero(vol <= 1e-13 * scale**d)
     if degenerate.size:
         k = int(degenerate[0])
-        raise MeshError(f"{source}: simplex {k} is degenerate (zero {'length' if d == 1 else 'area'}): "
-                        f"vertices {S[k].tolist()}")
+        raise MeshError(f"{source}: segment {k} is degenerate (zero length): vertices {S[k, 0]} and {S[k, 1]}" if d == 1
+                        else f"{source}: simplex {k} is degenerate (zero area): vertices {S[k].tolist()}")
     dup_v = duplicate_vertices(V, DUPLICATE_RTOL * scale)
     if dup_v.size:
         i, j = (int(x) for x in dup_v[0])
