@@ -55,10 +55,10 @@ def _points3(V: np.ndarray) -> np.ndarray:
 
 def state_mesh(mesh: Mesh, Y: np.ndarray, prev: np.ndarray | None, dt: float) -> meshio.Mesh:
     """meshio mesh of one state with its point data (see module docstring)."""
-    H = mean_curvature_vector(mesh)
+    H = np.nan_to_num(mean_curvature_vector(mesh))
     if mesh.d == 1 and mesh.m == 3:  # a space curve: the principal normal
-        size = np.linalg.norm(np.nan_to_num(H), axis=1, keepdims=True)
-        nrm = np.divide(np.nan_to_num(H), size, out=np.zeros_like(size * H), where=size > 0)
+        size = np.linalg.norm(H, axis=1, keepdims=True)
+        nrm = np.divide(H, size, out=np.zeros_like(H), where=size > 0)
     else:
         nrm = vertex_normals(mesh)
     same = prev is not None and prev.shape == mesh.vertices.shape
@@ -69,7 +69,7 @@ def state_mesh(mesh: Mesh, Y: np.ndarray, prev: np.ndarray | None, dt: float) ->
         [(cell, mesh.simplices)],
         point_data={
             "Y": _points3(Y),
-            "mean_curvature_vector": _points3(np.nan_to_num(H)),
+            "mean_curvature_vector": _points3(H),
             "normal": _points3(nrm),
             "velocity": _points3(vel),
             "normal_speed": np.einsum("ij,ij->i", vel, nrm),

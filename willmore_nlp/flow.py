@@ -100,10 +100,11 @@ FLOOR_REASON = "step size below min_tau"
 """The reason recorded for an attempt that the step-size floor ``min_tau`` stopped (no solve)."""
 
 FOLD_REASON = "mesh folds"
-EDGE_RATIO_REASON = "mesh quality: edge ratio"
-"""How a rejection by the edge-ratio limit ``max_edge_ratio`` begins (the run's error line then names
-``redistribute`` for a closed curve: :func:`willmore_nlp.runner.spacing_hint`)."""
 """How the reason of an attempt refused by the fold check (``max_dihedral``) begins."""
+
+EDGE_RATIO_REASON = "mesh quality: edge ratio"
+"""How the reason of an attempt refused by the edge-ratio limit ``max_edge_ratio`` begins (the run's error line then
+names ``redistribute`` for a closed curve: :func:`willmore_nlp.runner.spacing_hint`)."""
 
 GROWN_FALL = 0.01
 """A grown step that lowers the step objective by less than this fraction may not take the mesh below

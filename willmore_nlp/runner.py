@@ -50,6 +50,7 @@ from willmore_nlp.flow import (
     WillmoreFlow,
 )
 from willmore_nlp.geometry import willmore_energy
+from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.references import resolution_warning
 from willmore_nlp.rundir import (
     RunError,
@@ -62,7 +63,7 @@ from willmore_nlp.rundir import (
     require_run_dir,
     write_text_atomic,
 )
-from willmore_nlp.settings import flow_solvers
+from willmore_nlp.settings import FlowSettings, flow_solvers
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 """Environment variables that set BLAS/OpenMP thread counts (recorded in config.json)."""
@@ -91,7 +92,7 @@ def fold_hint(h: float, remeshes_input: bool = True, input_repair: bool = True) 
     return f"{why}, e.g. {repair}--set remesh_target={h / 2:.3g} (half the mean edge {h:.3g})"
 
 
-def spacing_hint(settings: Any, mesh: Any, rejected: list[str]) -> str:
+def spacing_hint(settings: FlowSettings, mesh: Mesh, rejected: list[str]) -> str:
     """What the one-line error adds when a closed curve's step was rejected for its edge ratio (``rejected``: the
     attempts' reasons) and ``redistribute`` is off: the nodes bunched along the curve, and redistribution spaces them
     evenly after every step. Measured (a new user's noisy 300-vertex space curve, noise 0.003): edge ratio 8.7 -> 1000
