@@ -123,3 +123,28 @@ def test_the_wait_before_a_doubling_is_at_most_adaptive_max_wait(cap: int, hold:
     for _ in range(hold):
         flow._grow_tau(tau, 0)
     assert flow._tau_adapt == 2 * tau
+
+
+def test_a_step_shortened_to_land_on_t_end_leaves_the_step_size_control_as_it_was(tmp_path) -> None:
+    """run(t_end) shortens the last step to land on t_end; the step-size control had then doubled that short step,
+    so a run extended past t_end (in Python, or through --resume --t-end) took extra small steps where a straight
+    run took full ones (a new user's check: 0.066, 0.13 instead of 0.23). A 3 : 1 ellipse file (60 v, adaptive):
+    run to t = 2.5 (steps 1.07, 1.07 and the short 0.36), then to 6: the steps after the short one are the straight
+    run's steps 3 and 4 (1.07, 2.14); a restart from the short step's state with the history (what --resume does)
+    continues with the same steps, bit for bit."""
+    t = np.linspace(0.0, 2 * np.pi, 60, endpoint=False)
+    np.savetxt(tmp_path / "ellipse.txt", np.column_stack([3 * np.cos(t), np.sin(t)]))
+    pb, _ = registry.build("file", path=str(tmp_path / "ellipse.txt"))
+    straight = [r.tau for r in pb.make_flow().run(t_end=6.0)]
+    flow = pb.make_flow()
+    first = flow.run(t_end=2.5)
+    lam = flow.lam_g.copy()
+    assert [r.tau for r in first[:2]] == straight[:2] and first[-1].tau < straight[2] and first[-1].retries == 0
+    more = flow.run(t_end=6.0)
+    assert [r.tau for r in more[:2]] == straight[2:4]
+    c = pb.make_flow()
+    last = first[-1]
+    c.restart(last.vertices, last.Y, last.t, last.step, lam, last.tau, last.retries, history=[r.row() for r in first])
+    again = c.run(t_end=6.0)
+    assert [r.tau for r in again] == [r.tau for r in more]
+    np.testing.assert_array_equal(again[-1].vertices, more[-1].vertices)

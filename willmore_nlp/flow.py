@@ -672,6 +672,8 @@ class WillmoreFlow:
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
         self.relaxed = False
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
+        self._run_tau: float | None = None  # run(t_end=...): the nominal tau, which it caps by what is left
+        self._cut = False  # the step under way was shortened to land on t_end (the step-size control ignores it)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
         self.k = 0  # (the input repair's warnings name the step)
         self._refinements = 0  # refinements so far (refine_dihedral): a given remesh_target is divided by REFINE_FACTOR
@@ -1167,6 +1169,7 @@ class WillmoreFlow:
                     return newton
         else:
             tau = min(self.tau, self._tau_adapt) if self.settings.adaptive else self.tau
+        self._cut = self._cut_by_t_end(tau, self.tau if self._run_tau is None else self._run_tau, self._new_state())
         rejected: list[str] = []
         spent = 0  # solver iterations of this step's attempts
         floor = min(self.min_tau, self.tau)
@@ -1341,7 +1344,9 @@ class WillmoreFlow:
         self.lam_g = res.lam_g
         # (a Newton step leaves the step size: doubled by three of them, a new user's noisy 2,562-v ellipsoid began
         # its next time step at 32 h, which failed five times, 29 s instead of 18.5 s)
-        if solver is None:
+        if solver is None and not (self._cut and not tries):  # (a step shortened to land on t_end: the control
+            # goes on from the step size it had asked for; it had doubled the short step, and an extended run took
+            # extra small steps: a new user's check)
             self._grow_tau(tau, tries)
             if self.solver.name == self.main_solver(self.mesh.n_vertices):  # (another solver's count is no measure)
                 self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
@@ -2064,6 +2069,19 @@ class WillmoreFlow:
         self._relax_window: list[tuple[float, bool, float]] = [(willmore, False, 0.0)]
         self._backoff, self._hold, self._last_tau = 1, 0, 0.0
 
+    def _cut_by_t_end(self, tau: float, nominal: float, fresh: bool) -> bool:
+        """Whether a first try ``tau`` of adaptive or relax steps is shorter than the step-size control's (from the
+        ``nominal`` tau), i.e. cut to land on ``run``'s t_end; never for the first step of a new state (``fresh``),
+        whose first try may be ``convex_start``'s. The same test replays a run's history (:meth:`restart`)."""
+        s = self.settings
+        if fresh or not (s.adaptive or s.relax):
+            return False
+        if s.relax:
+            wish = min(self.relax_max_tau, nominal if np.isinf(self._tau_adapt) else self._tau_adapt)
+        else:
+            wish = min(nominal, self._tau_adapt)
+        return tau < wish
+
     def _grow_tau(self, tau: float, attempt: int) -> None:
         """Set the step size the next step starts from (``adaptive`` and ``relax``), after a step accepted at tau.
 
@@ -2212,8 +2230,10 @@ class WillmoreFlow:
                 self._relax_start(float(r[column]))
             else:
                 newton = r.get("solver") == NEWTON_SOLVER
-                if not newton:
-                    self._grow_tau(float(r["tau"]), int(float(r["retries"])))
+                step, retries = int(float(r["step"])), int(float(r["retries"]))
+                fresh = step == 1 or step - 1 in refines
+                if not newton and (retries or not self._cut_by_t_end(float(r["tau"]), self.tau, fresh)):
+                    self._grow_tau(float(r["tau"]), retries)
                 self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""), newton)
                 if r.get("stability") not in (None, "") and np.isfinite(float(r["stability"])):
                     self.last_stability, self.last_gap = float(r["stability"]), float(r.get("stability_gap", "nan"))
@@ -2262,6 +2282,7 @@ class WillmoreFlow:
             raise UserInputError(f"run: steps must be an integer >= 0, got {steps!r}")
         out: list[StepResult] = []
         nominal = self.tau
+        self._run_tau = nominal
         try:
             while True:
                 if steps is not None and len(out) >= steps:
@@ -2285,4 +2306,5 @@ class WillmoreFlow:
         finally:
             self.tau = nominal
             self._time_left = float("inf")
+            self._run_tau = None
         return out
