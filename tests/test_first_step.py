@@ -41,8 +41,10 @@ def test_first_step_budget_cuts_and_retries_at_half_step() -> None:
 
 def test_first_step_budget_leaves_converging_first_steps_alone() -> None:
     """With the default budget (100) the first step is that of a flow without it, bit for bit; 0, or
-    iteration_budget = 0 (the reproduction's paper scheme), turns it off; a flow restarted at a later step
-    (k > 0) never gets the first-step budget."""
+    iteration_budget = 0 (the reproduction's paper scheme), turns it off. A flow restarted at a later step gets the
+    median's budget from the iterations of the steps before, and without them (no median) the first-step budget:
+    since 2026-12-01 any step with no median has it, not the first alone (a relaxation's time step after 27 Newton
+    steps ran 8 IPOPT attempts of 200 iterations, 385 s; a new user's check)."""
     mesh = _ellipsoid()
     tau, tt = mesh.h, 0.01 * mesh.h**2
     a = WillmoreFlow(mesh, tau, tt)
@@ -58,9 +60,33 @@ def test_first_step_budget_leaves_converging_first_steps_alone() -> None:
     assert r_off.retries == 0 and r_off.iterations > 2
     c = WillmoreFlow(mesh, tau, tt, first_step_budget=1)
     c.restart(ra.vertices, ra.Y, ra.t, ra.step, a.lam_g, simplices=ra.simplices)  # the control's repair flips
-    assert c._first_step_limit() is None and c._iteration_limit() is None
-    rc = c.step()  # k = 1 and no recorded iterations: neither budget applies
-    assert rc.retries == 0 and rc.iterations > 1
+    assert c._first_step_limit() == 1 and c._iteration_limit() is None
+    rc = c.step()  # k = 1 and no recorded iterations: the first-step budget cuts the attempts at 1 iteration
+    assert rc.retries >= 1 and all("Iteration_Budget, 1 iterations" in r for r in rc.rejected)
+    d = WillmoreFlow(mesh, tau, tt, first_step_budget=1)
+    d.restart(ra.vertices, ra.Y, ra.t, ra.step, a.lam_g, simplices=ra.simplices, iterations=[ra.iterations])
+    assert d._first_step_limit() is None and d._iteration_limit() == max(30, 2 * ra.iterations)
+    rd = d.step()
+    assert rd.retries == 0 and rd.iterations > 1
+
+
+def test_a_time_step_after_newton_steps_only_has_the_first_step_budget() -> None:
+    """A relaxation's Newton steps on normal motions record no solver iterations, so a time step after them had no
+    median and, past the first step, no budget at all: a new user's relaxation of the README's double torus (839 v)
+    spent 385 s on its step 28, after 27 Newton steps, 9 newton-krylov attempts and 8 of the IPOPT fallback, each of
+    these 200 iterations (85 s for the whole relaxation with the budget, the same final W 43.835). After Newton steps
+    the next attempt's budget is ``first_step_budget``; after a time step, the median's."""
+    from willmore_nlp.flow import NEWTON_SOLVER
+
+    mesh = _ellipsoid()
+    flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, relax=True, first_step_budget=7)
+    steps = [flow.step() for _ in range(2)]
+    assert all(r.stats.get("solver") == NEWTON_SOLVER for r in steps) and flow.k == 2
+    assert not flow._accepted_iterations and flow._first_step_limit() == 7 and flow._iteration_limit() is None
+    time_flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, first_step_budget=7)
+    r = time_flow.step()
+    assert time_flow._accepted_iterations == [r.iterations] and time_flow._first_step_limit() is None
+    assert time_flow._iteration_limit() == max(30, 2 * r.iterations)
 
 
 def test_first_step_solver_takes_the_first_step_and_hands_over() -> None:

@@ -165,3 +165,24 @@ def test_last_reason_keeps_a_cause_that_is_the_last_entry() -> None:
     assert last_reason([], "boom") == "boom"
     assert last_reason(["tau=1: solver failed"], "x") == "tau=1: solver failed"
     assert last_reason(["tau=0.5: step size below min_tau = 0.6"], "x") == "tau=0.5: step size below min_tau = 0.6"
+
+
+def test_a_light_repair_round_that_folds_the_surface_is_not_taken(tmp_path: Path) -> None:
+    """A thin trimesh torus (R/r 5, 48 x 12 sections, 576 v, the ``file`` problem) leaves its first step with
+    slivers (1.43 deg, edge ratio 40). The light repair's rounds on it folded the surface (normals of adjacent
+    triangles 179 degrees apart), the remeshing of that folded state was folded as well, and the fold check then
+    dropped the whole repair: with ``refine_dihedral = 180`` no step was repaired and the smallest angle fell to 0.5
+    deg (a new user's check; with the default refinement a remeshing of the folded state coarsened the mesh to 146 v).
+    A round that folds the surface is now not taken, and the remeshing starts from the last state without the fold:
+    the first step's state is remeshed to a healthy mesh (smallest angle >= 20 deg, no edge beyond max_dihedral)."""
+    from willmore_nlp import registry
+
+    trimesh.creation.torus(major_radius=1.0, minor_radius=0.2, major_sections=48,
+                           minor_sections=12).export(tmp_path / "torus.obj")
+    pb, _ = registry.build("file", path=str(tmp_path / "torus.obj"))
+    flow = pb.make_flow(refine_dihedral=180.0)
+    r = flow.step()
+    assert r.stats["min_angle_before_remesh"] < 2.0 and "remesh" in r.remeshed.split("+")
+    X, F = flow.X, flow.mesh.simplices
+    assert geometry.min_angles(X, F).min() >= 20.0
+    assert geometry.dihedral_angles(X, F).max() < flow.settings.max_dihedral

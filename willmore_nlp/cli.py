@@ -171,6 +171,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     _check_length(args)
     if args.workers < 1:
         raise ConfigError(f"--workers must be an integer >= 1, got {args.workers}")
+    if args.evolver is not None and args.evolver < 1:
+        raise ConfigError(f"--evolver must be an integer >= 1 (Surface Evolver's gradient iterations), got "
+                          f"{args.evolver}")
     problem, sets = args.problem, parse_overrides(args.set or [])
     if Path(problem).suffix.lower() in MESH_SUFFIXES:  # a mesh file, as 'run' takes it: the file problem (it was
         problem, sets = "file", {**sets, **mesh_file_settings(problem, sets)}  # "unknown problem 'm/capsule.obj'",

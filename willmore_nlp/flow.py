@@ -1541,14 +1541,18 @@ class WillmoreFlow:
         return max(self.settings.iteration_budget_min, int(np.ceil(self.settings.iteration_budget * med)))
 
     def _first_step_limit(self) -> int | None:
-        """Iteration budget of the first step's attempts: ``first_step_budget`` (None when 0, after a step,
-        or when ``iteration_budget = 0`` turns every budget off, as the reproduction's paper scheme does).
+        """Iteration budget of the attempts of a step with no median to compare with: ``first_step_budget`` (None
+        when 0, once the main solver has accepted a step, or when ``iteration_budget = 0`` turns every budget off, as
+        the reproduction's paper scheme does). That is the first step, and a later one when no step so far was a
+        time step of the main solver: after Newton steps of a relaxation only, or after steps of the fallback solver.
 
         The first step of a noisy input can be far harder than the rest (the noisy capsule of
         ``reports/mesh_quality_study.py``: 200 iterations at tau, tau/2 and tau/4, then 16 at tau/8),
-        while first steps that converge take 3-63 iterations on the measured meshes.
+        while first steps that converge take 3-63 iterations on the measured meshes. A new user's relaxation of
+        the README's double torus (839 v) took 27 Newton steps, then its step 28 failed 9 newton-krylov attempts and
+        8 of the IPOPT fallback's, each of these 200 iterations with no budget (385 s for the step).
         """
-        if self.k or self._accepted_iterations or self.settings.iteration_budget == 0:
+        if self._accepted_iterations or self.settings.iteration_budget == 0:
             return None
         return self.settings.first_step_budget or None
 
@@ -1653,8 +1657,14 @@ class WillmoreFlow:
             # remesh_repair passes after every step; up to REPAIR_ROUNDS times as many while the mesh is
             # below the thresholds, before the stronger repairs (which move the shape by O(h^2))
             for _ in range(REPAIR_ROUNDS):
-                X1 = rm.tangential_relax(X1, F1, free, iterations=self.settings.remesh_repair, cap=REPAIR_SPEED * moved)
-                F1, n = flip(X1, F1)
+                Xr = rm.tangential_relax(X1, F1, free, iterations=self.settings.remesh_repair, cap=REPAIR_SPEED * moved)
+                Fr, n = flip(Xr, F1)
+                if _sharpens(X, F, Xr, Fr, self.settings.max_dihedral):  # a round that folds the surface: stop
+                    # before it, so that a remeshing starts from the last state without the fold (a thin torus's
+                    # slivers: the rounds folded it to 179 deg, its remeshing was folded too and the fold check
+                    # dropped every repair; tests/test_folds.py)
+                    break
+                X1, F1 = Xr, Fr
                 flips += n
                 if not self._needs_repair(X1, F1):
                     break

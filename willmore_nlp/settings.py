@@ -535,7 +535,8 @@ class FlowSettings(Settings):
     iteration_budget_min : int
         Floor of that budget (default 30).
     first_step_budget : int
-        Iteration budget of the attempts of the first step, when there is no median yet (default
+        Iteration budget of the attempts of a step when there is no median yet (the first step, and later
+        ones until a time step of the main solver is accepted: after Newton steps of a relaxation; default
         100; 0, or ``iteration_budget = 0``: none): an unconverged attempt is cut after this many
         iterations and retried with tau/2, except the last one (``max_retries`` used up). Measured:
         first steps that converge need 3-22 iterations on the registry's surfaces and the study's
