@@ -1721,8 +1721,6 @@ class WillmoreFlow:
         try:
             X1, Y1 = self._restored(X, X1, tau, not {"remesh", "refine"} & set(actions))
         except (RuntimeError, ValueError, ArithmeticError) as exc:
-            if self.mesh is not old[0]:
-                self._build(*old[:2])
             self.tau_tilde = old[2]
             # a remeshing or refinement that the outer constraints cannot take: the light repair alone (a 642-vertex
             # vesicle cup of v = 0.5 went without any repair from step 24 on, each remeshing of its forming neck
@@ -1732,8 +1730,10 @@ class WillmoreFlow:
                 if not fallback:
                     raise exc
                 X1, F1, boundary, actions = light_only
-                if F1.shape != F.shape or not np.array_equal(F1, F):
+                if F1.shape != F.shape or not np.array_equal(F1, F):  # (its flips: built once, not the old first)
                     self._build(Mesh(X1, F1, self.mesh.source), boundary)
+                elif self.mesh is not old[0]:
+                    self._build(*old[:2])
                 X1, Y1 = self._restored(X, X1, tau, True)
             except (RuntimeError, ValueError, ArithmeticError) as last:
                 warnings.warn(f"step {self.k}: mesh repair dropped on the new mesh ({last})", stacklevel=3)

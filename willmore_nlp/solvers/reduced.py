@@ -362,20 +362,19 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     if P.simplices.shape[1] == 2 and n <= CONVEXITY_DENSE_MAX:  # a curve: dense (CONVEXITY_DENSE_MAX)
         Hd = np.column_stack([red._hessp(pt, p, e) for e in np.eye(n)])
         smallest = float(la.eigh(0.5 * (Hd + Hd.T), D.toarray(), eigvals_only=True, subset_by_index=[0, 0])[0])
-        tau = P.params.scalar(p, "tau")
-        return tau / (1.0 - smallest) if smallest < 1.0 else float("inf")
-    hess = spla.LinearOperator((n, n), matvec=lambda v: red._hessp(pt, p, np.ravel(v)), dtype=float)
-    chol = SymmetricFactor(evaluator.cholesky or "auto").factor(D)  # (the user's backend where newton-krylov's)
-    dinv = spla.LinearOperator((n, n), matvec=lambda v: chol.solve(np.ravel(v)), dtype=float)
-    # a deterministic start (ARPACK's own random one depends on the calls before): the gradient, which is largest
-    # where the energy concentrates
-    v0 = pt.grad + 1e-3 * max(float(np.abs(pt.grad).max()), 1e-300)
-    try:
-        lam = spla.eigsh(hess, k=1, M=D, Minv=dinv, which="SA", tol=0.1, ncv=min(40, n - 1),
-                         maxiter=restarts, v0=v0, return_eigenvectors=False)
-    except spla.ArpackNoConvergence:
-        return float("nan")
-    smallest = float(lam[0])
+    else:
+        hess = spla.LinearOperator((n, n), matvec=lambda v: red._hessp(pt, p, np.ravel(v)), dtype=float)
+        chol = SymmetricFactor(evaluator.cholesky or "auto").factor(D)  # (the user's backend where newton-krylov's)
+        dinv = spla.LinearOperator((n, n), matvec=lambda v: chol.solve(np.ravel(v)), dtype=float)
+        # a deterministic start (ARPACK's own random one depends on the calls before): the gradient, which is largest
+        # where the energy concentrates
+        v0 = pt.grad + 1e-3 * max(float(np.abs(pt.grad).max()), 1e-300)
+        try:
+            lam = spla.eigsh(hess, k=1, M=D, Minv=dinv, which="SA", tol=0.1, ncv=min(40, n - 1),
+                             maxiter=restarts, v0=v0, return_eigenvectors=False)
+        except spla.ArpackNoConvergence:
+            return float("nan")
+        smallest = float(lam[0])
     tau = P.params.scalar(p, "tau")
     return tau / (1.0 - smallest) if smallest < 1.0 else float("inf")
 
