@@ -629,7 +629,9 @@ class FlowSettings(Settings):
     remesh_min_angle : float
         Smallest patch angle (degrees) that triggers the stronger repairs (default 15). The isotropic
         remeshing comes earlier, while the repaired patch's smallest angle is below this plus its fall in
-        the step just taken, so that stepped states stay above it where angles fall steadily.
+        the step just taken, so that stepped states stay above it where angles fall steadily. An attempt that
+        takes it from at or above this to below a third of it is retried at tau / 2 (not a solver's last attempt:
+        ``flow.COLLAPSE_FRACTION``, docs/guide/mesh_quality.md, "Thin inputs").
     remesh_max_edge_ratio : float
         Longest/shortest patch edge ratio that triggers it (default 10; a coarse torus grid has 3.6).
     remesh_target : float, optional
