@@ -1,6 +1,7 @@
 """Solver-comparison studies on a Dask LocalCluster: artefacts, failures recorded, reruns skip finished cases."""
 
 import csv
+import itertools
 import json
 import subprocess
 import sys
@@ -319,3 +320,26 @@ def test_compare_takes_a_mesh_file_as_run_does(tmp_path, capsys) -> None:
     assert row["w_initial"] == pytest.approx(w0, rel=1e-12) and abs(row["w_initial"] / w_raw - 1) > 1e-3
     assert main(["compare", str(path), "--evolver", "-5", "--out", str(tmp_path / "y")]) == 2
     assert "--evolver must be an integer >= 1" in capsys.readouterr().err
+
+
+def test_a_case_whose_energy_rose_is_named_so_and_its_warnings_are_kept(tmp_path, capsys) -> None:
+    """The semi-implicit baseline at a large tau on the coarse torus raises its discrete energy in its first step (and
+    the step refines the mesh). The case was listed ``ok`` (a new user took it for a success) and the refinement's
+    warning was printed by the worker in Python's file:line format among the progress lines. The summary now says
+    ``energy rose`` (the rise read off the case's own energies) and lists the warnings, kept in the case's record."""
+    from willmore_nlp.cli import main
+
+    out = tmp_path / "study"
+    assert main(["compare", "torus", "--solvers", "semi-implicit", "--option", "tangential_weight=1", "--taus",
+                 "0.1h,1h", "--steps", "1", "--out", str(out), "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "UserWarning" not in err and ".py:" not in err, err
+    recs = {json.loads(f.read_text())["case"]["tau"]: json.loads(f.read_text()) for f in (out / "cases").glob("*")}
+    rise = {t: max(b["energy"] - a["energy"] for a, b in itertools.pairwise(r["rows"])) for t, r in recs.items()}
+    assert rise["1h"] > 1e-3 and rise["0.1h"] < 0, rise  # (the energies the cases recorded)
+    assert "energy rose" in err and recs["1h"]["status"] == "ok"  # (it ran every step; the summary names the rise)
+    summary = (out / "summary.md").read_text()
+    rows = {t: next(ln for ln in summary.splitlines() if ln.startswith(f"| semi-implicit tau={t} |")) for t in recs}
+    assert "| energy rose |" in rows["1h"] and "| ok |" in rows["0.1h"]
+    assert recs["1h"]["warnings"] and all(w in summary for w in recs["1h"]["warnings"])
+    assert any("the mesh was refined" in w for w in recs["1h"]["warnings"])

@@ -534,6 +534,12 @@ def test_output_paths_that_cannot_be_made_and_compare_misuse(tmp_path: Path,
          "--workers must be an integer >= 1, got 0"),
         (["compare", "circle", "--out", str(tmp_path / "s"), "--steps", "0"], "--steps must be an integer >= 1"),
         (["compare", "circle", "--out", str(tmp_path / "s"), "--t-end", "-1"], "--t-end must be a finite number > 0"),
+        (["run", "circle", "--out", str(tmp_path / "r3"), "--set", "steps=0", "--steps", "3"],
+         "steps is given twice, by --set steps=0 and by --steps 3: give one"),  # (it ran 3 steps silently)
+        (["run", "circle", "--out", str(tmp_path / "r3"), "--set", "t_end=0.5", "--t-end", "0.1"],
+         "t_end is given twice, by --set t_end=0.5 and by --t-end 0.1"),
+        (["compare", "circle", "--out", str(tmp_path / "s"), "--set", "t_end=0.5", "--t-end", "0.1"],
+         "t_end is given twice"),
     ]
     for argv, text in cases:
         assert cli.main(argv) == 2, argv

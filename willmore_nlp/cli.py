@@ -22,12 +22,17 @@ __all__ = ["build_parser", "main"]
 
 
 
-def _check_length(args: argparse.Namespace) -> None:
-    """``--steps`` and ``--t-end`` of ``run`` and ``compare``: a positive count and a positive finite time."""
+def _check_length(args: argparse.Namespace, sets: dict[str, Any]) -> None:
+    """``--steps`` and ``--t-end`` of ``run`` and ``compare``: a positive count and a positive finite time, not also
+    given by ``--set`` (``sets``: ``--set steps=0 --steps 3`` ran 3 steps silently, a new user's check)."""
     if args.steps is not None and args.steps < 1:
         raise ConfigError(f"--steps must be an integer >= 1 (the total number of steps), got {args.steps}")
     if args.t_end is not None and not 0 < args.t_end < math.inf:
         raise ConfigError(f"--t-end must be a finite number > 0, got {args.t_end}")
+    for key, flag in (("steps", "--steps"), ("t_end", "--t-end")):
+        if getattr(args, key) is not None and key in sets:
+            raise ConfigError(f"{key} is given twice, by --set {key}={sets[key]} and by {flag} {getattr(args, key)}: "
+                              "give one")
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -40,12 +45,12 @@ def cmd_run(args: argparse.Namespace) -> int:
                               "(a curve: state.txt), then willmore-nlp run state.obj --set ... --out NEW")
         return runner.resume(args.resume, steps=args.steps, t_end=args.t_end, quiet=args.quiet,
                              ignore_late_signals=True)
-    _check_length(args)
     if not args.target:
         raise ConfigError("run needs a TARGET (problem name, .toml config or mesh file), or --resume DIR")
     if args.overwrite and not args.out:
         raise ConfigError("--overwrite needs --out DIR (the run directory to start afresh)")
     overrides: dict[str, Any] = parse_overrides(args.set or [])
+    _check_length(args, overrides)
     if args.steps is not None:
         overrides["steps"] = args.steps
     if args.t_end is not None:
@@ -168,13 +173,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from willmore_nlp.apps.study import check_cases, make_grid, run_study
     from willmore_nlp.registry import check_params
 
-    _check_length(args)
     if args.workers < 1:
         raise ConfigError(f"--workers must be an integer >= 1, got {args.workers}")
     if args.evolver is not None and args.evolver < 1:
         raise ConfigError(f"--evolver must be an integer >= 1 (Surface Evolver's gradient iterations), got "
                           f"{args.evolver}")
     problem, sets = args.problem, parse_overrides(args.set or [])
+    _check_length(args, sets)
     if Path(problem).suffix.lower() in MESH_SUFFIXES:  # a mesh file, as 'run' takes it: the file problem (it was
         problem, sets = "file", {**sets, **mesh_file_settings(problem, sets)}  # "unknown problem 'm/capsule.obj'",
         # a new user's check)

@@ -429,7 +429,7 @@ class StepResult:
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
                   "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard",
                   "drift_share", "dilation_undone", "stability", "stability_gap", "energy_before_move",
-                  "stability_gap_before_move"):
+                  "willmore_before_move", "stability_gap_before_move"):
             # (n_cg to n_guard: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
             # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS; the last two: the
             # drift rule's, DRIFT_SHARE)
@@ -1395,6 +1395,7 @@ class WillmoreFlow:
         result.stats["solver"] = solver_name
         result.remeshed = action
         if self.settings.relax:
+            self._control_change += self._control_share(result.row())
             # the relax test: over the last RELAX_WINDOW steps without smoothing or remeshing, the Willmore
             # energy changed by less than relax_tol relative per nominal step, or rose without a flip
             value = self._watched(result)
@@ -1417,7 +1418,7 @@ class WillmoreFlow:
                         new.stats.setdefault(k, v)
                     new.stats.update(energy_after_remesh=new.energy, stability=self.last_stability,
                                      stability_gap=self.last_gap, energy_before_move=e_rest,
-                                     stability_gap_before_move=gap_rest)
+                                     willmore_before_move=result.willmore, stability_gap_before_move=gap_rest)
                     new.remeshed = "+".join([*filter(None, [action]), moved])
                     value = self._watched(new)
                     if moved == "saddle":  # (the window restarts from the state off the saddle)
@@ -2080,6 +2081,7 @@ class WillmoreFlow:
         else:
             why = (f"relaxed: step {self.k} ended {RELAX_WINDOW} steps over which {what} rose with no edge flip (the "
                    "scheme's drift at rest)")
+        why += self._above_origin()
         lowest, left = self.last_stability, f" ({self._kicks} saddle(s) left on the way)" if self._kicks else ""
         if not np.isfinite(lowest):  # (not tested: relax_check off, a curve, a surface above the size limit, or the
             # iterative eigensolver failed)
@@ -2102,11 +2104,43 @@ class WillmoreFlow:
                       + (f"left {MAX_SADDLE_KICKS} times already (MAX_SADDLE_KICKS)" if self._kicks >= MAX_SADDLE_KICKS
                          else "no move along its mode lowered the energy"))
 
+    def _above_origin(self) -> str:
+        """relax_message's note on a relaxation that ended above the watched energy it began with ("" otherwise):
+        the mesh control's actions between the steps can raise it (each mesh discretises the surface anew: a trimesh
+        uv sphere flowed as given, W 24.9273 -> 24.9642, its remeshing +0.116, its steps -0.079)."""
+        end, start = self._relax_value(self.X, self.Y), self._relax_origin
+        if not end > start:
+            return ""
+        name = {"energy": "the scheme's energy", "willmore_gamma": "w_gamma"}.get(self._relax_column, "W")
+        head = f"; {name} ended above its start, {start:.6g} -> {end:.6g} ({100 * (end / start - 1):+.2g} %)"
+        control = self._control_change
+        if not np.isfinite(control):
+            return head
+        return head + (f": the mesh control's actions after the steps changed it by {control:+.4g} in all (each mesh "
+                       f"discretises the surface anew), the steps and moves at rest by {end - start - control:+.4g}")
+
     def _relax_start(self, willmore: float) -> None:
         """Start the relax window at a state of energy ``willmore`` (:meth:`_relax_value`), with no step-size
         back-off."""
         self._relax_window: list[tuple[float, bool, float]] = [(willmore, False, 0.0)]
         self._backoff, self._hold, self._last_tau = 1, 0, 0.0
+        self._relax_origin, self._control_change = willmore, 0.0  # (relax_message: where the watched energy began,
+        # and what the mesh control's actions after the steps changed it by since)
+
+    def _control_share(self, row: dict[str, Any]) -> float:
+        """What the mesh control's action after a step changed the watched energy by (:meth:`_relax_value`): the
+        state after it (before a move at rest, ``relax_check``) against the stepped state, read off the step's
+        :meth:`StepResult.row` or its history.csv row; 0 when the mesh control did not act, nan when the row does not
+        tell (the anisotropic energy has no before value)."""
+        if not row.get("remesh_action"):
+            return 0.0
+        column = self._relax_column
+        if column == "willmore_gamma":
+            return float("nan")
+        before = "willmore_before_remesh" if column == "willmore_energy" else "energy_before_remesh"
+        moved = "willmore_before_move" if column == "willmore_energy" else "energy_before_move"
+        after = row.get(moved) if row.get(moved) not in (None, "") else row[column]
+        return float(after) - float(row.get(before) or "nan")
 
     def _cut_by_t_end(self, tau: float, nominal: float, fresh: bool) -> bool:
         """Whether a first try ``tau`` of adaptive or relax steps is shorter than the step-size control's (from the
@@ -2274,6 +2308,7 @@ class WillmoreFlow:
                 if not newton and (retries or not self._cut_by_t_end(float(r["tau"]), self.tau, fresh)):
                     self._grow_tau(float(r["tau"]), retries)
                 self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""), newton)
+                self._control_change += self._control_share(r)
                 if r.get("stability") not in (None, "") and np.isfinite(float(r["stability"])):
                     self.last_stability, self.last_gap = float(r["stability"]), float(r.get("stability_gap", "nan"))
         if not replayed:
