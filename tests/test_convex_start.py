@@ -382,3 +382,30 @@ def test_a_smooth_curve_whose_lanczos_look_found_nothing_gets_its_dense_tau_c_an
     for _ in range(4):
         w.append(flow.step().willmore)
     assert np.all(np.diff(w) < 0)
+
+
+def test_a_fixed_step_flow_that_fails_names_the_convexity_limit_and_a_tau_below_it_steps() -> None:
+    """The torus problem at tau = 5.9 with tangential_weight = 1 (a new user's compare at 20h) failed its first step at
+    every attempt (IPOPT, 100-200 iterations each, to tau / 16) with no word on what to do: convex_start takes only
+    adaptive or relax steps. The error now ends with the step problem's convexity limit at the state and the two ways
+    on; a fixed step at the tau it names (tau_c / 2) is taken at its first attempt, and the adaptive flow's first step
+    starts below tau_c."""
+    import re
+
+    from willmore_nlp import registry
+    from willmore_nlp.flow import FlowError
+
+    pb, _ = registry.build("torus", tau=5.9, tangential_weight=1.0)
+    with pytest.raises(FlowError) as err:
+        pb.make_flow(max_retries=1, **{"ipopt.max_iter": 40}).step()
+    assert err.value.hint and str(err.value).endswith(err.value.hint)
+    tau_c = float(re.search(r"convex at this state only below tau = ([0-9.e+-]+) ", err.value.hint).group(1))
+    given = float(re.search(r"give tau = ([0-9.e+-]+) ", err.value.hint).group(1))
+    assert tau_c < 5.9 / 16 and given <= tau_c / 2 * 1.01 and "adaptive = true" in err.value.hint
+    at_limit, _ = registry.build("torus", tau=given, tangential_weight=1.0)
+    flow = at_limit.make_flow()
+    w0 = flow.state().willmore
+    r = flow.step()
+    assert r.tau == given and r.retries == 0 and r.willmore < w0
+    adaptive = pb.make_flow(adaptive=True, **{"ipopt.max_iter": 40}).step()
+    assert adaptive.tau <= tau_c

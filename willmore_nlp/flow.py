@@ -48,14 +48,16 @@ class FlowError(RuntimeError):
     rejected : reasons of the rejected attempts, ``"tau=...: reason"`` (``"tau=...: SOLVER: reason"`` with a
         ``fallback_solver``)
     results : the steps :meth:`WillmoreFlow.run` accepted before the failure (empty from :meth:`WillmoreFlow.step`)
+    hint : what the message ends with after the rejected attempts: how to take the step ("" none)
     """
 
     def __init__(self, message: str, *, step: int = -1, t: float = float("nan"),
-                 rejected: list[str] | None = None) -> None:
-        super().__init__(message)
+                 rejected: list[str] | None = None, hint: str = "") -> None:
+        super().__init__(message + hint)
         self.step = step
         self.t = t
         self.rejected = list(rejected or [])
+        self.hint = hint
         self.results: list[StepResult] = []
 
 
@@ -120,6 +122,9 @@ this fraction of it is retried at tau / 2 (:meth:`WillmoreFlow._collapses`). Mea
 defaults (trimesh torus R/r 5, 48 x 12): the step at tau left 1.43-deg slivers with W 37.3 below the torus's 4 pi^2,
 the remeshing lifted W to 54.8 and step 2 then needed 8 retries; the healthy inputs' steps (a capsule, a cone, a
 cylinder, a box, ellipsoids, the genus-2 surfaces) stay above 18 deg."""
+
+SOLVER_REASON = "solver did not converge"
+"""How the reason of an attempt whose solver did not converge begins."""
 
 COLLAPSE_REASON = "step collapses the mesh"
 """How the reason of an attempt refused by :meth:`WillmoreFlow._collapses` begins."""
@@ -1102,7 +1107,7 @@ class WillmoreFlow:
 
     def _reject_reason(self, res: Any, f0: float, X: np.ndarray) -> str | None:
         if not res.converged:
-            return f"solver did not converge ({res.status}, {res.iterations} iterations)"
+            return f"{SOLVER_REASON} ({res.status}, {res.iterations} iterations)"
         if not np.all(np.isfinite(X)):
             return "non-finite positions"
         violation = self.constraint_violation(X)
@@ -1202,6 +1207,7 @@ class WillmoreFlow:
         floor = min(self.min_tau, self.tau)
         below: float | None = None  # a step size that fell below min_tau
         tau0, tries = tau, -1  # tries: attempts so far (the step's retries when it is accepted)
+        smallest = tau  # the smallest step size attempted
         solvers = self._step_solvers()
         start = None  # the first step's step size below tau_c, when the first look finds it far below tau
         for name in solvers:
@@ -1229,6 +1235,7 @@ class WillmoreFlow:
                 if rejected:
                     self.on_retry(f"step {self.k + 1}: {_shortened(rejected[-1].replace(': ', ' rejected (', 1))}); "
                                   f"attempt {tries + 1}: {name} at tau={tau:.3g}")
+                smallest = min(smallest, tau)
                 X, Y, res, reason, moved = self._attempt(tau, attempt >= self.settings.max_retries)
                 spent += res.iterations if res is not None else 0
                 if reason is None:
@@ -1255,7 +1262,7 @@ class WillmoreFlow:
             f"step {self.k + 1} at t={self.t:.6g} failed after {self.settings.max_retries} retries"
             + (f" with each of {' and '.join(solvers)}" if len(solvers) > 1 else "") + wide + ": "
             + "; ".join(rejected),
-            step=self.k + 1, t=self.t, rejected=rejected,
+            step=self.k + 1, t=self.t, rejected=rejected, hint=self._fixed_step_hint(smallest, rejected),
         )
 
     def _attempt(self, tau: float, last: bool) -> tuple[np.ndarray, np.ndarray, Any, str | None, dict[str, float]]:
@@ -1999,12 +2006,7 @@ class WillmoreFlow:
         already after the first attempt when a look before it did not converge). The step size is the largest tau /
         2^j not above tau_c / 2, or not above tau_c when that one is below the floor ``min_tau``. None: the first
         attempt at tau, or halve tau as usual."""
-        from willmore_nlp.solvers.reduced import (
-            CONVEXITY_FIRST_RESTARTS,
-            CONVEXITY_RESTARTS,
-            ReducedSolver,
-            convexity_limit,
-        )
+        from willmore_nlp.solvers.reduced import CONVEXITY_FIRST_RESTARTS, CONVEXITY_RESTARTS
 
         s = self.settings
         if not (s.convex_start and (s.adaptive or s.relax)):
@@ -2013,17 +2015,8 @@ class WillmoreFlow:
         # 28,212-vertex dumbbell: the first look's two cycles did not converge, the full one found tau / 1.65e5 in
         # 10 s, and the attempt at tau / 2 in between cost 200 s)
         looked = self._tau_c is not None and np.isnan(self._tau_c[0])
-        restarts = CONVEXITY_FIRST_RESTARTS if failed == 0 or (failed == 1 and not looked) else CONVEXITY_RESTARTS
-        # (once per number of restarts: a fallback solver's failures jump to the same step sizes)
-        if self._tau_c is None or (np.isnan(self._tau_c[0]) and self._tau_c[1] < restarts):
-            z0 = self.problem.pack_z(self.X, self.Y)
-            solver = self.solver if isinstance(self.solver, ReducedSolver) else None  # (newton-krylov: its factors)
-            try:
-                self._tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver), restarts
-            except np.linalg.LinAlgError:  # J_Y not positive definite at X^k (an anisotropy of a huge scale,
-                # gamma2:1e20, exited 70 with this traceback: a new user's check): no look; the attempts say why
-                self._tau_c = float("nan"), restarts
-        tau_c = self._tau_c[0]
+        tau_c = self._look_tau_c(tau, CONVEXITY_FIRST_RESTARTS if failed == 0 or (failed == 1 and not looked)
+                                 else CONVEXITY_RESTARTS)
         if not tau_c < tau / (CONVEX_FAR if failed <= 1 else CONVEX_JUMP):  # (nan: not found)
             return None
         floor = min(self.min_tau, self.tau)
@@ -2044,6 +2037,40 @@ class WillmoreFlow:
                           f"may all fail (--set min_tau={tau_c / 4:.2g} lets the next one start below tau_c)",
                           stacklevel=4)
         return None
+
+    def _look_tau_c(self, tau: float, restarts: int) -> float:
+        """The step problem's convexity limit tau_c at X^k (:func:`~willmore_nlp.solvers.reduced.convexity_limit`
+        with ``restarts``; nan: not found), looked for once per number of restarts and state (a fallback solver's
+        failures jump to the same step sizes)."""
+        from willmore_nlp.solvers.reduced import ReducedSolver, convexity_limit
+
+        if self._tau_c is None or (np.isnan(self._tau_c[0]) and self._tau_c[1] < restarts):
+            z0 = self.problem.pack_z(self.X, self.Y)
+            solver = self.solver if isinstance(self.solver, ReducedSolver) else None  # (newton-krylov: its factors)
+            try:
+                self._tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver), restarts
+            except np.linalg.LinAlgError:  # J_Y not positive definite at X^k (an anisotropy of a huge scale,
+                # gamma2:1e20, exited 70 with this traceback: a new user's check): no look; the attempts say why
+                self._tau_c = float("nan"), restarts
+        return self._tau_c[0]
+
+    def _fixed_step_hint(self, tried: float, rejected: list[str]) -> str:
+        """What a failed step of a flow with fixed steps (neither ``adaptive`` nor ``relax``, which take
+        ``convex_start``) adds to its error when its solvers did not converge at any step size tried (``tried``: the
+        smallest) and the step problem is convex at X^k only below a smaller tau_c. Measured (2026-12-02): the torus
+        problem at tau = 5.9 with tangential_weight = 1 failed at tau to tau / 16 (IPOPT, 100-200 iterations each);
+        tau_c = tau / 152; with adaptive = true its first step is taken at tau / 2^9 and the steps grow."""
+        from willmore_nlp.solvers.reduced import CONVEXITY_RESTARTS
+
+        s = self.settings
+        if s.adaptive or s.relax or self.problem.nh or not any(SOLVER_REASON in r for r in rejected):
+            return ""
+        tau_c = self._look_tau_c(tried, CONVEXITY_RESTARTS)
+        if not tau_c < tried:  # (nan: not found)
+            return ""
+        return (f"; the step problem is convex at this state only below tau = {tau_c:.3g} = tau / "
+                f"{self.tau / tau_c:.3g}: give tau = {tau_c / 2:.2g} (tau_c / 2) or less, or adaptive = true (its "
+                "first step starts below tau_c, convex_start, and the steps grow)")
 
     def _convex_far(self, tau: float) -> float | None:
         """tau_c when the first look of :meth:`_convex_start` found tau_c < tau / :data:`CONVEX_FAR` (a step

@@ -313,7 +313,7 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
         print(f"willmore-nlp: error: step {exc.step} at t = {exc.t:.6g} failed after {len(exc.rejected)} "
               f"attempts (last: {why}); all attempts are in {out / 'status.json'}; steps 0..{flow.k} are kept"
               + (fold_hint(flow.mesh.h, flow.remesh, flow.settings.input_repair) if FOLD_REASON in why else "")
-              + spacing_hint(flow.settings, flow.mesh, exc.rejected),
+              + spacing_hint(flow.settings, flow.mesh, exc.rejected) + exc.hint,
               file=sys.stderr)
         return EXIT_FAILED
     except Exception as exc:

@@ -514,7 +514,9 @@ class FlowSettings(Settings):
         step problem without them, a lower bound, and only the last attempt (``max_retries``) goes below it, with no
         first look (docs/guide/terms.md, "Volume and area of closed surfaces"). A first step taken at tau or tau / 2,
         and every smooth input, are unchanged (the first look costs 0.1-10 s: on newton-krylov's first step, on other
-        solvers' where a first attempt failed). Default true.
+        solvers' where a first attempt failed). A flow with fixed steps keeps them; when one of its steps fails because
+        its solvers did not converge, the error names tau_c there (and ``tau = tau_c / 2`` or ``adaptive = true`` as
+        the ways on). Default true.
     min_tau : float, optional
         Floor of the step size: a step whose next attempt would be below ``min(min_tau, tau)``
         fails (FlowError, status "failed") instead of freezing the clock. Default 1e-2 h^4
