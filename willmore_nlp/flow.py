@@ -681,7 +681,7 @@ class WillmoreFlow:
         self._tau_adapt = float("inf")  # first try of the next step under adaptive control
         # convex_start: the convexity limit tau_c of the first step (or of the first after a refinement) and the
         # restarts its Lanczos iteration had
-        self._tau_c: tuple[float, int] | None = None
+        self._tau_c: tuple[float, int, int] | None = None  # convexity limit, its look's restarts, the step k of X^k
         self._refined_at = -1  # the step after which the mesh was last refined (-1: never)
         self.initial_mesh = mesh
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
@@ -2014,7 +2014,7 @@ class WillmoreFlow:
         # the full look after two failures, and already after one when a first look before it found nothing (a
         # 28,212-vertex dumbbell: the first look's two cycles did not converge, the full one found tau / 1.65e5 in
         # 10 s, and the attempt at tau / 2 in between cost 200 s)
-        looked = self._tau_c is not None and np.isnan(self._tau_c[0])
+        looked = self._tau_c is not None and self._tau_c[2] == self.k and np.isnan(self._tau_c[0])
         tau_c = self._look_tau_c(tau, CONVEXITY_FIRST_RESTARTS if failed == 0 or (failed == 1 and not looked)
                                  else CONVEXITY_RESTARTS)
         if not tau_c < tau / (CONVEX_FAR if failed <= 1 else CONVEX_JUMP):  # (nan: not found)
@@ -2044,14 +2044,16 @@ class WillmoreFlow:
         failures jump to the same step sizes)."""
         from willmore_nlp.solvers.reduced import ReducedSolver, convexity_limit
 
-        if self._tau_c is None or (np.isnan(self._tau_c[0]) and self._tau_c[1] < restarts):
+        fresh = self._tau_c is None or self._tau_c[2] != self.k  # (no look at this state yet)
+        if fresh or (np.isnan(self._tau_c[0]) and self._tau_c[1] < restarts):
             z0 = self.problem.pack_z(self.X, self.Y)
             solver = self.solver if isinstance(self.solver, ReducedSolver) else None  # (newton-krylov: its factors)
             try:
-                self._tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver), restarts
+                tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver)
             except np.linalg.LinAlgError:  # J_Y not positive definite at X^k (an anisotropy of a huge scale,
                 # gamma2:1e20, exited 70 with this traceback: a new user's check): no look; the attempts say why
-                self._tau_c = float("nan"), restarts
+                tau_c = float("nan")
+            self._tau_c = tau_c, restarts, self.k
         return self._tau_c[0]
 
     def _fixed_step_hint(self, tried: float, rejected: list[str]) -> str:
@@ -2078,7 +2080,8 @@ class WillmoreFlow:
         under the floor ``min_tau`` too, newton-krylov's first-step attempts are left to the ``fallback_solver`` (a
         noisy icosphere of 2,279 v, tau / tau_c = 2.8e5, tau_c under the floor: nine failed attempts of
         newton-krylov, then IPOPT's step at tau, 83 s; docs/guide/performance.md)."""
-        return self._tau_c[0] if self._tau_c is not None and self._tau_c[0] < tau / CONVEX_FAR else None
+        return self._tau_c[0] if self._tau_c is not None and self._tau_c[2] == self.k and \
+            self._tau_c[0] < tau / CONVEX_FAR else None
 
     def _relax_value(self, X: np.ndarray, Y: np.ndarray) -> float:
         """The energy relax=true watches at the state (X, Y): the Willmore energy, the anisotropic one (a
@@ -2134,7 +2137,7 @@ class WillmoreFlow:
     def _above_origin(self) -> str:
         """relax_message's note on a relaxation that ended above the watched energy it began with ("" otherwise):
         the mesh control's actions between the steps can raise it (each mesh discretises the surface anew: a trimesh
-        uv sphere flowed as given, W 24.9273 -> 24.9642, its remeshing +0.116, its steps -0.079)."""
+        uv sphere flowed as given, W 24.9273 -> 24.9642, its remeshing +0.126, its steps -0.089)."""
         end, start = self._relax_value(self.X, self.Y), self._relax_origin
         if not end > start:
             return ""
