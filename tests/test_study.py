@@ -343,3 +343,19 @@ def test_a_case_whose_energy_rose_is_named_so_and_its_warnings_are_kept(tmp_path
     assert "| energy rose |" in rows["1h"] and "| ok |" in rows["0.1h"]
     assert recs["1h"]["warnings"] and all(w in summary for w in recs["1h"]["warnings"])
     assert any("the mesh was refined" in w for w in recs["1h"]["warnings"])
+
+
+def test_a_failed_case_keeps_its_errors_hint_in_the_summary(tmp_path) -> None:
+    """A case whose step fails for its solvers ends its error with how to take the step (the convexity limit: the
+    torus at 20 h with tangential_weight = 1); the error is cut to 500 characters in the record and 120 in the summary,
+    which lost it: the hint is kept whole with the case's warnings and listed in the summary."""
+    from dataclasses import asdict
+
+    case = Case("torus", "ipopt", "20h", {}, steps=1,
+                options={"tangential_weight": 1.0, "max_retries": 1, "ipopt.max_iter": 40})
+    (tmp_path / STUDY_FILE).write_text(json.dumps({"cases": [asdict(case)]}))
+    rec = run_case(case, str(tmp_path))
+    assert rec["status"] == "failed"
+    (hint,) = [w for w in rec["warnings"] if w.startswith("failed: ")]
+    assert "convex at this state only below tau" in hint and "adaptive = true" in hint
+    assert hint in (write_study(tmp_path)).read_text()

@@ -162,11 +162,14 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
             flow.run(steps=steps, t_end=t_end, callback=keep)
         except FlowError as exc:
             rec.update(status="failed", error=str(exc).splitlines()[0][:500])
+            if exc.hint:  # (how to take the step: cut off the error's 500 characters, and the summary's 120)
+                rec["warnings"] = [f"failed: {exc.hint.lstrip('; ')}"]
         except Exception as exc:
             rec.update(status="failed", error=f"{type(exc).__name__}: {exc}"[:500],
                        traceback=traceback.format_exc(limit=5))
-    rec["warnings"] = list(dict.fromkeys(str(w.message) for w in caught
-                                         if not issubclass(w.category, DeprecationWarning)))
+    rec["warnings"] = list(dict.fromkeys([*(str(w.message) for w in caught
+                                            if not issubclass(w.category, DeprecationWarning)),
+                                          *rec.get("warnings", [])]))
     rec["wall"] = time.perf_counter() - t0
     write_text_atomic(Path(out) / "cases" / f"{case.key}.json", json.dumps(rec, default=float))
     return rec
@@ -529,7 +532,8 @@ def write_study(out: str | os.PathLike[str]) -> Path:
                              f"{r['iterations']} |")
     warned = [rec for rec in recs if rec.get("warnings")]
     if warned:
-        lines += ["", "Warnings of the cases (each once per case; the full list in `cases/<key>.json`):", ""]
+        lines += ["", "Warnings of the cases, and what a failed case's error suggests (each once per case; the full "
+                  "list in `cases/<key>.json`):", ""]
         for rec in warned:
             more = len(rec["warnings"]) - SHOWN_WARNINGS
             lines += [f"- {_label(rec, varying)}: {w}" for w in rec["warnings"][:SHOWN_WARNINGS]]
