@@ -2038,10 +2038,10 @@ class WillmoreFlow:
                           stacklevel=4)
         return None
 
-    def _look_tau_c(self, tau: float, restarts: int) -> float:
+    def _look_tau_c(self, tau: float, restarts: int, dense: bool = False) -> float:
         """The step problem's convexity limit tau_c at X^k (:func:`~willmore_nlp.solvers.reduced.convexity_limit`
-        with ``restarts``; nan: not found), looked for once per number of restarts and state (a fallback solver's
-        failures jump to the same step sizes)."""
+        with ``restarts`` and ``dense``; nan: not found), looked for once per number of restarts and state (a
+        fallback solver's failures jump to the same step sizes)."""
         from willmore_nlp.solvers.reduced import ReducedSolver, convexity_limit
 
         fresh = self._tau_c is None or self._tau_c[2] != self.k  # (no look at this state yet)
@@ -2049,7 +2049,7 @@ class WillmoreFlow:
             z0 = self.problem.pack_z(self.X, self.Y)
             solver = self.solver if isinstance(self.solver, ReducedSolver) else None  # (newton-krylov: its factors)
             try:
-                tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver)
+                tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver, dense)
             except np.linalg.LinAlgError:  # J_Y not positive definite at X^k (an anisotropy of a huge scale,
                 # gamma2:1e20, exited 70 with this traceback: a new user's check): no look; the attempts say why
                 tau_c = float("nan")
@@ -2059,20 +2059,24 @@ class WillmoreFlow:
     def _fixed_step_hint(self, tried: float, rejected: list[str]) -> str:
         """What a failed step of a flow with fixed steps (neither ``adaptive`` nor ``relax``, which take
         ``convex_start``) adds to its error when its solvers did not converge at any step size tried (``tried``: the
-        smallest) and the step problem is convex at X^k only below a smaller tau_c. Measured (2026-12-02): the torus
-        problem at tau = 5.9 with tangential_weight = 1 failed at tau to tau / 16 (IPOPT, 100-200 iterations each);
-        tau_c = tau / 152; with adaptive = true its first step is taken at tau / 2^9 and the steps grow."""
-        from willmore_nlp.solvers.reduced import CONVEXITY_RESTARTS
+        smallest) and the step problem is convex at X^k only below a smaller tau_c (exact up to
+        :data:`~willmore_nlp.solvers.reduced.CONVEXITY_DENSE_MAX` unknowns: ``convexity_limit``'s dense eigenproblem;
+        above, its Lanczos estimate, never below the true tau_c). Measured (2026-12-02): the torus problem at tau = 5.9
+        with tangential_weight = 1 failed at tau to tau / 16 (IPOPT, 100-200 iterations each); tau_c = tau / 421 (the
+        Lanczos look said tau / 152); with adaptive = true its first step is taken at tau / 2^9 and the steps grow."""
+        from willmore_nlp.solvers.reduced import CONVEXITY_DENSE_MAX, CONVEXITY_RESTARTS
 
         s = self.settings
         if s.adaptive or s.relax or self.problem.nh or not any(SOLVER_REASON in r for r in rejected):
             return ""
-        tau_c = self._look_tau_c(tried, CONVEXITY_RESTARTS)
+        tau_c = self._look_tau_c(tried, CONVEXITY_RESTARTS, dense=True)
         if not tau_c < tried:  # (nan: not found)
             return ""
+        exact = self.problem.nX * self.problem.m <= CONVEXITY_DENSE_MAX  # (convexity_limit's dense eigenproblem)
         return (f"; the step problem is convex at this state only below tau = {tau_c:.3g} = tau / "
-                f"{self.tau / tau_c:.3g}: give tau = {tau_c / 2:.2g} (tau_c / 2) or less, or adaptive = true (its "
-                "first step starts below tau_c, convex_start, and the steps grow)")
+                f"{self.tau / tau_c:.3g}{'' if exact else ' or less (an estimate from above)'}: give tau = "
+                f"{tau_c / 2:.2g} (tau_c / 2) or less, or adaptive = true (its first step starts below tau_c, "
+                "convex_start, and the steps grow)")
 
     def _convex_far(self, tau: float) -> float | None:
         """tau_c when the first look of :meth:`_convex_start` found tau_c < tau / :data:`CONVEX_FAR` (a step

@@ -313,7 +313,7 @@ step had failed all 18 attempts (IPOPT and newton-krylov down to tau / 256) on 4
 
 
 def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, restarts: int = CONVEXITY_RESTARTS,
-                    solver: ReducedSolver | None = None) -> float:
+                    solver: ReducedSolver | None = None, dense: bool = False) -> float:
     """The step size below which the step problem is convex at its start: tau_c with the reduced Hessian
     D + tau R of W^ at X^k positive definite for every tau < tau_c.
 
@@ -339,6 +339,12 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     p : (np,) its parameters (X^k and tau among them)
     restarts : int
         Lanczos restarts (ARPACK's ``maxiter``), :data:`CONVEXITY_RESTARTS` or :data:`CONVEXITY_FIRST_RESTARTS`
+    dense : bool
+        The dense eigenproblem for surfaces too, up to :data:`CONVEXITY_DENSE_MAX` unknowns (exact: the Lanczos
+        value is a Ritz value, never below the smallest eigenvalue, so its tau_c is never below the true one, and
+        from its deterministic start it can miss the lowest mode of a symmetric surface: the torus problem at tau =
+        5.9 with tangential weight 1, 864 unknowns, Lanczos tau / 152, dense tau / 421 as a finite-difference reduced
+        Hessian gives; 0.45 s against 0.04 s; a fixed-step flow's error names it: ``WillmoreFlow._fixed_step_hint``)
     solver : ReducedSolver, optional
         A reduced solver of ``evaluator`` whose factorisations of J_Y serve Y[X], the adjoint and the products (the
         flow's newton-krylov: a Cholesky factor of J_Y's N x N block; default: a ``newton`` solver, a sparse LU of
@@ -360,7 +366,7 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     D = red._distance_hessian(pt.z, p)
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
     n = x0.size
-    if P.simplices.shape[1] == 2 and n <= CONVEXITY_DENSE_MAX:  # a curve: dense (CONVEXITY_DENSE_MAX)
+    if (dense or P.simplices.shape[1] == 2) and n <= CONVEXITY_DENSE_MAX:  # a curve: dense (CONVEXITY_DENSE_MAX)
         Hd = np.column_stack([red._hessp(pt, p, e) for e in np.eye(n)])
         smallest = float(la.eigh(0.5 * (Hd + Hd.T), D.toarray(), eigvals_only=True, subset_by_index=[0, 0])[0])
     else:
