@@ -717,7 +717,14 @@ def test_a_curve_stopped_by_its_edge_ratio_names_redistribute(tmp_path, capsys) 
     assert EDGE_RATIO_REASON in err and err.rstrip().endswith(
         "the curve's nodes bunched up along it (edge ratio): --set redistribute=true moves them to equal arc-length "
         "spacing after every step (not the paper's scheme: docs/theory/scheme.md)")
+    import csv
+
+    def ratios(d: str) -> list[float]:
+        return [float(r["q_edge_ratio"]) for r in csv.DictReader((tmp_path / d / "history.csv").open())]
+
+    assert len(ratios("a")) == 4 and max(ratios("a")) <= 3.2  # (steps 0..3 kept: step 4 went above the limit)
     assert main([*base, "--out", str(tmp_path / "b"), "--set", "redistribute=true"]) == 0
+    assert len(ratios("b")) == 31 and max(ratios("b")) <= 3.2  # (all 30 steps, every state within the limit)
     # a failed run is not resumed with other settings; the refusal says how to go on from one of its states
     assert main(["run", "--resume", str(tmp_path / "a"), "--set", "redistribute=true"]) == 2
     err = capsys.readouterr().err

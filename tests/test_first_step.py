@@ -83,6 +83,12 @@ def test_a_time_step_after_newton_steps_only_has_the_first_step_budget() -> None
     steps = [flow.step() for _ in range(2)]
     assert all(r.stats.get("solver") == NEWTON_SOLVER for r in steps) and flow.k == 2
     assert not flow._accepted_iterations and flow._first_step_limit() == 7 and flow._iteration_limit() is None
+    flow.relax_newton = False  # (the next step a time step, as where the Newton step declines)
+    r = flow.step()
+    assert r.stats["solver"] != NEWTON_SOLVER
+    budgets = [int(x.split("Iteration_Budget, ")[1].split()[0]) for x in r.rejected if "Iteration_Budget" in x]
+    # (measured: two attempts cut at 7 iterations, the third converged in 5 under the same budget)
+    assert all(b == 7 for b in budgets) and flow.solver.iteration_limit == 7 and r.iterations <= 7, r.rejected
     time_flow = WillmoreFlow(mesh, mesh.h, 0.01 * mesh.h**2, first_step_budget=7)
     r = time_flow.step()
     assert time_flow._accepted_iterations == [r.iterations] and time_flow._first_step_limit() is None

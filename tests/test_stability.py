@@ -48,7 +48,9 @@ def test_round_sphere_spectrum_converges_to_the_willmore_operator() -> None:
     # -3,778 and -56,605 at 162 and 642 v); the sphere is the only shape with its V and A, a minimum
     for s in (2, 3):
         both = _sphere_flow(s, volume="initial", area="initial").stability(count=1).eigenvalues[0]
-        assert 23.0 < both < 27.0, both  # (25.59, 24.11)
+        assert 23.0 < both < 27.0, both  # (25.59, 24.11: 0.42 below the free values at 162, 642 and 2,562 v. Not an
+        # error: V' and A' being parallel, the multipliers are any lambda_V = -2 lambda_A (the fit picks one), and on
+        # l = 2 modes lambda_V V'' + lambda_A A'' = lambda_A (-2 x 2 + 8) = 4 lambda_A; the value depends on the pick)
 
 
 @pytest.mark.parametrize(("stretch", "constraints"), [
@@ -254,6 +256,7 @@ def test_relaxation_leaves_the_saddle_of_a_spontaneous_curvature_vesicle(tmp_pat
     assert kicked and kicked[0].step == plain.k and kicked[0].stats["stability"] == pytest.approx(saddle, rel=1e-9)
     e_saddle = plain.discrete_energy(plain.X, plain.Y)
     assert kicked[0].energy < e_saddle  # (the move off it lowered the energy)
+    assert all(r.energy < r.stats["energy_before_move"] for r in kicked)  # (and every later move off a saddle)
     assert flow.relaxed and flow.last_stability > SADDLE_TOL and "a minimum on normal motions" in flow.relax_message()
     assert results[-1].energy < 0.85 * e_saddle
     X = flow.X - flow.X.mean(axis=0)
@@ -267,8 +270,11 @@ def test_relaxation_leaves_the_saddle_of_a_spontaneous_curvature_vesicle(tmp_pat
     assert cli.main(["run", "--resume", str(out), "--steps", "300", "--quiet"]) == 0
     run = load_run(out)
     assert len(run.states) == flow.k + 1 and np.array_equal(run.states[-1].vertices, flow.X)
-    assert re.search(r"; a minimum on normal motions: lowest eigenvalue 4\.[23]\d*, the energy \S+ of itself above its "
-                     r"quadratic model's minimum there \(3 saddle\(s\) left on the way\)$", run.status["message"])
+    assert run.status["message"] == flow.relax_message()  # (the in-process run's: the same numbers, bit for bit)
+    lowest, gap = flow.last_stability, flow.last_gap
+    assert flow.relax_message().endswith(
+        f"; a minimum on normal motions: lowest eigenvalue {lowest:.3g}, the energy {gap:.2g} of itself above its "
+        f"quadratic model's minimum there ({len(kicked)} saddle(s) left on the way)")
     # (polished from 1.0e-4; with V and A fixed the polish contracts linearly: 2.8e-15 with one BLAS thread, 4.2e-10
     # with two, after its four steps)
     assert flow.last_gap < 1e-4 * results[-1].stats["stability_gap_before_move"]
@@ -289,6 +295,15 @@ def test_an_anisotropic_sphere_relaxes_at_a_minimum_not_along_its_dilation() -> 
     assert flow.relaxed and not any("saddle" in r.remeshed for r in results)
     assert flow.last_stability > SADDLE_TOL and "polish" in results[-1].remeshed
     assert results[-1].measure > 0.8 * results[0].measure
+    # the Wulff shape (x1^2 + x2^2 / 4 + x3^2 <= 1, axis ratio 2; 2.21 on this mesh after the time flow, the problem's
+    # docstring) and, as a minimum should be, below the mesh-matched Wulff shape's w_gamma (its vertices projected
+    # on the Wulff shape along rays; measured 1.2 % below)
+    from willmore_nlp.anisotropy import anisotropic_willmore_energy, gamma1_wulff_nodes
+
+    extent = np.ptp(flow.X, axis=0)
+    assert 1.8 < extent[1] / extent[0] < 2.4 and 1.8 < extent[1] / extent[2] < 2.4, extent
+    wulff = anisotropic_willmore_energy(flow.mesh.with_vertices(gamma1_wulff_nodes(flow.X)), flow.setup.anisotropy)
+    assert 0.95 * wulff < results[-1].willmore_gamma < wulff, (results[-1].willmore_gamma, wulff)
 
 
 def test_a_state_far_from_rest_on_normal_motions_is_not_polished() -> None:
@@ -322,6 +337,8 @@ def test_relax_newton_on_the_finer_ellipsoid_takes_three_steps_and_keeps_the_mes
     assert next(r.step for r in results if r.willmore <= 1.01 * w_eq) <= 3
     assert min(min(r.quality["min_angle"], r.stats.get("min_angle_before_remesh", 90.0)) for r in results) >= 20.0
     assert abs(results[-1].willmore / w_eq - 1) < 2e-3 and "a minimum on normal motions" in flow.relax_message()
+    round_sphere = WillmoreFlow(sphere, flow.tau, flow.tau_tilde).stability(1).eigenvalues[0]  # (the l = 2 value)
+    assert abs(flow.last_stability / round_sphere - 1) < 0.015, (flow.last_stability, round_sphere)
 
 
 def test_relax_newton_reaches_the_equilibrium_in_newton_steps(tmp_path) -> None:
@@ -330,7 +347,8 @@ def test_relax_newton_reaches_the_equilibrium_in_newton_steps(tmp_path) -> None:
     scheme's energy (the step's row: before the mesh control against the last state), within 1 % of the mesh-matched
     sphere (the vertices projected onto a sphere) by step 3 (the time steps of relax = true: 2 steps, whose first
     is an IPOPT solve of 36 iterations), and the relaxation ends at a minimum whose lowest eigenvalue is the round
-    sphere's l = 2 value at this size (24.5) and whose W is that sphere's to 0.2 %. The command line's run stopped at
+    icosphere's l = 2 value at this size and tau_tilde (to 1.5 %: measured 24.58 against 24.38, the meshes differ)
+    and whose W is that sphere's to 0.2 %. The command line's run stopped at
     step 2 and resumed ends bit for bit there."""
     import trimesh
 
@@ -346,7 +364,9 @@ def test_relax_newton_reaches_the_equilibrium_in_newton_steps(tmp_path) -> None:
     assert {r.tau for r in results[1:]} == {flow.tau}  # (Newton steps leave the step size of a later time step)
     assert all(b.stats["energy_before_remesh"] < a.energy for a, b in itertools.pairwise(results))
     assert next(r.step for r in results if r.willmore <= 1.01 * w_eq) <= 3
-    assert abs(results[-1].willmore / w_eq - 1) < 2e-3 and abs(flow.last_stability - 24.5) < 0.3
+    round_sphere = WillmoreFlow(sphere, flow.tau, flow.tau_tilde).stability(1).eigenvalues[0]  # (24.38; its l = 2
+    # value converges to 24 at order 2: test_round_sphere_spectrum_converges_to_the_willmore_operator)
+    assert abs(results[-1].willmore / w_eq - 1) < 2e-3 and abs(flow.last_stability / round_sphere - 1) < 0.015
     assert "a minimum on normal motions" in flow.relax_message()
     out = tmp_path / "r"
     args = ["run", str(f), "--set", "relax=true", "--set", "relax_newton=true", "--quiet"]

@@ -347,6 +347,15 @@ def test_a_relaxation_without_a_length_runs_until_relaxed_and_a_cut_one_says_so(
 
     sphere = resolve("sphere", {"subdivisions": "2", "relax": "true"})
     assert (sphere.steps, sphere.t_end) == (RELAX_RUN_STEPS, None)
+    assert start(sphere, tmp_path / "through", quiet=True) == 0  # (ended by its relax test, long before that)
+    status = json.loads((tmp_path / "through" / "status.json").read_text())
+    k = int(status["message"].split()[2])  # ("relaxed: step K ended ...")
+    assert status["message"].startswith("relaxed: step") and 0 < k < RELAX_RUN_STEPS and status["step"] == k
+    from willmore_nlp.mesh.io import save_mesh
+
+    save_mesh(shapes.icosphere(2), tmp_path / "ico.obj")  # (the file problem's own length is 10 steps)
+    assert resolve(str(tmp_path / "ico.obj"), {}).steps == 10
+    assert resolve(str(tmp_path / "ico.obj"), {"relax": "true"}).steps == RELAX_RUN_STEPS
     assert resolve("sphere", {"subdivisions": "2"}).steps != RELAX_RUN_STEPS
     assert resolve("sphere", {"subdivisions": "2", "relax": "true", "steps": "7"}).steps == 7
     assert resolve("sphere", {"subdivisions": "2", "relax": "true", "t_end": "0.5"}).t_end == 0.5

@@ -137,7 +137,9 @@ def test_a_surface_read_from_a_file_has_an_evolver_reference_and_a_helfrich_case
         return
     plain = rows[0]
     assert "skipped" not in plain and 8 * np.pi < plain["final"] < plain["initial"]
-    assert plain["w_initial"] == pytest.approx(plain["initial"], rel=0.15)  # two discretisations of one energy
+    # two discretisations of one energy on 66 coarse vertices (the conversion's factor is checked where they converge:
+    # Evolver's icosphere energies tend to 8 pi, test_surface_evolver_reference_or_clean_skip)
+    assert plain["w_initial"] == pytest.approx(plain["initial"], rel=0.15)
     assert all("Willmore energy alone" in r["skipped"] for r in rows[1:])
 
 
