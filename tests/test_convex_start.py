@@ -300,10 +300,10 @@ def test_a_first_look_that_finds_nothing_is_followed_by_the_full_one_after_a_fai
     looks: list[int] = []
     full = reduced.convexity_limit
 
-    def blind_first(evaluator, z0, p, restarts=reduced.CONVEXITY_RESTARTS, solver=None):
+    def blind_first(evaluator, z0, p, restarts=reduced.CONVEXITY_RESTARTS, solver=None, dense=False):
         looks.append(restarts)
         return float("nan") if restarts == reduced.CONVEXITY_FIRST_RESTARTS else full(evaluator, z0, p, restarts,
-                                                                                        solver)
+                                                                                        solver, dense=dense)
 
     monkeypatch.setattr(reduced, "convexity_limit", blind_first)
     monkeypatch.setattr(flow_module, "CONVEX_FAR", 1e4)

@@ -2049,7 +2049,7 @@ class WillmoreFlow:
             z0 = self.problem.pack_z(self.X, self.Y)
             solver = self.solver if isinstance(self.solver, ReducedSolver) else None  # (newton-krylov: its factors)
             try:
-                tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver, dense)
+                tau_c = convexity_limit(self.evaluator, z0, self.params(self.X, tau), restarts, solver, dense=dense)
             except np.linalg.LinAlgError:  # J_Y not positive definite at X^k (an anisotropy of a huge scale,
                 # gamma2:1e20, exited 70 with this traceback: a new user's check): no look; the attempts say why
                 tau_c = float("nan")
