@@ -167,9 +167,9 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
         except Exception as exc:
             rec.update(status="failed", error=f"{type(exc).__name__}: {exc}"[:500],
                        traceback=traceback.format_exc(limit=5))
-    rec["warnings"] = list(dict.fromkeys([*(str(w.message) for w in caught
-                                            if not issubclass(w.category, DeprecationWarning)),
-                                          *rec.get("warnings", [])]))
+    rec["warnings"] = list(dict.fromkeys([*rec.get("warnings", []),  # (the hint first: the summary shows five)
+                                          *(str(w.message) for w in caught
+                                            if not issubclass(w.category, DeprecationWarning))]))
     rec["wall"] = time.perf_counter() - t0
     write_text_atomic(Path(out) / "cases" / f"{case.key}.json", json.dumps(rec, default=float))
     return rec
