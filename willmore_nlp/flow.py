@@ -1137,30 +1137,36 @@ class WillmoreFlow:
         and takes the patch's smallest angle below ``remesh_min_angle`` from a state at or above it. Such a step buys
         its size with the mesh: the remeshing that follows lifts W by more than the step lowered it, where the step at
         the last size keeps the mesh."""
-        if not self.remesh or fall >= GROWN_FALL:
+        fell = None if fall >= GROWN_FALL else self._angle_fall(X)
+        if fell is None:
             return None
-        F, limit = self.mesh.simplices, self.settings.remesh_min_angle
-        after = self._patch_quality(X, F, self.free)["min_angle"]
-        if after < limit <= self._patch_quality(self.X, F, self.free)["min_angle"]:
-            return f"{GROWN_REASON}: its smallest angle {after:.3g} deg < remesh_min_angle = {limit:g}"
-        return None
+        limit = self.settings.remesh_min_angle
+        return f"{GROWN_REASON}: its smallest angle {fell[0]:.3g} deg < remesh_min_angle = {limit:g}"
 
     def _collapses(self, X: np.ndarray) -> str | None:
         """Why the step to X is retried at tau / 2 for the mesh's sake, or None: with the mesh control on, it takes the
         patch's smallest angle below :data:`COLLAPSE_FRACTION` x ``remesh_min_angle`` from a state at or above
         ``remesh_min_angle``. Such a step is too long for the mesh: its slivers carry a discrete energy that the
         remeshing does not keep (a thin torus's first step: W 37.3 below 4 pi^2, 54.8 after the remeshing)."""
+        floor = COLLAPSE_FRACTION * self.settings.remesh_min_angle
+        fell = self._angle_fall(X)
+        if fell is None or fell[0] >= floor:
+            return None
+        return (f"{COLLAPSE_REASON}: its smallest angle {fell[0]:.3g} deg < {floor:.3g} deg "
+                f"({COLLAPSE_FRACTION:.3g} remesh_min_angle) from {fell[1]:.3g} deg")
+
+    def _angle_fall(self, X: np.ndarray) -> tuple[float, float] | None:
+        """(after, before): the patch's smallest angle at X and at X^k when, with the mesh control on, the step to X
+        takes it from at or above ``remesh_min_angle`` to below it (:meth:`_crushes`, :meth:`_collapses`), else
+        None."""
         if not self.remesh:
             return None
         F, limit = self.mesh.simplices, self.settings.remesh_min_angle
         after = self._patch_quality(X, F, self.free)["min_angle"]
-        if after >= COLLAPSE_FRACTION * limit:
+        if after >= limit:
             return None
         before = self._patch_quality(self.X, F, self.free)["min_angle"]
-        if before < limit:
-            return None
-        return (f"{COLLAPSE_REASON}: its smallest angle {after:.3g} deg < {COLLAPSE_FRACTION * limit:.3g} deg "
-                f"({COLLAPSE_FRACTION:.3g} remesh_min_angle) from {before:.3g} deg")
+        return (after, before) if before >= limit else None
 
     def _fold(self, X: np.ndarray, q: dict[str, float]) -> str | None:
         """Why the step to X (quality ``q``) folds the mesh (an edge whose triangles' normals turn by more than
@@ -2069,6 +2075,7 @@ class WillmoreFlow:
         s = self.settings
         if s.adaptive or s.relax or self.problem.nh or not any(SOLVER_REASON in r for r in rejected):
             return ""
+        # (convex_start never looks in a flow with fixed steps: a value cached at this state is this dense look's)
         tau_c = self._look_tau_c(tried, CONVEXITY_RESTARTS, dense=True)
         if not tau_c < tried:  # (nan: not found)
             return ""

@@ -581,7 +581,6 @@ def _spectrum_iterative(red: ReducedSolver, pt: _Point, p: np.ndarray, Nm: sp.cs
     def residuals(mu: np.ndarray, V: np.ndarray) -> np.ndarray:  # lobpcg's 2-norms of the wanted pairs' residuals
         return np.array([np.linalg.norm(hess_t(v) - m * (Mn @ v)) for m, v in zip(mu, V.T, strict=True)])
 
-    res = np.full(count, np.inf)
     for extra, shift in itertools.product((SPECTRUM_BLOCK, SPECTRUM_RETRY_BLOCK), SPECTRUM_SHIFTS):
         k = min(count + extra, nX - Y.shape[1])
         T.factor((G + shift * unit * Mn).tocsc())
