@@ -225,7 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "--t-end the run ends at whichever comes first")
     r.add_argument("--t-end", type=float, dest="t_end", help="final time (with --steps: whichever comes first)")
     r.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a parameter (repeatable)")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--quiet", action="store_true", help="no progress bar and nothing on standard output (the "
+                   "outcome is in DIR/status.json; warnings and errors still go to standard error)")
     r.add_argument("--overwrite", action="store_true", help="if --out holds a run, start it afresh (deletes only "
                    "the files the run wrote, once the new run has been set up)")
     r.set_defaults(func=cmd_run)

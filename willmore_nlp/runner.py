@@ -487,7 +487,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
     ----------
     run_dir : a directory written by :func:`start` (interrupted, killed, failed or completed)
     steps, t_end : a new total length (extends the run; stored in config.json); default: as configured
-    quiet : no progress bar
+    quiet : no progress bar and nothing on standard output (warnings and errors still go to standard error)
     ignore_late_signals : see :class:`SignalGuard` (``ignore_after``)
     """
     d = Path(run_dir)
