@@ -374,7 +374,11 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
         chol = SymmetricFactor(evaluator.cholesky or "auto").factor(D)  # (the user's backend where newton-krylov's)
         dinv = spla.LinearOperator((n, n), matvec=lambda v: chol.solve(np.ravel(v)), dtype=float)
         # a deterministic start (ARPACK's own random one depends on the calls before): the gradient, which is largest
-        # where the energy concentrates
+        # where the energy concentrates. A seeded random part (0.1 or 1 times its largest entry) was measured
+        # (2026-12-02) and not kept: it finds the symmetric torus's lowest mode (tau / 420, dense 420.5; the gradient
+        # start: 152) but leaves the first look unconverged on a noisy trimesh torus (tau / 2,066 found by the gradient
+        # start) and the full look on a smooth 1:1:2 ellipsoid of 642 v (tau / 18.3, dense 18.3) and a trimesh torus
+        # (4.2, dense 6.3); the dense look took 1-5.6 s at 288-642 v there (the Lanczos looks 0.1-0.7 s)
         v0 = pt.grad + 1e-3 * max(float(np.abs(pt.grad).max()), 1e-300)
         try:
             lam = spla.eigsh(hess, k=1, M=D, Minv=dinv, which="SA", tol=0.1, ncv=min(40, n - 1),
