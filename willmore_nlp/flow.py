@@ -2070,7 +2070,7 @@ class WillmoreFlow:
         above, its Lanczos estimate, never below the true tau_c). Measured (2026-12-02): the torus problem at tau = 5.9
         with tangential_weight = 1 failed at tau to tau / 16 (IPOPT, 100-200 iterations each); tau_c = tau / 421 (the
         Lanczos look said tau / 152); with adaptive = true its first step is taken at tau / 2^9 and the steps grow."""
-        from willmore_nlp.solvers.reduced import CONVEXITY_DENSE_MAX, CONVEXITY_RESTARTS
+        from willmore_nlp.solvers.reduced import CONVEXITY_RESTARTS, convexity_dense
 
         s = self.settings
         if s.adaptive or s.relax or self.problem.nh or not any(SOLVER_REASON in r for r in rejected):
@@ -2079,7 +2079,7 @@ class WillmoreFlow:
         tau_c = self._look_tau_c(tried, CONVEXITY_RESTARTS, dense=True)
         if not tau_c < tried:  # (nan: not found)
             return ""
-        exact = self.problem.nX * self.problem.m <= CONVEXITY_DENSE_MAX  # (convexity_limit's dense eigenproblem)
+        exact = convexity_dense(self.problem, dense=True)
         return (f"; the step problem is convex at this state only below tau = {tau_c:.3g} = tau / "
                 f"{self.tau / tau_c:.3g}{'' if exact else ' or less (an estimate from above)'}: give tau = "
                 f"{tau_c / 2:.2g} (tau_c / 2) or less, or adaptive = true (its first step starts below tau_c, "

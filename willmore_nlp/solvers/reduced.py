@@ -43,6 +43,7 @@ import scipy.sparse.linalg as spla
 
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.model.evaluator import StepEvaluator
+from willmore_nlp.model.step import StepProblem
 from willmore_nlp.model.terms import CAPABILITIES
 from willmore_nlp.settings import SolverSettings, integer, option, real
 from willmore_nlp.solvers.base import SolveResult, register_solver
@@ -312,6 +313,12 @@ step then failed. Measured (one thread): a smooth 5-fold wobbly ellipse with a t
 step had failed all 18 attempts (IPOPT and newton-krylov down to tau / 256) on 400, 800 and 1,500 vertices."""
 
 
+def convexity_dense(problem: StepProblem, dense: bool = False) -> bool:
+    """Whether :func:`convexity_limit` (with ``dense``) of ``problem``'s step uses the dense eigenproblem, whose
+    tau_c is exact: a curve, or ``dense``, with at most :data:`CONVEXITY_DENSE_MAX` free unknowns in X."""
+    return (dense or problem.simplices.shape[1] == 2) and problem.nX * problem.m <= CONVEXITY_DENSE_MAX
+
+
 def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, restarts: int = CONVEXITY_RESTARTS,
                     solver: ReducedSolver | None = None, dense: bool = False) -> float:
     """The step size below which the step problem is convex at its start: tau_c with the reduced Hessian
@@ -366,7 +373,7 @@ def convexity_limit(evaluator: StepEvaluator, z0: np.ndarray, p: np.ndarray, res
     D = red._distance_hessian(pt.z, p)
     pt.H = evaluator.hess_lag_operator(pt.z, p, 1.0, pt.lam)
     n = x0.size
-    if (dense or P.simplices.shape[1] == 2) and n <= CONVEXITY_DENSE_MAX:  # a curve: dense (CONVEXITY_DENSE_MAX)
+    if convexity_dense(P, dense):
         Hd = np.column_stack([red._hessp(pt, p, e) for e in np.eye(n)])
         smallest = float(la.eigh(0.5 * (Hd + Hd.T), D.toarray(), eigvals_only=True, subset_by_index=[0, 0])[0])
     else:
