@@ -231,6 +231,14 @@ on normal motions (a 162-vertex c0 = 0.8 vesicle relaxed on the step/repair exch
 polishing steps at the h / 4 cap lowered e by 1.6 %, its smallest angle from 41 to 21 deg and its lowest eigenvalue
 to -0.03: a new user's check). Measured at rest: 1.6e-3 and 2.9e-3 (trimesh tori), 1.4e-3 (Lawson's genus 2),
 3e-4 (a vesicle), 1.2e-5 (a capsule)."""
+MAX_GO_ON = 10
+"""Times a relaxation goes on past its window's end (``relax_check``) when the check finds the state not at rest on
+normal motions (a gap above :data:`POLISH_MAX_GAP`, not a saddle): the window's energies rose or stalled on the
+step/repair exchange, not at rest. Measured (2026-12-02, a new user's check): the 162-vertex c0 = 0.8 vesicle with
+time steps only (``relax_newton=false``) ended "relaxed" at step 7 at e = 29.347 with a gap of 9.2e-2, 26 % above its
+minimum; going on, its time steps reach e = 23.2986 at step 27 (gap 5e-14), where the flow with Newton steps
+(``relax_newton``, the default) ends at 23.3149 after 23 steps. Each end tested costs one
+:meth:`WillmoreFlow.stability`."""
 POLISH_STEPS = 4
 """Newton steps on normal motions of the polish of a relaxed minimum (each costs one :meth:`WillmoreFlow.stability`)."""
 POLISH_CAP = 0.25
@@ -773,6 +781,7 @@ class WillmoreFlow:
                               if self._scale_invariant and self.setup.anisotropy is not None else "energy")
         self.relax_reason = ""  # why relax=true ended: "small" (change below relax_tol) or "rose" (drift at rest)
         self._kicks = 0  # saddles left (relax_check; counted by the relax test, replayed on restart)
+        self._go_ons = 0  # window ends gone past, the state not at rest (MAX_GO_ON; replayed on restart)
         self.last_stability = self.last_gap = float("nan")  # stability()'s lowest eigenvalue and gap when a
         # relaxation last ended
         self.untested = ""  # why that test failed ("": it ran, or did not run)
@@ -1417,7 +1426,9 @@ class WillmoreFlow:
                 lowest = self._stability_at_rest()
                 result.stats.update(stability=lowest, stability_gap=self.last_gap)
                 e_rest, gap_rest, moved = result.energy, self.last_gap, ""
-                if lowest < -SADDLE_TOL:
+                if self._go_on(lowest, self.last_gap):  # not at rest: the relaxation goes on (MAX_GO_ON)
+                    result.relaxed = self.relaxed = False
+                elif lowest < -SADDLE_TOL:
                     moved = "saddle" if self._kicks < MAX_SADDLE_KICKS and self._leave_saddle(tau) else ""
                 elif self._polish(tau):
                     moved = "polish"
@@ -1442,6 +1453,16 @@ class WillmoreFlow:
                         new.relaxed = True
                     result = new
         return result
+
+    def _go_on(self, lowest: float, gap: float) -> bool:
+        """Whether an ended relax window whose state has the lowest eigenvalue ``lowest`` and the gap ``gap`` on
+        normal motions is gone past (:data:`MAX_GO_ON`): then the window restarts from that state."""
+        if not (lowest >= -SADDLE_TOL and gap > POLISH_MAX_GAP and self._go_ons < MAX_GO_ON):  # (nan: no)
+            return False
+        self._go_ons += 1
+        self._relax_window = self._relax_window[-1:]
+        self.relax_reason = ""
+        return True
 
     def _spectrum_fits(self) -> bool:
         """Whether :meth:`stability` takes the current mesh: a surface in R^3 of at most
@@ -2137,7 +2158,8 @@ class WillmoreFlow:
         if lowest >= -SADDLE_TOL and self.last_gap > POLISH_MAX_GAP:
             return why + (f"; not at rest on normal motions: lowest eigenvalue {lowest:.3g}, the energy "
                           f"{self.last_gap:.2g} of itself above its quadratic model's minimum there (above "
-                          f"POLISH_MAX_GAP = {POLISH_MAX_GAP:g}: not polished){left}")
+                          f"POLISH_MAX_GAP = {POLISH_MAX_GAP:g}: not polished; gone on past {self._go_ons} such ends "
+                          f"already, MAX_GO_ON){left}")
         if lowest >= -SADDLE_TOL:
             return why + (f"; a minimum on normal motions: lowest eigenvalue {lowest:.3g}, the energy "
                           f"{self.last_gap:.2g} of itself above its quadratic model's minimum there{left}")
@@ -2330,7 +2352,7 @@ class WillmoreFlow:
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         w0 = self._relax_value(X, Y)  # (W, the rest rule's, whenever that rule runs: it runs without relax)
         self._relax_start(w0)
-        self._kicks, self.last_stability, self.last_gap = 0, float("nan"), float("nan")
+        self._kicks, self._go_ons, self.last_stability, self.last_gap = 0, 0, float("nan"), float("nan")
         replayed = False  # the relax window and step-size back-off rebuilt up to this state from its history
         refines = [int(float(r["step"])) for r in history or []
                    if "refine" in str(r.get("remesh_action") or "").split("+") and int(float(r["step"])) <= self.k]
@@ -2348,10 +2370,13 @@ class WillmoreFlow:
                 fresh = step == 1 or step - 1 in refines
                 if not newton and (retries or not self._cut_by_t_end(float(r["tau"]), self.tau, fresh)):
                     self._grow_tau(float(r["tau"]), retries)
-                self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""), newton)
+                ended = self._relax_test(float(r[column]), float(r["tau"]), str(r.get("remesh_action") or ""),
+                                         newton)
                 self._control_change += self._control_share(r)
                 if r.get("stability") not in (None, "") and np.isfinite(float(r["stability"])):
                     self.last_stability, self.last_gap = float(r["stability"]), float(r.get("stability_gap", "nan"))
+                    if ended and not float(r.get("relaxed") or 0):  # (the run went past this end: MAX_GO_ON)
+                        self._go_on(self.last_stability, self.last_gap)
         if not replayed:
             self._tau_adapt = (float("inf") if last_tau is None
                                else float(last_tau) * (2.0 if int(last_retries) == 0 else 1.0))
