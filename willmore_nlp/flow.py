@@ -496,6 +496,12 @@ def ipopt_scale_trouble(V: np.ndarray) -> str:
     return ""
 
 
+def _off_rest(lowest: float, gap: float) -> bool:
+    """Whether a relaxed state whose lowest eigenvalue and gap on normal motions (:meth:`WillmoreFlow.stability`) are
+    ``lowest`` and ``gap`` is not at rest there: no saddle, but a gap above :data:`POLISH_MAX_GAP` (nan: no)."""
+    return lowest >= -SADDLE_TOL and gap > POLISH_MAX_GAP
+
+
 def _check_quality(mesh: Mesh, min_angle: float, max_edge_ratio: float, repaired: str) -> None:
     """Refuse an initial mesh (after ``input_repair``, which did ``repaired``: "" for nothing) whose edge ratio or
     smallest angle is beyond the limits every step must keep, naming the simplex (MeshError)."""
@@ -1457,7 +1463,7 @@ class WillmoreFlow:
     def _go_on(self, lowest: float, gap: float) -> bool:
         """Whether an ended relax window whose state has the lowest eigenvalue ``lowest`` and the gap ``gap`` on
         normal motions is gone past (:data:`MAX_GO_ON`): then the window restarts from that state."""
-        if not (lowest >= -SADDLE_TOL and gap > POLISH_MAX_GAP and self._go_ons < MAX_GO_ON):  # (nan: no)
+        if not (_off_rest(lowest, gap) and self._go_ons < MAX_GO_ON):
             return False
         self._go_ons += 1
         self._relax_window = self._relax_window[-1:]
@@ -2155,7 +2161,7 @@ class WillmoreFlow:
         if lowest >= -SADDLE_TOL and not np.isfinite(self.last_gap):
             return why + (f"; flat on normal motions: lowest eigenvalue {lowest:.3g} (not below -SADDLE_TOL, and its "
                           f"quadratic model has no minimum){left}")
-        if lowest >= -SADDLE_TOL and self.last_gap > POLISH_MAX_GAP:
+        if _off_rest(lowest, self.last_gap):
             return why + (f"; not at rest on normal motions: lowest eigenvalue {lowest:.3g}, the energy "
                           f"{self.last_gap:.2g} of itself above its quadratic model's minimum there (above "
                           f"POLISH_MAX_GAP = {POLISH_MAX_GAP:g}: not polished; gone on past {self._go_ons} such ends "
