@@ -74,34 +74,34 @@ def test_a_space_curve_exports_its_principal_normal_and_normal_speed() -> None:
                                atol=1e-12)
 
 
-def test_one_state_exports_to_a_mesh_file(tmp_path) -> None:
+def test_one_state_exports_to_a_mesh_file(tmp_path, capsys) -> None:
     """``export RUN --out NAME.obj`` (.off, .ply, .stl, .npz, a curve's .txt) writes one state, the last unless
     ``--step`` names another (found by a new-user check: ``--out x.obj`` made a folder named x.obj holding VTU files).
     OBJ, PLY, npz and the text curve read back bit for bit; a step the run does not have, or --step with a folder, is
-    one line and exit 2."""
-    cli = [sys.executable, "-m", "willmore_nlp.cli"]
+    one line and exit 2 (the command line in-process; its subprocess exit codes: test_validation_inputs.py)."""
+    from willmore_nlp import cli
+
     for problem, sets, files in (("sphere", ["subdivisions=1"], ("s.obj", "s.npz", "s.ply")),
                                  ("circle", ["n=16"], ("c.txt",))):
         run_dir = tmp_path / problem
-        subprocess.run([*cli, "run", problem, "--out", str(run_dir), "--steps", "2", "--quiet",
-                        *[a for s in sets for a in ("--set", s)]], check=True, capture_output=True)
+        assert cli.main(["run", problem, "--out", str(run_dir), "--steps", "2", "--quiet",
+                         *[a for s in sets for a in ("--set", s)]]) == 0
         run = load_run(run_dir)
         for name in files:
             for step, k in ((None, -1), (0, 0), (1, 1)):
                 out = tmp_path / f"{step}_{name}"
-                r = subprocess.run([*cli, "export", str(run_dir), "--out", str(out),
-                                    *(["--step", str(step)] if step is not None else [])],
-                                   capture_output=True, text=True)
-                assert r.returncode == 0 and r.stdout.strip() == f"wrote {out} (step {2 if step is None else step})", \
-                    r.stderr  # (the step written, also by default: it said "(step last)")
+                capsys.readouterr()
+                assert cli.main(["export", str(run_dir), "--out", str(out),
+                                 *(["--step", str(step)] if step is not None else [])]) == 0
+                # (the step written, also by default: it said "(step last)")
+                assert capsys.readouterr().out.strip() == f"wrote {out} (step {2 if step is None else step})"
                 mesh = load_mesh(out)  # (PLY: it was single precision, 'property float', 3e-8 off)
                 assert mesh.vertices.tobytes() == run.states[k].vertices.tobytes()
-    r = subprocess.run([*cli, "export", str(tmp_path / "sphere"), "--out", str(tmp_path / "x.obj"), "--step", "7"],
-                       capture_output=True, text=True)
-    assert r.returncode == 2 and "no state of step 7 (the run has steps 0 to 2)" in r.stderr
-    r = subprocess.run([*cli, "export", str(tmp_path / "sphere"), "--out", str(tmp_path / "vtk"), "--step", "1"],
-                       capture_output=True, text=True)
-    assert r.returncode == 2 and "--step 1: one state is exported to a mesh file" in r.stderr
+    capsys.readouterr()
+    assert cli.main(["export", str(tmp_path / "sphere"), "--out", str(tmp_path / "x.obj"), "--step", "7"]) == 2
+    assert "no state of step 7 (the run has steps 0 to 2)" in capsys.readouterr().err
+    assert cli.main(["export", str(tmp_path / "sphere"), "--out", str(tmp_path / "vtk"), "--step", "1"]) == 2
+    assert "--step 1: one state is exported to a mesh file" in capsys.readouterr().err
     assert not (tmp_path / "vtk").exists() and not (tmp_path / "x.obj").exists()
 
 

@@ -5,6 +5,7 @@ a finite-difference second derivative of the scheme's energy, and Surface Evolve
 
 from __future__ import annotations
 
+import csv
 import itertools
 import re
 
@@ -239,8 +240,10 @@ def test_relaxation_leaves_the_saddle_of_a_spontaneous_curvature_vesicle(tmp_pat
     energy more than 15 % below the saddle's; with relax_check = false it ends where it did before. Where Surface
     Evolver is installed, its relaxation (its own discrete energy, same mesh, V and A fixed, c0 = 0.8) from the
     flow's minimum converges within 0.1 % of it (measured: -0.028 %; from the saddle it falls 1.7 % and does not
-    converge in its schedule). The command line's run of the same, stopped at step 20 and resumed, ends bit for bit
-    there, with the message."""
+    converge in its schedule). The command line's run of the same, stopped at step 10 (two steps after the first move
+    off the saddle) and resumed to step 14, takes the in-process run's states and history rows bit for bit (to the
+    end, its 148 steps, it ended there with the same message: measured; the resumed go-on and Newton relaxations
+    are run to their ends below)."""
     from willmore_nlp.evolver import evolver_equilibrium, find_evolver
 
     pb, _ = build("vesicle", reduced_volume=0.65, start="oblate", c0=0.8)
@@ -263,15 +266,19 @@ def test_relaxation_leaves_the_saddle_of_a_spontaneous_curvature_vesicle(tmp_pat
     X = flow.X - flow.X.mean(axis=0)
     extents = np.sqrt(np.linalg.eigvalsh(X.T @ X / len(X)))
     assert extents[2] > 2 * extents[1]  # prolate: one long axis (the saddle is a disc: 0.26, 0.68, 0.70)
-    # the command line, stopped after the first move off the saddle and resumed: the same run bit for bit
+    # the command line, stopped after the first move off the saddle and resumed: the same states bit for bit
     out = tmp_path / "v"
     args = ["--set", "reduced_volume=0.65", "--set", "start=oblate", "--set", "c0=0.8", "--set", "relax=true",
             "--set", "relax_newton=false"]
-    assert cli.main(["run", "vesicle", *args, "--steps", "20", "--out", str(out), "--quiet"]) == 0
-    assert cli.main(["run", "--resume", str(out), "--steps", "300", "--quiet"]) == 0
+    assert kicked[0].step + 2 == 10 < 14 < flow.k
+    assert cli.main(["run", "vesicle", *args, "--steps", "10", "--out", str(out), "--quiet"]) == 0
+    assert cli.main(["run", "--resume", str(out), "--steps", "14", "--quiet"]) == 0
     run = load_run(out)
-    assert len(run.states) == flow.k + 1 and np.array_equal(run.states[-1].vertices, flow.X)
-    assert run.status["message"] == flow.relax_message()  # (the in-process run's: the same numbers, bit for bit)
+    assert len(run.states) == 15 and all(np.array_equal(a.vertices, r.vertices)
+                                         for a, r in zip(run.states[1:], results[:14], strict=True))
+    rows = list(csv.DictReader((out / "history.csv").open()))
+    assert [float(r["energy"]) for r in rows[1:]] == [r.energy for r in results[:14]]
+    assert "saddle" in rows[kicked[0].step]["remesh_action"]
     lowest, gap = flow.last_stability, flow.last_gap
     assert flow.relax_message().endswith(
         f"; a minimum on normal motions: lowest eigenvalue {lowest:.3g}, the energy {gap:.2g} of itself above its "
@@ -330,7 +337,6 @@ def test_a_relaxation_goes_on_past_a_window_end_that_is_not_at_rest(tmp_path) ->
     motions (relax_newton, another route on another mesh of the same repairs) reaches, to 0.2 % (measured 23.2986 and
     23.3149: 0.07 %), 20 % below the window's first end. A run cut after the go-on and resumed from its history.csv
     ends at the same step with the same energies."""
-    import csv
 
     from willmore_nlp.config import resolve
     from willmore_nlp.runner import resume, start

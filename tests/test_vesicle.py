@@ -373,7 +373,9 @@ def test_vesicle_flow_from_the_cup_deepens_toward_the_stomatocyte() -> None:
     control weight 1, measured depths 0.54 after 5 steps and 0.71 after 8, where weight 0.3 reached t = 0.007
     in 5 steps) the invagination deepens in every step, from 0.36 of the height toward the depth of the
     axisymmetric stomatocyte (its contour's (z_max - z(inner pole)) / height, computed here independently of
-    any mesh, 0.80), getting closer to it; V and A stay exact and the bending energy falls."""
+    any mesh, 0.80), getting closer to it; V and A stay exact and the bending energy falls. (The first step's two
+    failed attempts, at tau and tau / 2, are cut at 20 IPOPT iterations instead of first_step_budget = 100: the
+    same states bit for bit, measured, in a third of the time: 32 s instead of 100.)"""
     from willmore_nlp.geometry import willmore_energy
     from willmore_nlp.vesicle_reference import invagination_depth, solve_axisymmetric
 
@@ -383,7 +385,7 @@ def test_vesicle_flow_from_the_cup_deepens_toward_the_stomatocyte() -> None:
     pb, _ = build_cup(0.55, 1.2, subdivisions=3)
     V0, A0 = enclosed_volume(pb.mesh), measure(pb.mesh)
     depth = [invagination_depth(pb.mesh)]
-    flow = pb.make_flow()
+    flow = pb.make_flow(first_step_budget=20)
     w = [willmore_energy(pb.mesh)]
     for _ in range(8):
         r = flow.step()

@@ -201,7 +201,7 @@ def vesicle_lines(run: Run) -> list[str]:
     """The report's vesicle section for a run of the ``vesicle`` problem with c0 = 0 (empty otherwise): the final
     state's reduced volume v, w / 8 pi and shape, and the axisymmetric minimiser's w / 8 pi at that v on the
     branch of that shape (:mod:`willmore_nlp.vesicle_reference`: 200 and 400 contour segments, Richardson
-    extrapolated; about 10 s). A vesicle's report had shown only "the references are in docs/guide/vesicles.md" (a new
+    extrapolated; 2-4 s). A vesicle's report had shown only "the references are in docs/guide/vesicles.md" (a new
     user's check)."""
     from willmore_nlp import geometry
     from willmore_nlp.mesh.shapes import reduced_volume

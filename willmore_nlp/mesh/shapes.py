@@ -7,6 +7,7 @@ normals for the sphere and torus).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from pathlib import Path
 
@@ -247,6 +248,7 @@ def spherical_cap(rings: int = 8, angle: float = 45.0, radius: float = 1.0) -> M
     return Mesh(P, D.simplices, f"spherical_cap(rings={rings}, angle={angle})")
 
 
+@functools.lru_cache(maxsize=8)  # (seconds each; a Mesh is read-only: the same one is returned again)
 def genus2(h: float = 0.1, c: float = 0.035, grid: int = 80) -> Mesh:
     """Closed genus-2 surface ("double torus") with mean edge about ``h``, outward normals.
 
@@ -301,6 +303,7 @@ def double_torus_function(P: np.ndarray, R: float = 1.0, r: float = 0.5, d: floa
     return m - blend * np.log(np.exp(-(s[0] - m) / blend) + np.exp(-(s[1] - m) / blend))
 
 
+@functools.lru_cache(maxsize=8)  # (3 s at h = 0.2: a session trying the blending's fills meshes it once)
 def double_torus(R: float = 1.0, r: float = 0.5, d: float = 1.25, h: float = 0.2, blend: float = 0.25,
                  grid: int = 96) -> Mesh:
     """Closed genus-2 surface: two tori (R, r) about x3 centred at (+-d, 0, 0), joined smoothly.
