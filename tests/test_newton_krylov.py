@@ -501,6 +501,20 @@ def test_reduced_energy_is_exact_at_tiny_steps(min_steps: int, monkeypatch) -> N
         assert err > 100
 
 
+def test_the_default_first_shift_is_larger_above_ten_thousand_free_vertices() -> None:
+    """``first_shift`` unset: 300 D up to FIRST_SHIFT_VERTICES = 10,242 free vertices (the 10,242-vertex benchmark
+    sphere itself), 1000 above (a 10,368-vertex torus); a given one is kept at any size. (Measured in step 1: 13 -> 10
+    Newton iterations at 40,962 v, 34 -> 17 on a remeshed 19,476-v ellipsoid; docs/guide/performance.md.)"""
+    shifts = {}
+    for name, mesh in (("sphere", shapes.icosphere(5)), ("torus", shapes.torus(1.0, 0.5, 128, 81))):
+        P = build_step(mesh).problem
+        ev = StepEvaluator(P, P.functions())
+        shifts[name, len(mesh.vertices)] = make_solver("newton-krylov", ev, {}).first_shift
+        shifts[name, "given"] = make_solver("newton-krylov", ev, {"first_shift": 30.0}).first_shift
+    assert shifts == {("sphere", 10_242): newton_krylov.FIRST_SHIFT, ("sphere", "given"): 30.0,
+                      ("torus", 10_368): newton_krylov.FIRST_SHIFT_LARGE, ("torus", "given"): 30.0}
+
+
 def test_first_step_of_an_indefinite_solve_is_the_dense_shifted_kkt_step() -> None:
     """On the ellipsoid the reduced Hessian at X^0 with the adjoint multiplier is indefinite (measured: 29
     negative eigenvalues relative to D, the smallest -0.71). The solver's first step (CG to 1e-12) equals

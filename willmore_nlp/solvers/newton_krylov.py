@@ -43,7 +43,8 @@ differs is the linear algebra and the globalisation:
 * First step of an indefinite solve. When CG meets negative curvature in the first Newton system of a
   solve (a first step from an initial mesh: the reduced Hessian at X^0 is indefinite with the adjoint
   multiplier), that system is solved accurately (CG to ``first_cg_tol``) with the shift ``first_shift`` D
-  (300; x10 while CG still meets negative curvature) and the solve continues by the full-space (SQP)
+  (300; 1000 above 10,242 free vertices: ``FIRST_SHIFT_LARGE``; x10 while CG still meets negative curvature) and the
+  solve continues by the full-space (SQP)
   iteration: Newton on the KKT system of min W s.t. g = 0, each system reduced as above with
   dz_p = [0; -J_Y^-1 g], (Z^T H Z + delta D) dx = -Z^T (grad W + H dz_p), dy = -J_Y^-1 (g + J_X dx), the
   Hessian H with the multiplier of the previous KKT step lam+ = -J_Y^-T (f_Y + (H dz)_Y) instead of the
@@ -161,6 +162,24 @@ local-refinement run of docs/guide/mesh_quality.md) no accepted step needed a gu
 refusals come at the end of a failing pass, so a lower limit saves little (8 %; 16 % on a capsule's first step)."""
 
 
+FIRST_SHIFT = 300.0
+"""The first shift (``first_shift`` unset) of solves with up to :data:`FIRST_SHIFT_VERTICES` free vertices (step 1 of
+the benchmark spheres, Newton iterations at 642 / 2,562 / 10,242 vertices: 30: 7 / 10 / -, 100: 6 / 6 / 11, 300:
+7 / 6 / 7, 1000: 8 / 7 / 9; a remeshed ellipsoid 1:1:1.3 of 4,598 vertices: 11 at 300, 14 at 1000)."""
+
+FIRST_SHIFT_LARGE = 1000.0
+"""The first shift (``first_shift`` unset) above :data:`FIRST_SHIFT_VERTICES` free vertices. Measured (step 1, Newton
+iterations, one BLAS thread; docs/guide/performance.md): the 40,962-vertex benchmark sphere 13 at 300, 12 at 500, 10 at
+1000 (81.5 s and 52.4 s, run one after the other); a remeshed ellipsoid 1:1:1.3 of 19,476 vertices 34 at 300 (69 s),
+34 at 524 (78 s), 17 at 1000 (64 s).
+A power law through 300 at 10,242 and 1000 at 40,962 vertices (N^0.87: 524 there) was no better than 300 at 19,476."""
+
+FIRST_SHIFT_VERTICES = 10_242
+"""Free vertices up to which the first shift is :data:`FIRST_SHIFT`, above which :data:`FIRST_SHIFT_LARGE` (the
+10,242-vertex benchmark sphere: 7 Newton iterations at 300, 9 at 1000; a remeshed ellipsoid of 9,376: 15 and 10, the
+crossover)."""
+
+
 @dataclass(frozen=True)
 class NewtonKrylovSettings(ReducedSettings):
     """Options of ``newton-krylov`` (tolerance: see the module docstring).
@@ -201,12 +220,13 @@ class NewtonKrylovSettings(ReducedSettings):
         The solve stops (not converged) when the shift of a Newton system would exceed ``max_shift`` D: the
         step problem is then far from convex at X^k (a tau too large for the shape), and the flow retries
         with tau/2 at once instead of after ``max_iter`` damped iterations.
-    first_shift : float
+    first_shift : float or None
         Shift (in units of D) of the first Newton system of a solve when CG meets negative curvature in it
         unshifted; that system is then solved to ``first_cg_tol`` and the solve continues by the full-space
         (SQP) iteration with its multiplier (module docstring). Measured on the benchmark spheres (step 1,
         Newton iterations at 642 / 2,562 / 10,242 vertices): 30: 7 / 10 / -, 100: 6 / 6 / 11, 300: 7 / 6 / 7,
-        1000: 8 / 7 / 9.
+        1000: 8 / 7 / 9. Unset (default): 300 up to 10,242 free vertices, 1000 above (:data:`FIRST_SHIFT`,
+        :data:`FIRST_SHIFT_LARGE`, :data:`FIRST_SHIFT_VERTICES`).
     first_cg_tol : float
         CG relative residual of that shifted first system.
     step_cap : float
@@ -228,7 +248,7 @@ class NewtonKrylovSettings(ReducedSettings):
     cg_stale: int = option(25, integer(1))
     cg_forcing: float = option(0.1, real(0, 1, lo_open=True))
     max_shift: float = option(1e3, real(0, lo_open=True))
-    first_shift: float = option(300.0, real(0, lo_open=True))
+    first_shift: float | None = option(None, real(0, lo_open=True, unset="300; 1000 above 10,242 free vertices"))
     first_cg_tol: float = option(1e-3, real(0, 1, lo_open=True))
     step_cap: float = option(1.0, real(0, lo_open=True))
     guarded: bool = option(True, BOOL)
@@ -266,7 +286,9 @@ class NewtonKrylovSolver(ReducedSolver):
         self.cg_stale = settings.cg_stale
         self.cg_forcing = settings.cg_forcing
         self.max_shift = settings.max_shift
-        self.first_shift = settings.first_shift
+        large = self.nxm // self.P.m > FIRST_SHIFT_VERTICES  # (free vertices)
+        self.first_shift = settings.first_shift if settings.first_shift is not None else (
+            FIRST_SHIFT_LARGE if large else FIRST_SHIFT)
         self.first_cg_tol = settings.first_cg_tol
         self.step_cap = settings.step_cap
         self.guarded = settings.guarded
