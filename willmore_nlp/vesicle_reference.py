@@ -62,12 +62,17 @@ class AxisymmetricShape:
     converged: bool
 
 
+def _dx(psi, L, lib=np):  # numpy arrays or CasADi symbols
+    """(n,) the segments' steps in x, (L / n) cos(psi at their midpoints): the midpoint rule of x' = cos psi for the
+    (n + 1,) tangent angles ``psi`` at the nodes and the length ``L``."""
+    return L / (psi.shape[0] - 1) * lib.cos(0.5 * (psi[1:] + psi[:-1]))
+
+
 def _contour(psi: np.ndarray, L: float) -> tuple[np.ndarray, np.ndarray]:
     """(x, z) at the nodes from tangent angles at the nodes and the length (midpoint rule)."""
     h = L / (psi.size - 1)
-    pm = 0.5 * (psi[1:] + psi[:-1])
-    x = np.concatenate([[0.0], np.cumsum(h * np.cos(pm))])
-    z = np.concatenate([[0.0], np.cumsum(h * np.sin(pm))])
+    x = np.concatenate([[0.0], np.cumsum(_dx(psi, L))])
+    z = np.concatenate([[0.0], np.cumsum(h * np.sin(0.5 * (psi[1:] + psi[:-1])))])
     return x, z
 
 
@@ -92,7 +97,7 @@ def contour_energy_area_volume(psi, L, lib=np, x=None):  # numpy arrays or CasAD
     pm = 0.5 * (psi[1:] + psi[:-1])
     total = np.sum if lib is np else lib.sum1
     if x is None:
-        dx = h * lib.cos(pm)
+        dx = _dx(psi, L, lib)
         x = np.concatenate([[0.0], np.cumsum(dx)]) if lib is np else lib.vertcat(0, lib.cumsum(dx))
     xm = 0.5 * (x[1:] + x[:-1])
     k = (psi[1:] - psi[:-1]) / h + lib.sin(pm) / xm
@@ -155,9 +160,8 @@ def solve_axisymmetric(v: float, branch: str, n: int = 200, start: AxisymmetricS
     # x[i+1] - x[i] = h cos(psi_mid) (the midpoint rule, closure included), area 4 pi, volume v 4 pi / 3; interior
     # nodes off the axis (x > 0). Lifted: every row depends on a few unknowns and L, so the Hessian is sparse (with x
     # the cumulative sums of psi it was dense: building the n = 400 solver took 23 s, solving it 0.5 s)
-    pm = 0.5 * (psi[1:] + psi[:-1])
     nlp = {"x": ca.vertcat(p, L, xi), "f": w / (8 * np.pi),
-           "g": ca.vertcat(x[1:] - x[:-1] - (L / n) * ca.cos(pm), A / (4 * np.pi) - 1, V / (4 * np.pi / 3) - v, xi)}
+           "g": ca.vertcat(x[1:] - x[:-1] - _dx(psi, L, ca), A / (4 * np.pi) - 1, V / (4 * np.pi / 3) - v, xi)}
     opts: dict[str, object] = {"print_level": 0, "tol": tol, "max_iter": 3000, "sb": "yes"}
     if start is not None:
         # a warm start: a small initial barrier keeps IPOPT near the given contour (the default 0.1
