@@ -21,7 +21,8 @@ from willmore_nlp.settings import FlowSettings
 FIRST_STEP_BUDGET = FlowSettings().iteration_budget_min
 """IPOPT iterations of a surface's first-step attempt before it is cut and retried at tau/2: ``iteration_budget_min``
 (30), the floor of every later step's budget (the flow's own first-step default is 100). With ``adaptive`` steps an
-attempt cut early costs little: the step continues from the step size that worked and grows back."""
+attempt cut early costs little: the step continues from the step size that worked and grows back. The vesicle
+problem's cup start uses it too (problems/vesicle.py)."""
 
 NEWTON_KRYLOV_FROM = 500
 """Surfaces of at least this many vertices flow with ``solver = "newton-krylov"`` and ``fallback_solver = "ipopt"``
