@@ -388,9 +388,15 @@ def report(ref: dict[tuple[float, str], dict[str, Any]], rows: list[dict[str, An
               f"- From the mirror-symmetric oblate start Evolver stays on the discocyte branch at v = 0.55 and 0.50 "
               f"(axis offset 0), although the stomatocyte is lower (Evolver's discocyte {above:+.1%} "
               f"above it at 0.55); at v = 0.50 the two dimples almost touch (axis thickness {o50['thick']:.0%} of the "
-              "height) and the axisymmetric oblate start itself falls into an (inverted) stomatocyte, so that row "
-              "compares different shapes. Gradient and Newton steps keep the up-down symmetry of the start; the "
-              "stomatocyte needs a start that breaks it.",
+              f"height) and " + (
+                  f"the axisymmetric reference from the oblate start is a {o50['ref_shape']} too ({o50['ref']:.4f}, "
+                  f"{o50['ref'] / ref[(0.5, 'stomatocyte')]['e'] - 1:.1%} above the stomatocyte; Evolver's gap to it "
+                  f"{o50['evolver'] / o50['ref'] - 1:+.2%} at 2,562 v). "
+                  if o50["ref_shape"] == "discocyte" else
+                  f"the axisymmetric oblate start itself falls into a {o50['ref_shape']}, so that row compares "
+                  "different shapes. ") +
+              "Gradient and Newton steps keep the up-down symmetry of the start; the stomatocyte needs a start that "
+              "breaks it.",
               f"- From the revolved reference stomatocyte Evolver keeps a stomatocyte (axis offset "
               f"{s4['offset']:+.2f}); its gap falls from {g3:+.1%} (642 v) to {g4:+.1%} "
               f"(2,562 v), but the narrow neck is under-resolved by the icosphere connectivity: min angle "
@@ -439,19 +445,28 @@ def cup_findings(ref: dict[tuple[float, str], dict[str, Any]], rows: list[dict[s
                    f"This library's flow: {fls}." + (f" Evolver from the flow's final mesh: {pol}." if pol else ""))
     gaps = ", ".join(f"{f['start']} v = {f['v']} {f['w'] / f['ref'] - 1:+.1%}" for f in flows
                      if f["n0"] == 642 and f["start"] != "cup")
+    axis = "; ".join(
+        f"at v = {f['v']} ({f['n0']} v) " + (
+            f"it passes through the pocket (axis thickness {f['thick']:.2f})" if f["thick"] < 0.95 else
+            f"it misses the pocket (axis thickness {f['thick']:.2f}): the pocket moved off that axis, and the "
+            "figure's cross-section shows the outer sphere only")
+        for f in flows if f["start"] == "cup")
+    ev_big = [r for r in rows if r["start"] == "cup" and r["n"] > 642 and r["v"] == 0.55]
+    ev_gap = "".join(f" and its energy is {r['evolver'] / r['ref'] - 1:+.1%} from the reference" for r in ev_big)
+    pol = ", ".join(f"{q['initial'] / ref[(pv, 'stomatocyte')]['e'] - 1:+.1%} (v = {pv}, {n} v)"
+                    for (pv, n), q in sorted(polish.items()))
+    ours = ", ".join(f"{f['w'] / f['ref'] - 1:+.1%} (v = {f['v']}, {f['n0']} v)" for f in flows if f["start"] == "cup")
     return [*out, "- The flow closes the cup into a stomatocyte (outer sphere, inner pocket, one neck; figure), "
             "below the discocyte's energy, with the gap to the reference of this discretisation at 642 vertices "
-            f"(the spheroids' flows: {gaps}; table below). At v = 0.5 the cross-section follows the reference "
-            "contour; at v = 0.55 the neck moved sideways (the pocket is not axisymmetric). The axis through the "
-            "vertex mean misses the narrow neck in both (column axis); `shape` uses `has_pocket` (vertical "
-            "lines near the axis piercing the surface 4 times). Evolver (normal motion, fixed connectivity) "
-            "does not close the cup: at 642 vertices it stays an open bowl with degenerate triangles (min angle "
-            "0.0 deg; its energy and ours of its mesh are not meaningful), at 2,562 the rim curls over the "
-            "opening (an overhang: `has_pocket`) but the neck is not formed and its energy is 2.6% above the "
-            "reference. Started from the flow's final mesh, Evolver keeps the stomatocyte (its energy of that mesh "
-            "lies 1-2% above the reference where ours lies below: two discretisations of the neck) but "
-            "degenerates the neck's triangles as it minimises. At 642 vertices the neck is a few triangles wide: "
-            "these energies are O(h^2) estimates.", *fine_cup(flows, rest)]
+            f"(the spheroids' flows: {gaps}; table below). The axis through the vertex mean (column axis): {axis}; "
+            "`shape` uses `has_pocket` (vertical lines near the axis piercing the surface 4 times). Evolver "
+            "(normal motion, fixed connectivity) does not close the cup: at 642 vertices it stays an open bowl with "
+            "degenerate triangles (min angle 0.0 deg; its energy and ours of its mesh are not meaningful), at 2,562 "
+            f"the rim curls over the opening (an overhang: `has_pocket`) but the neck is not formed{ev_gap}. "
+            "Started from the flow's final mesh, Evolver keeps the stomatocyte (its energy of that mesh lies "
+            f"{pol} from the reference, the flow's own {ours}: two discretisations of the neck) but degenerates the "
+            "neck's triangles as it minimises. At 642 vertices the neck is a few triangles wide: these energies "
+            "are O(h^2) estimates.", *fine_cup(flows, rest)]
 
 
 def rest_check(f: dict[str, Any], steps: int = 8) -> dict[str, Any]:
@@ -498,12 +513,18 @@ def fine_cup(flows: list[dict[str, Any]], rest: dict[tuple[float, int], dict[str
         w = np.asarray(f["w_history"])
         k = int(np.argmin(w))
         rises = np.diff(w[-20:])
+        coarse = [c["w"] / c["ref"] - 1 for c in flows if (c["start"], c["v"], c["n0"]) == ("cup", f["v"], 642)]
+        gap = f["w"] / f["ref"] - 1
+        order = ("" if not coarse else
+                 f" Its gap to the reference, {gap:+.2%}, has the other sign than at 642 vertices "
+                 f"({coarse[0]:+.2%}), so no order is claimed for the stomatocyte." if coarse[0] * gap < 0 else
+                 f" Its gap to the reference falls from {coarse[0]:+.2%} (642 vertices) to {gap:+.2%} (the order in "
+                 "the list below; each value is uncertain by the repair's lift above).")
         out.append(f"- The {f['n0']}-vertex flow from the cup at v = {f['v']} closes it into a {mesh_shape(f['mesh'])} "
                    f"but is not at rest at t = {f['t']:.2g}: its Willmore energy (w/8pi) fell to {w[k]:.4f} at step "
                    f"{k + 1} and ended at {w[-1]:.4f}; over the last 20 steps it changed by {rises.min():+.1e} to "
                    f"{rises.max():+.1e} per step (median {np.median(rises):+.1e}), with jumps where the mesh was "
-                   "remeshed. Its gap to the reference has the other sign than at 642 vertices, so no order is "
-                   "claimed for the stomatocyte.")
+                   "remeshed." + order)
     return out
 
 
