@@ -629,14 +629,24 @@ def test_load_run_trusts_the_states_over_an_edited_history(tmp_path: Path) -> No
 
 def test_resume_with_a_shorter_length_is_refused_and_changes_nothing(tmp_path: Path,
                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """The refusal leaves every file as it was, history.csv byte for byte with a line the user added to it (it was
+    rewritten from the states, the line dropped; a new user's check), and so does resuming the completed run with no
+    new length: "nothing to resume" (it said "resuming" and "wrote" and added a session to status.json)."""
     out = tmp_path / "run"
     assert cli.main(["run", *ARGS, "--steps", "3", "--out", str(out)]) == 0
-    config = (out / "config.json").read_text()
+    with (out / "history.csv").open("a") as f:
+        f.write("# my note\n")
+    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
-    assert cli.main(["run", "--resume", str(out), "--steps", "2", "--quiet"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "holds 3 steps" in err and "cannot be shorter" in err
-    assert (out / "config.json").read_text() == config and len(load_run(out).states) == 4
+    for length in (["--steps", "2"], ["--t-end", "1e-9"]):
+        assert cli.main(["run", "--resume", str(out), *length, "--quiet"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "holds 3 steps" in err and "cannot be shorter" in err
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
+    assert cli.main(["run", "--resume", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "ended at step 3" in said and "nothing to resume" in said and "resuming" not in said
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
 
 
 def test_a_signal_during_an_atomic_write_is_delivered_after_it(tmp_path: Path) -> None:

@@ -10,15 +10,18 @@ import matplotlib.image as mpimg
 import pytest
 
 from willmore_nlp.apps.study import STUDY_FILE, Case, StudyError, make_grid, parse_tau, run_case, run_study, write_study
+from willmore_nlp.registry import build
 
 
 def test_tau_specs_and_grid_validation() -> None:
-    assert parse_tau("0.01", 0.5) == 0.01
-    assert parse_tau("h", 0.5) == 0.5
-    assert parse_tau("4h", 0.5) == 2.0
-    for bad in ("xh", "-1", "0h"):
+    assert parse_tau("0.01", 0.5, 0.3) == 0.01
+    assert parse_tau("h", 0.5, 0.3) == 0.5
+    assert parse_tau("4h", 0.5, 0.3) == 2.0
+    assert parse_tau("tau", 0.5, 0.3) == 0.3
+    assert parse_tau("0.25tau", 0.5, 0.3) == 0.075
+    for bad in ("xh", "-1", "0h", "xtau", "0tau", "ta"):
         with pytest.raises(StudyError, match="--taus"):
-            parse_tau(bad, 0.5)
+            parse_tau(bad, 0.5, 0.3)
     with pytest.raises(StudyError, match="unknown solver 'bfgs'"):
         make_grid("circle", ["ipopt", "bfgs"], ["h"])
     cases = make_grid("circle", ["ipopt", "lbfgs"], ["h", "0.01"], {"n": [16, 32]}, steps=2)
@@ -232,7 +235,7 @@ def test_compare_refuses_a_case_that_can_never_run_before_writing(tmp_path, caps
     assert main(["compare", "sphere", "--solvers", "ipopt,semi-implicit", "--option", "volume=initial", "--set",
                  "subdivisions=1", "--steps", "2", "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("willmore-nlp: error: case semi-implicit tau=h subdivisions=1: solver semi-implicit: the "
+    assert err.startswith("willmore-nlp: error: case semi-implicit tau=tau subdivisions=1: solver semi-implicit: the "
                           "baseline has no volume constraint") and len(err.splitlines()) == 1
     assert "leave volume out (no --set/--option volume" in err and "use volume=None" not in err
     assert "solvers that can: gd, ipopt, newton-krylov, sqp" in err and not out.exists()
@@ -290,7 +293,10 @@ def test_compare_takes_a_mesh_file_as_run_does(tmp_path, capsys) -> None:
     """``compare m/capsule.obj`` said "unknown problem 'm/capsule.obj'"; it is now the file problem with that path, as
     for ``run``. The input repair's warnings are shown once (by the cases' check, one line each; a worker printed them
     again in Python's file:line format) and kept in the case's record, and the summary gives the h and tau the case ran
-    at, the repaired mesh's (it gave the input's; a new user's check). The mesh given twice is refused."""
+    at, the repaired mesh's (it gave the input's; a new user's check). Its default step size is ``run``'s, h L^3 of
+    the repaired mesh (``--taus tau``; the default was the mesh size h: a mesh 100 times larger then ran at a tau
+    100^2 times too small for its time scale, W 41.29 after 5 steps where ``run`` ends at 24.98 at any scale; a new
+    user's check). The mesh given twice is refused."""
     import trimesh
 
     from willmore_nlp.cli import main
@@ -309,7 +315,9 @@ def test_compare_takes_a_mesh_file_as_run_does(tmp_path, capsys) -> None:
     assert case["status"] == "ok" and case["case"]["problem"] == "file"
     assert any("repaired before the first step" in w for w in case["warnings"])
     h_input = trimesh.load(path).edges_unique_length.mean()
-    assert case["h"] == case["tau"] and abs(case["h"] / h_input - 1) > 1e-3  # (the repaired mesh's h, tau = h)
+    run = build("file", path=str(path))[0].make_flow()  # (what 'run' takes: the repaired mesh's h L^3)
+    assert case["tau"] == run.tau and case["h"] == run.mesh.h and abs(case["h"] / h_input - 1) > 1e-3
+    assert case["tau"] != case["h"]  # (L != 1 here: the default is not the mesh size)
     assert f"| {case['h']:.4g} | {case['tau']:.4g} |" in (out / "summary.md").read_text()
     assert main(["compare", str(path), "--set", f"path={path}", "--out", str(tmp_path / "x")]) == 2
     assert "the mesh is given twice" in capsys.readouterr().err

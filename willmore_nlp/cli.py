@@ -260,7 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
     cp = sub.add_parser("compare", help="solver-comparison study: solvers x step sizes (x parameters) on Dask")
     cp.add_argument("problem", help="registered problem name, or a mesh file (the 'file' problem, as for 'run')")
     cp.add_argument("--solvers", default="ipopt", help="comma-separated solver names (default ipopt)")
-    cp.add_argument("--taus", default="h", help="comma-separated step sizes: numbers or multiples of h (4h)")
+    cp.add_argument("--taus", default="tau", help="comma-separated step sizes: numbers, multiples of the problem's own "
+                    "step size (tau, 4tau; the default: tau, the one 'run' takes) or of the mesh size h (4h)")
     cp.add_argument("--grid", action="append", metavar="KEY=V1,V2", help="problem parameter values to vary")
     cp.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed problem parameter (repeatable)")
     cp.add_argument("--option", action="append", metavar="KEY=VALUE",

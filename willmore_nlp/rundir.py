@@ -38,6 +38,7 @@ import json
 import os
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -493,12 +494,15 @@ class RunWriter:
         self._written = -np.inf  # time.monotonic() of the last status.json write
 
     @classmethod
-    def resume(cls, out: str | os.PathLike[str]) -> tuple[RunWriter, dict[str, Any], Checkpoint | None, list[str]]:
+    def resume(cls, out: str | os.PathLike[str], check: Callable[[Checkpoint | None], None] | None = None
+               ) -> tuple[RunWriter, dict[str, Any], Checkpoint | None, list[str]]:
         """Open an existing run directory to continue it.
 
         Trusts the states 0..k that load and match the mesh (see :func:`scan_states`),
         deletes what writes cut short left (stray temporary files, an unreadable last
-        state), and rewrites history.csv from the trusted states.
+        state), and rewrites history.csv from the trusted states. ``check``, given, is called with the last trusted
+        state before any of that: an exception it raises leaves the directory as it was (a refused ``--steps``
+        had rewritten history.csv, dropping a line the user had added to it; a new user's check).
 
         Returns
         -------
@@ -523,6 +527,12 @@ class RunWriter:
         if other:
             unlock_run_dir(d, lock)
             raise RunError(_refusal(d, len(trusted), other))
+        if check is not None:
+            try:
+                check(trusted[-1] if trusted else None)
+            except BaseException:
+                unlock_run_dir(d, lock)
+                raise
         notes = []
         for f, why in cut_short:
             if f.is_file():

@@ -53,6 +53,7 @@ from willmore_nlp.geometry import willmore_energy
 from willmore_nlp.mesh.core import Mesh
 from willmore_nlp.references import resolution_warning
 from willmore_nlp.rundir import (
+    Checkpoint,
     RunError,
     RunWriter,
     check_new_run_dir,
@@ -476,6 +477,10 @@ def spec_from_config(cfg: dict[str, Any], where: str, run_dir: Path | None = Non
     return spec
 
 
+class _NothingToResumeError(Exception):
+    """:func:`resume` of a completed run with no new length: the message says so, nothing is changed."""
+
+
 def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: float | None = None,
            quiet: bool = False, ignore_late_signals: bool = False) -> int:
     """Continue the run in ``run_dir`` from its last trusted state; returns the exit code.
@@ -514,25 +519,37 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
     with warnings.catch_warnings(record=True) as built:  # (shown once the run goes on: a no-op says nothing of them)
         flow = pb.make_flow(**{**spec.flow_options,
                                **stored_control(cfg, pb.flow_options.get("boundary") is not None)})
+    def before_changes(ck: Checkpoint | None) -> None:  # (RunWriter.resume calls it before it changes anything)
+        done_k, done_t = (0, 0.0) if ck is None else (ck.step, ck.t)
+        if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
+            raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
+                           f"new total length, which cannot be shorter (the run is unchanged)")
+        try:
+            status = json.loads((d / "status.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            status = {}
+        if (steps, t_end) == (None, None) and isinstance(status, dict) and status.get("state") == "completed":
+            # (relax=true ended the run before its length: resuming took a step past the rest and ended anew; a run
+            # at its length said "resuming" and "wrote" and added a session to status.json: a new user's check)
+            relaxed = ck is not None and bool(float((ck.row or {}).get("relaxed") or 0))
+            why = status.get("message", "relaxed") if relaxed else "its configured length"
+            raise _NothingToResumeError(f"{d}: the run ended at step {done_k}, {why}; nothing to resume (--steps or "
+                                        f"--t-end continue it{' past its rest' if relaxed else ''})")
+
     with SignalGuard(ignore_late_signals) as guard:
-        writer, _, ck, notes = RunWriter.resume(d)
+        try:
+            writer, _, ck, notes = RunWriter.resume(d, before_changes)
+        except _NothingToResumeError as done:
+            if not quiet:
+                print(done)
+            return 0
         try:
             for note in notes:
                 print(f"willmore-nlp: note: {note}", file=sys.stderr)
-            done_k, done_t = (0, 0.0) if ck is None else (ck.step, ck.t)
-            relaxed = bool(writer.rows) and bool(float(writer.rows[-1].get("relaxed") or 0))
-            if (steps, t_end) == (None, None) and relaxed and writer.status.get("state") == "completed":
-                # (relax=true ended the run before its length: resuming took a step past the rest and ended anew)
-                if not quiet:
-                    print(f"{d}: the run ended at step {done_k}, {writer.status.get('message', 'relaxed')}; nothing "
-                          "to resume (--steps or --t-end continue it past its rest)")
-                return 0
+            done_k = 0 if ck is None else ck.step
             for w in built:  # (the input repair's only when the run is still before its first step)
                 if done_k == 0 or not issubclass(w.category, InputRepairWarning):
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
-            if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
-                raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
-                               f"new total length, which cannot be shorter (the run is unchanged)")
             if (spec.steps, spec.t_end) != (cfg.get("steps"), cfg.get("t_end")):
                 cfg.update({"steps": spec.steps, "t_end": spec.t_end})
                 write_text_atomic(d / "config.json", json.dumps(cfg, indent=2, sort_keys=True, default=str))

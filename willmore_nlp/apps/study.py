@@ -12,7 +12,7 @@ adds its cases to the study (``study.json`` lists the cases of every run). ``wri
     summary.md     per-case table and the largest stable tau per solver (and mesh size)
     figures/       energy vs t, iterations and time per step, largest stable tau vs h
 
-Command line: ``willmore-nlp compare PROBLEM --solvers ipopt,lbfgs --taus 1h,4h --steps 10``.
+Command line: ``willmore-nlp compare PROBLEM --solvers ipopt,lbfgs --taus tau,4tau --steps 10``.
 """
 
 from __future__ import annotations
@@ -51,7 +51,8 @@ class StudyError(UserInputError):
 class Case:
     """One run of a study: a problem with parameters, a solver and a step size.
 
-    ``tau`` is a number or a multiple of the mesh size written ``"<c>h"`` (``"h"``, ``"4h"``).
+    ``tau`` is a number, a multiple of the problem's own step size written ``"<c>tau"`` (``"tau"``, ``"4tau"``) or a
+    multiple of the mesh size written ``"<c>h"`` (``"h"``, ``"4h"``).
     """
 
     problem: str
@@ -107,13 +108,16 @@ def case_file(out: Path, case: Case) -> Path | None:
     return None
 
 
-def parse_tau(spec: str, h: float) -> float:
-    """A step size from ``"0.01"``, ``"h"`` or ``"4h"`` (a multiple of the mesh size h)."""
+def parse_tau(spec: str, h: float, tau: float) -> float:
+    """A step size from ``"0.01"``, ``"tau"`` or ``"4tau"`` (a multiple of the problem's own step size ``tau``, the
+    one ``run`` takes: for a mesh file h L^3, which follows the file's units), or ``"h"`` or ``"4h"`` (a multiple of
+    the mesh size h)."""
     s = str(spec).strip()
+    unit, n = (tau, 3) if s.endswith("tau") else (h, 1) if s.endswith("h") else (1.0, 0)
     try:
-        val = h * (float(s[:-1]) if len(s) > 1 else 1.0) if s.endswith("h") else float(s)
+        val = unit * (float(s[:-n]) if len(s) > n else 1.0) if n else float(s)
     except ValueError:
-        raise StudyError(f"--taus: {spec!r} is not a number or a multiple of h such as 4h") from None
+        raise StudyError(f"--taus: {spec!r} is not a number or a multiple of tau or h such as 4tau or 4h") from None
     if not (np.isfinite(val) and val > 0):
         raise StudyError(f"--taus: {spec!r} gives tau = {val}, which must be positive")
     return val
@@ -148,7 +152,7 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
         try:
             pb, _ = registry.build(case.problem, **case.params)
             rec["h"] = float(pb.mesh.h)
-            tau = parse_tau(case.tau, pb.mesh.h)
+            tau = parse_tau(case.tau, pb.mesh.h, pb.tau)
             rec["tau"] = tau
             flow = pb.make_flow(tau=tau, **case.options, solver=case.solver)
             rec["h"], rec["tau"] = float(flow.mesh.h), float(flow.tau)  # (an input repair rescales both: the
@@ -184,7 +188,7 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
     ------
     StudyError
         an unknown solver, a solver option it does not take, no solver or no tau, a tau that is not a positive number
-        or multiple of h, or a parameter both in ``grid`` and ``params``.
+        or multiple of tau or h, or a parameter both in ``grid`` and ``params``.
     """
     from willmore_nlp import registry
     from willmore_nlp.settings import FlowSettings, route_solver_options
@@ -204,7 +208,7 @@ def make_grid(problem: str, solvers: list[str], taus: list[str], grid: dict[str,
     if not solvers or not taus:
         raise StudyError("a study needs at least one solver (--solvers) and one step size (--taus)")
     for t in taus:
-        parse_tau(t, 1.0)
+        parse_tau(t, 1.0, 1.0)
     grid = grid or {}
     both = sorted(set(grid) & set(params or {}))
     if both:  # (the grid's values replaced the fixed one silently)
@@ -253,7 +257,7 @@ def check_cases(cases: list[Case]) -> None:
         built.append((case.solver, case.params))
         try:
             pb, _ = registry.build(case.problem, **case.params)
-            pb.make_flow(tau=parse_tau(case.tau, pb.mesh.h), **case.options, solver=case.solver)
+            pb.make_flow(tau=parse_tau(case.tau, pb.mesh.h, pb.tau), **case.options, solver=case.solver)
         except UserInputError as exc:
             raise StudyError(f"case {_label({'case': asdict(case)})}: {exc}") from exc
 
@@ -304,7 +308,7 @@ def evolver_rows(cases: list[Case], iterations: int) -> list[dict[str, Any]]:
         with warnings.catch_warnings():  # (the cases' check showed them) the mesh the cases flow: input_repair's
             # (Evolver had measured the unrepaired file: 36.6539 where the cases start at 36.5464; a new user's check)
             warnings.simplefilter("ignore")
-            mesh = pb.make_flow(tau=parse_tau(c.tau, pb.mesh.h), **c.options, solver=c.solver).mesh
+            mesh = pb.make_flow(tau=parse_tau(c.tau, pb.mesh.h, pb.tau), **c.options, solver=c.solver).mesh
         row["w_initial"] = willmore_energy(mesh)
         if find_evolver() is None:
             row["skipped"] = "Surface Evolver (evolver-nox) is not installed"
