@@ -512,19 +512,27 @@ def test_output_paths_that_cannot_be_made_and_compare_misuse(tmp_path: Path,
     """Found by a new-user check (2026-11-30): a file where the run directory's parent must go, a name too long and a
     symlink loop printed Python tracebacks (exit 1); ``compare`` wrote its study into a run directory (whose report
     then became the study's), hung with ``--workers 0`` and accepted ``--steps 0`` and ``--t-end -1``. Each is now
-    one line and exit 2, and nothing is written."""
+    one line and exit 2, and nothing is written. Another (2026-12-03): a dangling symbolic link read "File exists", a
+    file where a folder must go "Not a directory", and a folder that takes no new folder or file (/proc) was an
+    internal error; the message now names the part of the path in the way."""
     (tmp_path / "afile").write_text("x")
     (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere" / "dir")
     run = tmp_path / "run"
     assert cli.main(["run", "circle", "--set", "n=12", "--out", str(run), "--steps", "1", "--quiet"]) == 0
     capsys.readouterr()
     before = sorted(p.name for p in tmp_path.iterdir())
     listing = sorted(p.name for p in run.iterdir())
     cases = [
-        (["run", "circle", "--out", str(tmp_path / "afile" / "sub"), "--steps", "1"], "Not a directory"),
+        (["run", "circle", "--out", str(tmp_path / "afile" / "sub"), "--steps", "1"],
+         f"{tmp_path / 'afile'} is a file, where a folder must go"),
+        (["report", str(run), "--out", str(tmp_path / "afile" / "r")], "afile is a file, where a folder must go"),
+        (["run", "circle", "--out", str(tmp_path / "dangling" / "r"), "--steps", "1"],  # (it said "File exists")
+         f"dangling is a symbolic link to {tmp_path / 'nowhere' / 'dir'}, which does not exist"),
+        (["export", str(run), "--out", str(tmp_path / "dangling")], "dangling is a symbolic link to"),
         (["run", "circle", "--out", str(tmp_path / ("a" * 300)), "--steps", "1"], "File name too long"),
         (["run", "circle", "--out", str(tmp_path / "loop" / "x"), "--steps", "1"], "Too many levels of symbolic links"),
-        (["export", str(run), "--out", str(tmp_path / "afile")], "File exists"),
+        (["export", str(run), "--out", str(tmp_path / "afile")], "afile is a file, where a folder must go"),
         (["run", "--resume", str(run / "config.json"), "--steps", "2"],
          f"{run / 'config.json'}: a file, not a run directory (the run directory is {run})"),
         (["run", "circle", "--out", str(tmp_path / "r2"), "--t-end", "inf"], "--t-end must be a finite number > 0"),
@@ -541,6 +549,11 @@ def test_output_paths_that_cannot_be_made_and_compare_misuse(tmp_path: Path,
         (["compare", "circle", "--out", str(tmp_path / "s"), "--set", "t_end=0.5", "--t-end", "0.1"],
          "t_end is given twice"),
     ]
+    if Path("/proc/self").is_dir():  # Linux: folders that take no new folder or file were internal errors (exit 70)
+        cases += [(["run", "circle", "--out", "/proc/willmore-run", "--steps", "1"],
+                   "/proc/willmore-run: cannot make this folder"),
+                  (["export", str(run), "--out", "/proc/willmore.txt"],
+                   "/proc/willmore.txt: cannot make a file in /proc")]
     for argv, text in cases:
         assert cli.main(argv) == 2, argv
         lines = capsys.readouterr().err.strip().splitlines()

@@ -39,7 +39,7 @@ from willmore_nlp.errors import UserInputError
 from willmore_nlp.flow import NEW_VERTICES
 from willmore_nlp.geometry import mean_curvature_vector, vertex_normals
 from willmore_nlp.mesh.core import Mesh
-from willmore_nlp.mesh.io import CURVE_FORMATS, SURFACE_FORMATS, atomic_write, save_mesh
+from willmore_nlp.mesh.io import CURVE_FORMATS, SURFACE_FORMATS, atomic_write, make_dirs, save_mesh
 from willmore_nlp.rundir import RunError, load_run, run_record
 
 PVD = "run.pvd"
@@ -145,7 +145,7 @@ def export_run(run_dir: str | os.PathLike[str], out: str | os.PathLike[str], ove
     d = Path(out)
     pvd = d / PVD
     earlier = _listed_states(pvd)
-    d.mkdir(parents=True, exist_ok=True)
+    make_dirs(d)
     root = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
     coll = ET.SubElement(root, "Collection")
     prev, t_prev = None, 0.0

@@ -48,7 +48,7 @@ import numpy as np
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.flow import StepResult
 from willmore_nlp.mesh.core import Mesh, MeshError
-from willmore_nlp.mesh.io import atomic_write
+from willmore_nlp.mesh.io import atomic_write, make_dirs
 
 STATE_RE = re.compile(r"^state_(\d{6,})\.npz$")
 """File names of accepted states."""
@@ -483,7 +483,8 @@ class RunWriter:
                  keep_foreign: bool = False) -> None:
         self.out = Path(out)
         check_new_run_dir(self.out, keep_foreign=keep_foreign)
-        (self.out / "states").mkdir(parents=True, exist_ok=True)
+        make_dirs(self.out)
+        (self.out / "states").mkdir(exist_ok=True)
         self._lock = lock_run_dir(self.out)
         write_text_atomic(self.out / "config.json", json.dumps(config, indent=2, sort_keys=True, default=_json_default))
         _write_npz(self.out / "mesh.npz", vertices=mesh.vertices, simplices=mesh.simplices)

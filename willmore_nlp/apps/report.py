@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from willmore_nlp.mesh.io import make_dirs
 from willmore_nlp.references import Reference, references
 from willmore_nlp.rundir import Run, load_run
 
@@ -247,7 +248,7 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     """
     run = load_run(run_dir)
     d = Path(out) if out is not None else Path(run_dir) / "report"
-    d.mkdir(parents=True, exist_ok=True)
+    make_dirs(d)
     cfg = run.config
     flow_options = cfg.get("effective_flow_options", cfg.get("flow_options", {}))  # older runs lack the effective
     # a curve's references follow from its start (R0, the k-fold circle); a surface's mesh-matched value is that of the

@@ -337,6 +337,8 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
     """
     from dask.distributed import Client, LocalCluster, as_completed
 
+    from willmore_nlp.mesh.io import make_dirs
+
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise StudyError(f"--out {out}: is a file, not a study directory")
@@ -344,7 +346,7 @@ def run_study(cases: list[Case], out: str | os.PathLike[str], *, scheduler: str 
         what = "a run directory" if (out / "config.json").is_file() else "a folder with other files"
         raise StudyError(f"--out {out}: is {what}, not a study directory; a study writes into a new or empty folder "
                          f"(or reruns into its own, skipping finished cases)")
-    (out / "cases").mkdir(parents=True, exist_ok=True)
+    make_dirs(out / "cases")
     before = _study_cases(out)
     known = {c.key for c in before}
     spec = {"cases": [asdict(c) for c in [*before, *(c for c in cases if c.key not in known)]]}

@@ -41,6 +41,7 @@ every text format.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import signal
@@ -52,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from willmore_nlp.errors import IO_ERRNOS, UserInputError
 from willmore_nlp.mesh.core import Mesh, MeshError
 from willmore_nlp.mesh.validate import DUPLICATE_RTOL
 
@@ -542,6 +544,27 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
 
 
 # -- writers -------------------------------------------------------------------------------
+def make_dirs(path: Path) -> None:
+    """Make the folder ``path`` and its parents (an output folder the user named, or a file's); a path that cannot be
+    made is the user's: :class:`UserInputError` naming the part of it in the way (a dangling symbolic link, a file
+    where a folder must go, a folder that cannot be made there such as /proc/x). The environment's errors (a full
+    disk, no permission) stay OSErrors (exit 74). (These read "dl: File exists" or ended as an internal error.)"""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        if exc.errno in IO_ERRNOS:
+            raise
+        why = exc.strerror or str(exc)
+        for part in reversed([path, *path.parents]) if exc.errno in (errno.ENOENT, errno.EEXIST, errno.ENOTDIR) else ():
+            if part.is_symlink() and not part.exists():
+                why = f"{part} is a symbolic link to {os.readlink(part)}, which does not exist"
+                break
+            if part.exists() and not part.is_dir():
+                why = f"{part} is a file, where a folder must go"
+                break
+        raise UserInputError(f"{path}: cannot make this folder: {why}") from exc
+
+
 def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it into place.
 
@@ -551,11 +574,16 @@ def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
     file's creation and its removal. A process killed meanwhile leaves at most such a stray temporary file,
     never a partial ``path``.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs(path.parent)
     hidden = str(path.parent / f".{path.name}.")
     with signals_deferred():
         try:
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+            try:
+                fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+            except OSError as exc:  # a folder that takes no new files (/proc): the path's, not a bug
+                if exc.errno in IO_ERRNOS:
+                    raise
+                raise UserInputError(f"{path}: cannot make a file in {path.parent}: {exc.strerror or exc}") from None
             try:
                 os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600: give the file the mode open() would
             finally:
