@@ -298,3 +298,19 @@ def test_the_collapse_test_needs_the_mesh_control_and_a_healthy_state(tmp_path, 
     assert flow._collapses(crushed) is None
     monkeypatch.undo()
     assert pb.make_flow(mesh_control="off")._collapses(crushed) is None
+
+
+def test_a_solve_at_ipopts_acceptable_level_is_named_as_such() -> None:
+    """A rejected attempt that IPOPT ended at its acceptable level read "solver did not converge
+    (Solved_To_Acceptable_Level, 16 iterations)" (a contradiction to a new user's eye, a trefoil near a doubly covered
+    circle): the reason now says that only the looser acceptable level was reached; other failures read as before."""
+    from willmore_nlp.solvers.base import SolveResult
+
+    flow = WillmoreFlow(shapes.regular_polygon(12), 0.01, 0.001)
+    z = flow.problem.pack_z(flow.X, flow.Y)
+    for status, text in (("Solved_To_Acceptable_Level", "solver did not converge to tol, only to IPOPT's looser "
+                          "acceptable level (Solved_To_Acceptable_Level, 16 iterations)"),
+                         ("Maximum_Iterations_Exceeded", "solver did not converge (Maximum_Iterations_Exceeded, 16 "
+                          "iterations)")):
+        res = SolveResult(z=z, f=0.0, lam_g=np.zeros(flow.problem.nc), converged=False, status=status, iterations=16)
+        assert flow._reject_reason(res, 1.0, flow.X) == text

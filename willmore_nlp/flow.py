@@ -1121,8 +1121,10 @@ class WillmoreFlow:
         )
 
     def _reject_reason(self, res: Any, f0: float, X: np.ndarray) -> str | None:
-        if not res.converged:
-            return f"{SOLVER_REASON} ({res.status}, {res.iterations} iterations)"
+        if not res.converged:  # (IPOPT's acceptable level read "did not converge (Solved_To_Acceptable_Level": a
+            # contradiction to a new user; the step needs tol, not the looser acceptable_tol)
+            looser = " to tol, only to IPOPT's looser acceptable level" if "Acceptable" in str(res.status) else ""
+            return f"{SOLVER_REASON}{looser} ({res.status}, {res.iterations} iterations)"
         if not np.all(np.isfinite(X)):
             return "non-finite positions"
         violation = self.constraint_violation(X)
