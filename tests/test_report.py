@@ -327,3 +327,15 @@ def test_the_vesicle_section_takes_the_branch_of_the_final_shape() -> None:
         assert f"| convex ({kind}: " in md, md
         got = re.search(rf"\| axisymmetric minimiser on the {branch} branch .* -> ([0-9.]+) \(", md)
         assert got is not None and float(got.group(1)) == pytest.approx(ref, abs=2e-6), md
+
+
+def test_snapshots_follow_a_fast_start_in_energy() -> None:
+    """A noisy input's run (modelled on a new user's 10,242-v ellipsoid): the energy falls 1,076 -> 31 in steps
+    at t < 1e-6, then 31 -> 27 to t = 0.021. Snapshots evenly spaced in time showed t = 0 and three alike late states;
+    along the (time, energy) path one panel lies in the fast fall and the last ones in the slow flow."""
+    t = np.array([0.0, 1.1e-7, 3.2e-7, 7.5e-7, 1.6e-6, 3.3e-6, 1.4e-4, 2.9e-3, 7.0e-3, 0.0105, 0.014, 0.0176, 0.021])
+    e = np.array([1076.0, 73.0, 36.0, 31.0, 30.6, 30.4, 30.0, 29.0, 28.2, 27.8, 27.5, 27.3, 27.1])
+    idx = snapshot_indices(t, e)
+    assert idx[0] == 0 and idx[-1] == len(t) - 1 and len(idx) == 4
+    assert t[idx[1]] < 1e-6 and 31.0 < e[idx[1]] < 1076.0  # a state of the fast fall
+    assert t[snapshot_indices(t)[1]] > 1e-3  # time alone: every panel after the first is a late state

@@ -49,8 +49,14 @@ def _ref_lines(ax: Any, t: np.ndarray, refs: Sequence[Reference]) -> None:
         ax.legend(fontsize=6)
 
 
+LOG_SPAN = 10.0
+"""A series of :func:`_series_figure`'s ``auto_log`` keys is drawn on a log axis when its positive values span this
+factor (a noisy input's energies 1,076 -> 30 -> 27 made the flow after its first steps a flat line at the floor)."""
+
+
 def _series_figure(run: Run, keys: list[tuple[str, str]], title: str, path: Path, log: tuple[str, ...] = (),
-                   refs: Sequence[Reference] = (), extra: dict[str, np.ndarray] | None = None) -> Figure:
+                   refs: Sequence[Reference] = (), extra: dict[str, np.ndarray] | None = None,
+                   auto_log: tuple[str, ...] = ()) -> Figure:
     t = run.times
     fig = Figure(figsize=(4.2 * len(keys), 3.2))
     axes = fig.subplots(1, len(keys), squeeze=False)
@@ -58,9 +64,12 @@ def _series_figure(run: Run, keys: list[tuple[str, str]], title: str, path: Path
         y = extra[key] if extra and key in extra else _col(run, key)
         ax.plot(t, y, "o-", ms=3)
         ax.set_xlabel("t")
-        ax.set_title(label)
+        finite = y[np.isfinite(y)]
+        positive = finite.size > 0 and bool(np.all(finite > 0))
+        spread = positive and key in auto_log and finite.max() >= LOG_SPAN * finite.min()
+        ax.set_title(label + (" (log axis)" if spread else ""))
         _ref_lines(ax, t, [r for r in refs if r.column == key])
-        if key in log and np.any(np.isfinite(y)) and np.all(y[np.isfinite(y)] > 0):
+        if positive and (key in log or spread):
             ax.set_yscale("log")
         ax.grid(alpha=0.3)
     fig.suptitle(title)
@@ -69,10 +78,12 @@ def _series_figure(run: Run, keys: list[tuple[str, str]], title: str, path: Path
 
 
 def snapshot_indices(times: np.ndarray, energies: np.ndarray | None = None, count: int = 4) -> list[int]:
-    """Up to ``count`` state indices spaced evenly in time, first and last included.
+    """Up to ``count`` state indices spaced evenly along the run, first and last included.
 
-    A state is chosen nearest to each of ``count`` equally spaced times. When that gives fewer
-    distinct states than wanted (a run whose time is spent in one long step, or stalled with tiny
+    A state is chosen nearest to each of ``count`` equally spaced points of the run's path in (time, energy), each
+    scaled by its span (in time alone without energies): a noisy input whose energy fell 564 -> 31 in its first steps
+    at t < 1e-6 showed t = 0 and three alike late states, evenly spaced in time (a new user's check). When that gives
+    fewer distinct states than wanted (a run whose time is spent in one long step, or stalled with tiny
     steps), states nearest to equally spaced values of ``energies`` are added. Of two chosen states
     within 1e-3 of the run's span in both time and energy only one is kept, so a stalled run shows
     no identical panels.
@@ -88,8 +99,12 @@ def snapshot_indices(times: np.ndarray, energies: np.ndarray | None = None, coun
     n = t.size
     want = min(count, n)
     chosen = {0, n - 1}
-    for target in np.linspace(t[0], t[-1], want)[1:-1]:
-        chosen.add(int(np.argmin(np.abs(t - target))))
+    path = t  # with energies: the length along the run's path in (t, e), each scaled by its span
+    if np.all(np.isfinite(e)) and n > 1 and np.ptp(e) > 0:
+        span_t = np.ptp(t) if np.ptp(t) > 0 else 1.0
+        path = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(t) / span_t, np.diff(e) / np.ptp(e)))])
+    for target in np.linspace(path[0], path[-1], want)[1:-1]:
+        chosen.add(int(np.argmin(np.abs(path - target))))
     if len(chosen) < want and np.all(np.isfinite(e)):
         for target in np.linspace(e[0], e[-1], want)[1:-1]:
             chosen.add(int(np.argmin(np.abs(e - target))))
@@ -135,7 +150,9 @@ def _snapshots(run: Run, path: Path, count: int = 4) -> list[int]:
             ax.set_ylim(lo, hi)
             ax.set_zlim(lo, hi)
             ax.set_box_aspect((1, 1, 1))
-            ax.set_title(f"step {run.history[k]['step']}, t = {run.times[k]:.4g}")
+            # (inside the axes: tight_layout leaves a 3D title above the figure's edge, cut off)
+            ax.text2D(0.5, 1.0, f"step {run.history[k]['step']}, t = {run.times[k]:.4g}", transform=ax.transAxes,
+                      ha="center", va="top")
     _save(fig, path)
     return idx
 
@@ -264,7 +281,8 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     gamma = _anisotropic(run)
     _series_figure(run, [("energy", "scheme energy e(X)"), ("willmore_energy", "Willmore energy 1/2 int h^2"),
                          *([("willmore_gamma", "anisotropic Willmore energy 1/2 int h_gamma^2")] if gamma else [])],
-                   "Energies", d / "fig_energy.png", refs=refs)
+                   "Energies", d / "fig_energy.png", refs=refs,
+                   auto_log=("energy", "willmore_energy", "willmore_gamma"))
     figs.append(("Energies against time", "fig_energy.png"))
     space = run.states[0].d == 1 and run.states[0].m == 3
     geo = [("measure", "length / area"),
@@ -276,8 +294,11 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     qkeys = [(k, k.removeprefix("q_")) for k in run.history[0] if k.startswith("q_")]
     _series_figure(run, qkeys, "Mesh quality", d / "fig_quality.png")
     figs.append(("Mesh quality against time", "fig_quality.png"))
+    taken = _col(run, "tau")
+    taken[:1] = np.nan  # (row 0 holds the configured tau, not a step's: drawn at t = 0 beside a first step at 1e-7)
     _series_figure(run, [("iterations", "solver iterations"), ("wall_time", "wall time per step [s]"),
-                         ("tau", "step size tau (log axis)")], "Solver", d / "fig_solver.png", log=("tau",))
+                         ("tau", "step size tau (log axis)")], "Solver", d / "fig_solver.png", log=("tau",),
+                   extra={"tau": taken})
     figs.append(("Solver statistics per step", "fig_solver.png"))
     idx = _snapshots(run, d / "fig_snapshots.png")
     figs.append(("Shape at t = " + ", ".join(f"{run.times[k]:.4g}" for k in idx), "fig_snapshots.png"))
