@@ -182,6 +182,8 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("curve-empty", _write("c.txt", ""), ["c.txt", "needs at least 3 vertices, got 0"]),
     ("curve-first-repeated", _write("c.txt", "0 0\n1 0\n0 1\n0 0\n"),
      ["c.txt:4", "the last vertex repeats the first (line 1)"]),
+    ("curve-first-repeated-to-rounding", _write("c.txt", "1 0\n0 1\n-1 0\n0 -1\n1 -2.4e-16\n"),  # (a new user's)
+     ["c.txt", "segment 4 (line 5) is degenerate", "the last point repeats the first (to rounding): remove it"]),
     ("curve-duplicate-vertex", _write("c.txt", "0 0\n1 0\n1 1\n0 1\n1 0\n2 -1\n"),
      ["c.txt", "vertices 1 (line 2) and 4 (line 5) are duplicates"]),
     ("curve-zero-length-segment", _write("c.txt", "0 0\n1 0\n1 0\n0 1\n"),

@@ -127,8 +127,11 @@ def _check_positions(V: np.ndarray, S: np.ndarray, source: str) -> None:
     degenerate = np.flatnonzero(vol <= 1e-13 * scale**d)
     if degenerate.size:
         k = int(degenerate[0])
-        raise MeshError(f"{source}: segment {k} is degenerate (zero length): vertices {S[k, 0]} and {S[k, 1]}" if d == 1
-                        else f"{source}: simplex {k} is degenerate (zero area): vertices {S[k].tolist()}")
+        closing = d == 1 and {int(S[k, 0]), int(S[k, 1])} == {0, len(V) - 1} and len(V) > 2
+        hint = ("; the last point repeats the first (to rounding): remove it, a closed curve is closed automatically"
+                if closing else "")  # (a common export habit; a new user's check)
+        raise MeshError(f"{source}: segment {k} is degenerate (zero length): vertices {S[k, 0]} and {S[k, 1]}{hint}"
+                        if d == 1 else f"{source}: simplex {k} is degenerate (zero area): vertices {S[k].tolist()}")
     dup_v = duplicate_vertices(V, DUPLICATE_RTOL * scale)
     if dup_v.size:
         i, j = (int(x) for x in dup_v[0])
