@@ -255,7 +255,9 @@ def inward(mesh: Mesh) -> str:
         return ""
     if mesh.d == 2:
         return f"the mesh is oriented inward (signed enclosed volume {v:.4g})"
-    return f"the curve runs clockwise (signed enclosed area {v:.4g})"
+    # (not "runs clockwise": a figure eight has no sense of rotation; its clockwise loop enclosed more, a new user's)
+    return (f"the curve's signed enclosed area is negative ({v:.4g}: it runs clockwise, or where it crosses itself "
+            "its clockwise loops enclose more)")
 
 
 def require_outward(mesh: Mesh, what: str) -> None:
