@@ -294,11 +294,12 @@ def write_report(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | 
     qkeys = [(k, k.removeprefix("q_")) for k in run.history[0] if k.startswith("q_")]
     _series_figure(run, qkeys, "Mesh quality", d / "fig_quality.png")
     figs.append(("Mesh quality against time", "fig_quality.png"))
-    taken = _col(run, "tau")
-    taken[:1] = np.nan  # (row 0 holds the configured tau, not a step's: drawn at t = 0 beside a first step at 1e-7)
+    per_step = {k: _col(run, k) for k in ("iterations", "wall_time", "tau")}
+    for v in per_step.values():  # (row 0 is the initial state, not a step: its configured tau was drawn at t = 0
+        v[:1] = np.nan  # beside a first step at 1e-7, and 0 iterations and seconds)
     _series_figure(run, [("iterations", "solver iterations"), ("wall_time", "wall time per step [s]"),
                          ("tau", "step size tau (log axis)")], "Solver", d / "fig_solver.png", log=("tau",),
-                   extra={"tau": taken})
+                   extra=per_step)
     figs.append(("Solver statistics per step", "fig_solver.png"))
     idx = _snapshots(run, d / "fig_snapshots.png")
     figs.append(("Shape at t = " + ", ".join(f"{run.times[k]:.4g}" for k in idx), "fig_snapshots.png"))
