@@ -495,15 +495,17 @@ class RunWriter:
         self._written = -np.inf  # time.monotonic() of the last status.json write
 
     @classmethod
-    def resume(cls, out: str | os.PathLike[str], check: Callable[[Checkpoint | None], None] | None = None
+    def resume(cls, out: str | os.PathLike[str],
+               check: Callable[[Checkpoint | None, dict[str, Any]], None] | None = None
                ) -> tuple[RunWriter, dict[str, Any], Checkpoint | None, list[str]]:
         """Open an existing run directory to continue it.
 
         Trusts the states 0..k that load and match the mesh (see :func:`scan_states`),
         deletes what writes cut short left (stray temporary files, an unreadable last
-        state), and rewrites history.csv from the trusted states. ``check``, given, is called with the last trusted
-        state before any of that: an exception it raises leaves the directory as it was (a refused ``--steps``
-        had rewritten history.csv, dropping a line the user had added to it; a new user's check).
+        state), and rewrites history.csv from the trusted states. ``check``, given, is called with the last
+        trusted state and status.json's contents (a dict, empty when unreadable) before any of that: an exception it
+        raises leaves the directory as it was (a refused ``--steps`` had rewritten history.csv, dropping a line the
+        user had added to it; a new user's check).
 
         Returns
         -------
@@ -528,9 +530,14 @@ class RunWriter:
         if other:
             unlock_run_dir(d, lock)
             raise RunError(_refusal(d, len(trusted), other))
+        try:
+            status = json.loads((d / "status.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            status = {}
+        status = status if isinstance(status, dict) else {}
         if check is not None:
             try:
-                check(trusted[-1] if trusted else None)
+                check(trusted[-1] if trusted else None, status)
             except BaseException:
                 unlock_run_dir(d, lock)
                 raise
@@ -551,11 +558,7 @@ class RunWriter:
             self.rows.append(row)
             self.keys.extend(k for k in row if k not in self.keys)
         self._rewrite_history()
-        try:
-            status = json.loads((d / "status.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            status = {}
-        if not isinstance(status, dict) or not isinstance(status.get("sessions"), list):
+        if not isinstance(status.get("sessions"), list):
             status = {"sessions": []}
         self.status = status
         return self, config, (trusted[-1] if trusted else None), notes

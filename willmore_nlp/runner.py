@@ -519,16 +519,13 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
     with warnings.catch_warnings(record=True) as built:  # (shown once the run goes on: a no-op says nothing of them)
         flow = pb.make_flow(**{**spec.flow_options,
                                **stored_control(cfg, pb.flow_options.get("boundary") is not None)})
-    def before_changes(ck: Checkpoint | None) -> None:  # (RunWriter.resume calls it before it changes anything)
+
+    def before_changes(ck: Checkpoint | None, status: dict[str, Any]) -> None:  # (RunWriter.resume calls it first)
         done_k, done_t = (0, 0.0) if ck is None else (ck.step, ck.t)
         if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
             raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
                            f"new total length, which cannot be shorter (the run is unchanged)")
-        try:
-            status = json.loads((d / "status.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            status = {}
-        if (steps, t_end) == (None, None) and isinstance(status, dict) and status.get("state") == "completed":
+        if (steps, t_end) == (None, None) and status.get("state") == "completed":
             # (relax=true ended the run before its length: resuming took a step past the rest and ended anew; a run
             # at its length said "resuming" and "wrote" and added a session to status.json: a new user's check)
             relaxed = ck is not None and bool(float((ck.row or {}).get("relaxed") or 0))
