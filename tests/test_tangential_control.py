@@ -374,10 +374,12 @@ def test_with_the_control_a_step_lowers_the_energy_plus_the_controls_term(tmp_pa
     x = np.linspace(-1.0, 1.0, n)
     gx, gy = np.meshgrid(x, x)
     V = np.c_[gx.ravel(), gy.ravel(), 0.2 * (gx.ravel() ** 2 - gy.ravel() ** 2)]
-    F = [[a, a + 1, a + n + 1] if (i + j) % 2 == 0 else [a, a + 1, a + n] for i in range(n - 1)
-         for j in range(n - 1) for a in [i * n + j]]
-    F += [[a, a + n + 1, a + n] if (i + j) % 2 == 0 else [a + 1, a + n + 1, a + n] for i in range(n - 1)
-          for j in range(n - 1) for a in [i * n + j]]
+    F = []
+    for i in range(n - 1):
+        for j in range(n - 1):  # the square a, b = a + 1, c = a + n, d = c + 1, its diagonal alternating
+            a = i * n + j
+            b, c, d = a + 1, a + n, a + n + 1
+            F += [[a, b, d], [a, d, c]] if (i + j) % 2 == 0 else [[a, b, c], [b, d, c]]
     path = tmp_path / "saddle.obj"
     save_mesh(Mesh(V, np.array(F)), path)
     pb, _ = registry.build("file", path=str(path), clamp="conormal")
