@@ -29,6 +29,10 @@ def test_every_problem_module_registers_something() -> None:
         assert name in reg
         entry = reg[name]
         assert entry.description
+    # the docstring's whole summary, one line: `problems` cut genus2_blending's and torus_hole's two-line summaries
+    # after their first line, mid-sentence (a new user's check)
+    assert all(e.description.endswith(".") and "\n" not in e.description for e in reg.values())
+    assert reg["genus2_blending"].description.endswith("with the rest of the surface fixed.")
 
 
 @pytest.mark.parametrize("name", ["circle", "sphere", "hypocycloid", "hypocycloid3d", "torus"])

@@ -158,14 +158,14 @@ _REGISTRY: dict[str, Entry] = {}
 
 def register(name: str, before: dict[str, Any] | None = None) -> Callable[[Callable[..., Problem]],
                                                                           Callable[..., Problem]]:
-    """Decorator registering a problem factory under ``name`` (first docstring line = description; ``before``:
-    :attr:`Entry.before`)."""
+    """Decorator registering a problem factory under ``name`` (the docstring's summary, its first paragraph on one
+    line, = description; ``before``: :attr:`Entry.before`)."""
 
     def deco(factory: Callable[..., Problem]) -> Callable[..., Problem]:
         if name in _REGISTRY and _REGISTRY[name].factory is not factory:
             raise ProblemError(f"problem {name!r} is registered twice ({_REGISTRY[name].module}, {factory.__module__})")
-        doc = (inspect.getdoc(factory) or "").strip().splitlines()
-        _REGISTRY[name] = Entry(name, factory, factory.__module__, doc[0] if doc else "", dict(before or {}))
+        summary = " ".join((inspect.getdoc(factory) or "").strip().split("\n\n")[0].split())
+        _REGISTRY[name] = Entry(name, factory, factory.__module__, summary, dict(before or {}))
         return factory
 
     return deco
