@@ -412,7 +412,11 @@ class FlowSettings(Settings):
         ``steps_from_h`` names it. Such edges are where the mesh stops resolving the surface (a bar between two
         holes of a genus-2 flow narrowing to a tube a few edges round), and where it would fold next; refined
         later (at 100 degrees) the remeshing makes that edge sharper still (docs/guide/mesh_quality.md, "Folds").
-        In the measured runs of the built-in surface problems no edge got sharper than 58.3 degrees.
+        In the runs of the built-in surface problems measured on 2026-11-29 (60 or 200 steps each, the 48 x 24 torus
+        to t = 1) no edge got sharper than 58.3 degrees; the ``torus`` problem's own default run (24 x 12, 100 steps to
+        t = 0.1) is refined once, at step 65 (276 -> 328 vertices), its sharpest edge at 74.5 degrees and W at 37.60,
+        below the smooth minimum 4 pi^2 = 39.48 on that coarse mesh; it ends at W 38.69 with the sharpest edge at 53
+        degrees (2026-12-03, a new user's check).
     refine_max_vertices : int
         No refinement (``refine_dihedral``) past this many vertices (default 50,000).
     refine_local : bool
@@ -437,7 +441,7 @@ class FlowSettings(Settings):
         StepResult reports the anisotropic Willmore energy ``willmore_gamma``.
     tangential_weight : float
         beta >= 1 (default 1, the paper's scheme): the distance term of W charges the tangential
-        part of X - X^k beta times (:func:`willmore_nlp.model.energies.distance`). The normal
+        part of X - X^k beta times (:class:`willmore_nlp.model.terms.distance.Distance`). The normal
         motion, and so the geometric flow as h -> 0, is unchanged; nodes stop sliding to where the
         discrete energy rewards them (needed for the nearly crystalline gamma2, e.g. beta = 1000). At most
         :data:`MAX_TANGENTIAL_WEIGHT`.
