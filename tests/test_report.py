@@ -317,6 +317,7 @@ def test_the_vesicle_section_takes_the_branch_of_the_final_shape() -> None:
     from willmore_nlp.geometry import willmore_energy
     from willmore_nlp.mesh import shapes
     from willmore_nlp.rundir import Run
+    from willmore_nlp.vesicle_reference import revolve_contour, solve_axisymmetric
 
     for kind, branch, ref in (("prolate", "prolate", 1.285676), ("oblate", "oblate", 1.333543)):
         M = shapes.ellipsoid_of_reduced_volume(0.85, kind, 2, exact="mesh")
@@ -324,9 +325,16 @@ def test_the_vesicle_section_takes_the_branch_of_the_final_shape() -> None:
         run = Run(Path("run"), {"problem": "vesicle", "params": {"start": "oblate", "c0": 0.0}},
                   [{"willmore_energy": willmore_energy(M)}], [M], np.zeros(1), [M.vertices])
         md = "\n".join(vesicle_lines(run))
-        assert f"| convex ({kind}: " in md, md
+        assert f"| convex ({kind}: " in md and "its volume 1.0000 of its convex hull's" in md, md
         got = re.search(rf"\| axisymmetric minimiser on the {branch} branch .* -> ([0-9.]+) \(", md)
         assert got is not None and float(got.group(1)) == pytest.approx(ref, abs=2e-6), md
+    # a dumbbell (the prolate minimiser of v = 0.7 revolved: a waist) is named so and compared with the prolate branch
+    # (a new user's v = 0.7 flow was named "convex")
+    M = revolve_contour(solve_axisymmetric(0.7, "prolate", 100), 2)
+    run = Run(Path("run"), {"problem": "vesicle", "params": {"start": "prolate", "c0": 0.0}},
+              [{"willmore_energy": willmore_energy(M)}], [M], np.zeros(1), [M.vertices])
+    md = "\n".join(vesicle_lines(run))
+    assert "| dumbbell (prolate: elongated" in md and "on the prolate branch" in md, md
 
 
 def test_snapshots_follow_a_fast_start_in_energy() -> None:

@@ -223,7 +223,7 @@ def vesicle_lines(run: Run) -> list[str]:
     user's check)."""
     from willmore_nlp import geometry
     from willmore_nlp.mesh.shapes import reduced_volume
-    from willmore_nlp.vesicle_reference import classify, extrapolated_energy, mesh_shape, symmetry_axis
+    from willmore_nlp.vesicle_reference import classify, extrapolated_energy, hull_share, mesh_shape, symmetry_axis
 
     cfg = run.config
     params = cfg.get("params", {})
@@ -238,9 +238,10 @@ def vesicle_lines(run: Run) -> list[str]:
     # the stomatocyte where that branch exists (followed down from v = 0.6)
     elongated = symmetry_axis(M)[1]
     branch = ("stomatocyte" if shape == "stomatocyte" or (shape == "cup" and v <= 0.6) else
-              "prolate" if shape == "convex" and elongated else "oblate")
-    if shape == "convex":
-        shape += f" ({'prolate: elongated' if elongated else 'oblate: flattened'} along its symmetry axis)"
+              "prolate" if shape in ("convex", "dumbbell") and elongated else "oblate")
+    if shape in ("convex", "dumbbell", "non-convex"):
+        shape += (f" ({'prolate: elongated' if elongated else 'oblate: flattened'} along its symmetry axis; its volume "
+                  f"{hull_share(M):.4f} of its convex hull's)")
     a, b, extrapolated = extrapolated_energy(v, branch, 200)
     lines = ["## Vesicle", "", _table([
         ["reduced volume v = 6 sqrt(pi) V / A^(3/2) (final state)", f"{v:.6f}"],
