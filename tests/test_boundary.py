@@ -267,6 +267,11 @@ def test_boundary_errors_name_the_problem() -> None:
     mesh, free = _disk_free()
     with pytest.raises(BoundaryError, match="empty patch"):
         boundary_data(mesh, Boundary(np.zeros(mesh.n_vertices, bool)))
+    # a mask of another length, also where the flow repairs its input first (numpy's IndexError there: a new user's
+    # check)
+    for n in (5, mesh.n_vertices + 1):
+        with pytest.raises(BoundaryError, match=f"boundary mask has {n} entries, the mesh has {mesh.n_vertices}"):
+            WillmoreFlow(mesh, mesh.h, mesh.h**2 / 100, boundary=Boundary(np.ones(n, bool)))
     with pytest.raises(BoundaryError, match="variant"):
         Boundary(free, "dirichlet")
     # free vertex on the mesh boundary

@@ -201,6 +201,14 @@ def _unit(v: np.ndarray, what: str) -> np.ndarray:
     return v / n
 
 
+def check_mask_size(mesh: Mesh, boundary: Boundary) -> None:
+    """BoundaryError unless ``boundary``'s free mask has one entry per vertex of ``mesh`` (a wrong length had ended
+    as numpy's IndexError in the flow's input repair: a new user's check)."""
+    if boundary.free.shape != (mesh.n_vertices,):
+        raise BoundaryError(f"{mesh.source}: boundary mask has {boundary.free.shape[0]} entries, the mesh has "
+                            f"{mesh.n_vertices} vertices")
+
+
 def boundary_data(mesh: Mesh, boundary: Boundary) -> BoundaryData:
     """Check ``boundary`` on ``mesh`` and compute the patch, Gamma, ring and co-normal data.
 
@@ -217,8 +225,7 @@ def boundary_data(mesh: Mesh, boundary: Boundary) -> BoundaryData:
     N, d = mesh.n_vertices, mesh.d
     S = np.asarray(mesh.simplices)
     free = boundary.free
-    if free.shape != (N,):
-        raise BoundaryError(f"{src}: boundary mask has {free.shape[0]} entries, the mesh has {N} vertices")
+    check_mask_size(mesh, boundary)
     if not free.any():
         raise BoundaryError(f"{src}: empty patch: no free vertex selected")
     if free.all():

@@ -15,6 +15,7 @@ import numpy as np
 
 from willmore_nlp import geometry
 from willmore_nlp.anisotropy import Anisotropy, anisotropic_willmore_energy, get_anisotropy
+from willmore_nlp.boundary import check_mask_size
 from willmore_nlp.codegen import compile_kernels, find_compiler
 from willmore_nlp.errors import UserInputError
 from willmore_nlp.mesh import shapes
@@ -677,6 +678,8 @@ class WillmoreFlow:
 
             check_connected(mesh, "set allow_components=true to flow them together")
         check_scale(mesh, self._solver_names())
+        if boundary is not None:
+            check_mask_size(mesh, boundary)
         self.mesh = mesh
         self.tau, self.tau_tilde, self.lam = tau, tau_tilde, lam
         t0 = time.perf_counter()
