@@ -184,7 +184,8 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
         options["tangential_weight"] = 100.0 if mesh.d == 2 else CLAMPED_CURVE_WEIGHT
     elif not mesh.is_closed:
         raise ProblemError(f"the mesh has a boundary ({len(mesh.boundary_facets)} boundary facets): set "
-                           "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed")
+                           "clamp=conormal or clamp=ring to hold its outermost strip of simplices fixed (volume "
+                           "and area constraints need a closed surface)")
     elif chi is not None and chi <= 0:
         options.update(tangential_weight=10.0, conformal_gauge=True, remesh_repair=REPAIR_PASSES_HANDLES)
     if chi is not None and mesh.m == 3 and not clamp and parts == 1:  # (several: the flow's error)

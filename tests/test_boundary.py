@@ -409,7 +409,9 @@ def test_open_mesh_file_without_clamp_names_the_option(tmp_path) -> None:
     from willmore_nlp.mesh.io import save_mesh
 
     save_mesh(shapes.disk(3), tmp_path / "disk.obj")
-    with pytest.raises(UserInputError, match=r"the mesh has a boundary \(18 boundary facets\): set clamp=conormal"):
+    # (and that a volume or area constraint, which clamping then refuses, needs a closed surface: a new user's check)
+    with pytest.raises(UserInputError, match=r"the mesh has a boundary \(18 boundary facets\): set clamp=conormal.*"
+                                             r"\(volume and area constraints need a closed surface\)$"):
         registry.build("file", path=str(tmp_path / "disk.obj"))
     with pytest.raises(UserInputError, match="clamp must be one of conormal, ring"):
         registry.build("file", path=str(tmp_path / "disk.obj"), clamp="dirichlet")

@@ -151,7 +151,8 @@ def test_kinds_say_what_they_allow() -> None:
     """The words of the messages come from the rule itself (docs/reference/options.md shows them too)."""
     from willmore_nlp.settings import integer, one_of, real
 
-    assert real().what == "a number" and real().ok(-1e300) and not real().ok(float("inf"))
+    assert real().what == "a finite number" and real().ok(-1e300) and not real().ok(float("inf"))
+    assert real(finite=False).what == "a number" and real(finite=False).ok(float("inf"))
     assert real(0, 60).what == "a number in [0, 60)" and not real(0, 60).ok(60) and real(0, 60).ok(0)
     assert real(1, finite=False).ok(float("inf")) and not real(1).ok(True)
     assert real(0, lo_open=True, unset="auto").what == "a number > 0 or unset (auto)" and real(0, unset="a").ok(None)

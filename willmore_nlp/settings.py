@@ -82,7 +82,9 @@ def real(lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False, 
     if hi < math.inf:
         what = f"a number in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
     else:
-        what = f"a number {'>' if lo_open else '>='} {lo:g}" if lo > -math.inf else "a number"
+        # (unbounded: "a finite number", as the vesicle problem's c0 said where the flow's said "a number, got inf")
+        what = f"a number {'>' if lo_open else '>='} {lo:g}" if lo > -math.inf else ("a finite number" if finite
+                                                                                   else "a number")
     what += f" or unset ({unset})" if unset else ""
     what += f" ({note})" if note else ""
 
