@@ -103,15 +103,19 @@ def sphere_nodes(V: np.ndarray) -> np.ndarray:
 
 
 def clifford_nodes(V: np.ndarray) -> np.ndarray:
-    """(N, 3) vertices of a torus of revolution about the x3 axis moved onto the Clifford torus.
+    """(N, 3) vertices of a torus-like surface moved onto the Clifford torus, in the frame of the torus of
+    revolution nearest to them (:func:`~willmore_nlp.analysis.torus_frame`: free centre and axis).
 
-    Each vertex keeps its two angles: phi around the x3 axis and theta around the core circle
-    (radius the mean of the largest and smallest distance to the axis); the Clifford torus has radii
-    sqrt 2 and 1.
+    Each vertex keeps its two angles there: phi around the fitted axis and theta around the fitted core circle; the
+    Clifford torus has radii sqrt 2 and 1. (The angles were taken about x3 through the vertex mean, around a core of
+    radius the mean of the largest and smallest distance to that axis: a new user's torus, tilted 2.4 degrees and
+    moved 0.14 after 80 steps, was given 39.587 where its own frame gives 38.978, and its flow's W 2.05 % below it
+    instead of 0.52 %.)
     """
-    c = V - V.mean(axis=0)
+    from willmore_nlp.analysis import torus_frame
+
+    c, _, _, core, _, _ = torus_frame(V)
     rho = np.hypot(c[:, 0], c[:, 1])
-    core = 0.5 * (rho.max() + rho.min())
     phi = np.arctan2(c[:, 1], c[:, 0])
     theta = np.arctan2(c[:, 2], rho - core)
     ring = np.sqrt(2.0) + np.cos(theta)
