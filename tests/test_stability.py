@@ -154,6 +154,13 @@ def test_a_relaxed_minimum_is_polished_by_newton_steps_on_normal_motions(tmp_pat
     assert (e_rest - last.energy) == pytest.approx(predicted, rel=0.05)
     assert last.stats["stability_gap"] < 1e-10 and flow.last_stability > SADDLE_TOL
     assert last.quality["min_angle"] > plain.state().quality["min_angle"] - 1.0
+    assert "; a minimum on normal motions: lowest eigenvalue" in flow.relax_message()
+    # a gap the polish left above relax_tol is "near a minimum" (a new user's v = 0.6 prolate vesicle ended "a minimum"
+    # 1.8e-3 of its energy above it; relax_tol = 1e-7 took it on to 1.2e-9)
+    flow.last_gap = 1.8e-3
+    assert (f"; near a minimum on normal motions: lowest eigenvalue {flow.last_stability:.3g}, the energy 0.0018 of "
+            f"itself above its quadratic model's minimum there, more than relax_tol = {flow.settings.relax_tol:g}"
+            ) in flow.relax_message()
 
 
 def test_stability_refuses_curves_large_meshes_bad_counts_lone_relax_newton(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -2171,6 +2171,12 @@ class WillmoreFlow:
                           f"{self.last_gap:.2g} of itself above its quadratic model's minimum there (above "
                           f"POLISH_MAX_GAP = {POLISH_MAX_GAP:g}: not polished; gone on past {self._go_ons} such ends "
                           f"already, MAX_GO_ON){left}")
+        if lowest >= -SADDLE_TOL and self.last_gap > self.settings.relax_tol:  # (a new user's v = 0.6 prolate vesicle
+            # was called "a minimum" 1.8e-3 of its energy above it; relax_tol = 1e-7 went on to 1.2e-9)
+            return why + (f"; near a minimum on normal motions: lowest eigenvalue {lowest:.3g}, the energy "
+                          f"{self.last_gap:.2g} of itself above its quadratic model's minimum there, more than "
+                          f"relax_tol = {self.settings.relax_tol:g} (the polish left it there; a smaller relax_tol "
+                          f"goes on){left}")
         if lowest >= -SADDLE_TOL:
             return why + (f"; a minimum on normal motions: lowest eigenvalue {lowest:.3g}, the energy "
                           f"{self.last_gap:.2g} of itself above its quadratic model's minimum there{left}")
