@@ -264,7 +264,7 @@ def test_the_clifford_reference_is_taken_in_the_tori_own_frame(tilt_deg: float) 
 
     from willmore_nlp.geometry import willmore_energy
     from willmore_nlp.mesh import shapes
-    from willmore_nlp.references import clifford_nodes
+    from willmore_nlp.references import clifford_nodes, references
 
     cliff = shapes.torus(np.sqrt(2.0), 1.0, 32, 16)
     w = willmore_energy(cliff)
@@ -272,6 +272,8 @@ def test_the_clifford_reference_is_taken_in_the_tori_own_frame(tilt_deg: float) 
     for shape in (cliff, shapes.torus(1.0, 0.5, 32, 16)):
         V = turn.apply(np.array(shape.vertices)) + np.array([0.1, -0.14, 0.2])
         assert willmore_energy(cliff, vertices=clifford_nodes(V)) == pytest.approx(w, rel=1e-9)
+        (ref,), note = references(shape.with_vertices(V), 0.0, 1e-4, np.zeros(1), {})  # (and in V's own orientation)
+        assert note == "Clifford torus" and ref.matched == pytest.approx(w, rel=1e-9)
 
 
 def test_parameters_are_those_the_flow_ran_with_after_an_input_repair(tmp_path) -> None:

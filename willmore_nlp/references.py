@@ -114,12 +114,14 @@ def clifford_nodes(V: np.ndarray) -> np.ndarray:
     """
     from willmore_nlp.analysis import torus_frame
 
-    c, _, _, core, _, _ = torus_frame(V)
+    c, centre, _, core, _, _ = torus_frame(V)
     rho = np.hypot(c[:, 0], c[:, 1])
     phi = np.arctan2(c[:, 1], c[:, 0])
     theta = np.arctan2(c[:, 2], rho - core)
     ring = np.sqrt(2.0) + np.cos(theta)
-    return np.column_stack([ring * np.cos(phi), ring * np.sin(phi), np.sin(theta)])
+    frame = np.linalg.lstsq(V - centre, c, rcond=None)[0]  # (the frame's rotation: c = (V - centre) @ frame)
+    # back in V's own frame (a triangle's orientation is compared with V's: references' folding check)
+    return np.column_stack([ring * np.cos(phi), ring * np.sin(phi), np.sin(theta)]) @ frame.T + centre
 
 
 RESOLUTION_GAP = 0.03
