@@ -126,6 +126,11 @@ def test_mesh_shape_names_the_branches() -> None:
     assert not has_pocket(discocyte) and mesh_shape(discocyte) == "discocyte"
     assert mesh_shape(shapes.cup_of_reduced_volume(0.55, 3, 1.2)) == "cup"
     assert mesh_shape(shapes.ellipsoid_of_reduced_volume(0.85, "prolate", 3)) == "convex"
+    # a flattened shape with a groove round its rim, no dimple on its axis: neither convex nor a discocyte
+    s = shapes.icosphere(3)
+    V = np.array(s.vertices) * [1.0, 1.0, 0.5]
+    V[:, :2] *= (1 - 0.15 * np.exp(-((V[:, 2] / 0.1) ** 2)))[:, None]
+    assert mesh_shape(s.with_vertices(V)) == "non-convex"
 
 
 @pytest.mark.parametrize("v", [0.95, 0.9, 0.85, 0.8, 0.7, 0.6])
