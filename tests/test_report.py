@@ -358,6 +358,16 @@ def test_the_vesicle_section_takes_the_branch_of_the_final_shape() -> None:
               [{"willmore_energy": willmore_energy(M)}], [M], np.zeros(1), [M.vertices])
     md = "\n".join(vesicle_lines(run))
     assert "| dumbbell (prolate: elongated" in md and "on the prolate branch" in md, md
+    # the same state as the end of a file run with volume and area fixed gets the section (a new user's capsule had
+    # none); with only one of them held, c0 set or an anisotropy, it has none
+    for options, has in (({"volume": "initial", "area": "initial"}, True), ({"volume": "initial"}, False),
+                         ({"volume": "initial", "area": "initial", "c0": 0.5}, False),
+                         ({"volume": "initial", "area": "initial", "anisotropy": "gamma1"}, False)):
+        run = Run(Path("run"), {"problem": "file", "params": {"path": "capsule.obj"},
+                                "effective_flow_options": options},
+                  [{"willmore_energy": willmore_energy(M)}], [M], np.zeros(1), [M.vertices])
+        md = "\n".join(vesicle_lines(run))
+        assert ("| dumbbell (prolate: elongated" in md and "on the prolate branch" in md) == has, (options, md)
 
 
 def test_snapshots_follow_a_fast_start_in_energy() -> None:

@@ -216,20 +216,25 @@ def _anisotropic(run: Run) -> bool:
 
 
 def vesicle_lines(run: Run) -> list[str]:
-    """The report's vesicle section for a run of the ``vesicle`` problem with c0 = 0 (empty otherwise): the final
-    state's reduced volume v, w / 8 pi and shape, and the axisymmetric minimiser's w / 8 pi at that v on the
-    branch of that shape (:mod:`willmore_nlp.vesicle_reference`: 200 and 400 contour segments, Richardson
-    extrapolated; 2-4 s). A vesicle's report had shown only "the references are in docs/guide/vesicles.md" (a new
-    user's check)."""
+    """The report's vesicle section for a run of the ``vesicle`` problem, or of any closed genus-0 surface flowed with
+    both volume and area fixed (a ``file`` run with ``volume`` and ``area``: a new user's capsule had no section),
+    isotropic and with c0 = 0 (empty otherwise): the final state's reduced volume v, w / 8 pi and shape, and the
+    axisymmetric minimiser's w / 8 pi at that v on the branch of that shape (:mod:`willmore_nlp.vesicle_reference`:
+    200 and 400 contour segments, Richardson extrapolated; 2-4 s). A vesicle's report had shown only "the references
+    are in docs/guide/vesicles.md" (a new user's check)."""
     from willmore_nlp import geometry
     from willmore_nlp.mesh.shapes import reduced_volume
+    from willmore_nlp.mesh.topology import euler_characteristic
     from willmore_nlp.vesicle_reference import classify, extrapolated_energy, hull_share, mesh_shape, symmetry_axis
 
     cfg = run.config
-    params = cfg.get("params", {})
-    if cfg.get("problem") != "vesicle" or float(params.get("c0") or 0.0) != 0.0:
-        return []
+    options = cfg.get("effective_flow_options") or {}
     M = run.states[-1]
+    held = (options.get("volume") is not None and options.get("area") is not None and M.d == 2 and M.m == 3
+            and M.is_closed and euler_characteristic(M.simplices) == 2)
+    c0 = float(options.get("c0", cfg.get("params", {}).get("c0")) or 0.0)
+    if not (cfg.get("problem") == "vesicle" or held) or c0 != 0.0 or options.get("anisotropy") is not None:
+        return []
     v = reduced_volume(geometry.measure(M), geometry.enclosed_volume(M))
     w = float(run.history[-1]["willmore_energy"]) / (8 * np.pi)
     shape = mesh_shape(M)
