@@ -126,6 +126,25 @@ def test_sphere_one_step_converges_to_time_discrete_sphere_equation(control: str
     assert fit_order(hs, errs) > 1.8
 
 
+@pytest.mark.parametrize("tau, tt, lam", [(0.01, 1e-6, 1.0), (0.01, 1e-5, 1.0), (0.05, 2e-3, 0.0), (0.5, 1e-3, 0.0)])
+def test_sphere_step_radius_solves_its_equation_at_the_root_nearest_rk(tau: float, tt: float, lam: float) -> None:
+    """The radius solves the stationarity equation of its docstring to rounding and is the root nearest below Rk (F
+    has no sign change between it and Rk); tt = 1e-6 with lam = 1 had no sign change in the fixed bracket [1e-3 Rk,
+    Rk], where F is positive at both ends (ValueError: a new user's check). Small tau: R - Rk -> the equation's
+    right-hand side at Rk."""
+    Rk = 1.0
+
+    def F(R: float) -> float:
+        return R - Rk + tau / Rk**2 * (16 * tt / (R**3 * (1 + 2 * tt / R**2) ** 3) + 2 * lam * R)
+
+    R = sphere_step_radius(Rk, tau, tt, lam)
+    assert abs(F(R)) < 1e-14 and Rk - R > 0
+    assert np.all(np.array([F(r) for r in np.linspace(R, Rk, 200)[1:]]) > 0)
+    small = 1e-6 * tau
+    first_order = -small * (16 * tt / (1 + 2 * tt) ** 3 + 2 * lam)
+    assert sphere_step_radius(Rk, small, tt, lam) - Rk == pytest.approx(first_order, rel=1e-5)
+
+
 def test_a_failed_run_keeps_the_steps_it_took(monkeypatch) -> None:
     """flow.run raises FlowError at a failed step with the steps accepted before it (a user's loop over run()'s
     list lost 52 accepted steps to the 53rd)."""

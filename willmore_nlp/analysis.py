@@ -58,7 +58,17 @@ def sphere_step_radius(Rk: float, tau: float, tt: float, lam: float = 0.0) -> fl
     def F(R: float) -> float:
         return R - Rk + tau / Rk**2 * (16 * tt / (R**3 * (1 + 2 * tt / R**2) ** 3) + 2 * lam * R)
 
-    return float(brentq(F, 1e-3 * Rk, Rk))
+    # the root nearest below Rk (F(Rk) >= 0): the step's, continuous in tau from 0. Farther down the 16 tt / R^3 term
+    # can make F positive again, and a fixed bracket [1e-3 Rk, Rk] then had no sign change (Rk = 1, tau = 0.01,
+    # tt = 1e-6, lam = 1: a new user's check)
+    if F(Rk) == 0:
+        return float(Rk)
+    hi = float(Rk)
+    for R in [Rk * (1 - 2.0**-j) for j in range(40, 0, -1)] + [Rk * 2.0**-j for j in range(2, 41)]:  # (descending)
+        if F(R) <= 0:
+            return float(brentq(F, R, hi, xtol=1e-15 * Rk, rtol=4 * np.finfo(float).eps))
+        hi = R
+    raise ValueError(f"sphere_step_radius: no root in (0, Rk), Rk = {Rk:g}, tau = {tau:g}, tt = {tt:g}, lam = {lam:g}")
 
 
 def polygon_equilibrium_radius(n: int, k: int, tt: float, lam: float) -> float:
