@@ -207,8 +207,12 @@ GAMMA1_WULFF_AXES = np.array([1.0, 2.0, 1.0])
 
 
 def gamma1_wulff_energy() -> float:
-    """w_gamma of every Wulff shape of gamma1 in R^3, its least value among closed surfaces: 1/2 (2/R)^2 |W_R|_gamma
-    = 2 |W_1| (|W_R|_gamma = 3 vol / R), twice the area of the prolate spheroid with semi-axes 1, 2, 1 (42.9569)."""
+    """w_gamma of every Wulff shape of gamma1 in R^3, its least value among closed surfaces: its anisotropic mean
+    curvature is 2 / R, so w_gamma = 1/2 int h_gamma^2 dA (:func:`anisotropic_willmore_energy`, the Euclidean area
+    element) = 1/2 (2/R)^2 |W_R| = 2 |W_1| (|W_R| = R^2 |W_1| the Euclidean area), twice the area of the prolate
+    spheroid with semi-axes 1, 2, 1 (42.9569). (It read "1/2 (2/R)^2 |W_R|_gamma, |W_R|_gamma = 3 vol / R", which gives
+    6 vol(W_1) = 16 pi: a new user's check; the value was right. Nodes on the Wulff shape: 42.767 / 42.909 / 42.945 at
+    642 / 2,562 / 10,242 vertices.)"""
     from willmore_nlp.mesh.shapes import spheroid_area_volume
 
     return 2 * spheroid_area_volume(GAMMA1_WULFF_AXES[0], GAMMA1_WULFF_AXES[1])[0]
