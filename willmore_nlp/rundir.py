@@ -496,14 +496,15 @@ class RunWriter:
 
     @classmethod
     def resume(cls, out: str | os.PathLike[str],
-               check: Callable[[Checkpoint | None, dict[str, Any]], None] | None = None
+               check: Callable[[Checkpoint | None, dict[str, Any], dict[str, Any]], None] | None = None
                ) -> tuple[RunWriter, dict[str, Any], Checkpoint | None, list[str]]:
         """Open an existing run directory to continue it.
 
         Trusts the states 0..k that load and match the mesh (see :func:`scan_states`),
         deletes what writes cut short left (stray temporary files, an unreadable last
         state), and rewrites history.csv from the trusted states. ``check``, given, is called with the last
-        trusted state and status.json's contents (a dict, empty when unreadable) before any of that: an exception it
+        trusted state, its history row (as the rewrite takes it: the state's own, else history.csv's; empty without
+        a state) and status.json's contents (a dict, empty when unreadable) before any of that: an exception it
         raises leaves the directory as it was (a refused ``--steps`` had rewritten history.csv, dropping a line the
         user had added to it; a new user's check).
 
@@ -535,9 +536,14 @@ class RunWriter:
         except (OSError, ValueError):
             status = {}
         status = status if isinstance(status, dict) else {}
+        csv_rows = read_history_csv(d / "history.csv")
+
+        def row_of(ck: Checkpoint) -> dict[str, Any]:
+            return ck.row or csv_rows.get(ck.step) or {"step": ck.step, "t": ck.t}
+
         if check is not None:
             try:
-                check(trusted[-1] if trusted else None, status)
+                check(trusted[-1] if trusted else None, row_of(trusted[-1]) if trusted else {}, status)
             except BaseException:
                 unlock_run_dir(d, lock)
                 raise
@@ -546,7 +552,6 @@ class RunWriter:
             if f.is_file():
                 f.unlink()
                 notes.append(f"removed {f} ({why})")
-        csv_rows = read_history_csv(d / "history.csv")
         self = cls.__new__(cls)
         self.out = d
         self._lock = lock
@@ -554,7 +559,7 @@ class RunWriter:
         self.rows = []
         self.keys = []
         for ck in trusted:
-            row = ck.row or csv_rows.get(ck.step) or {"step": ck.step, "t": ck.t}
+            row = row_of(ck)
             self.rows.append(row)
             self.keys.extend(k for k in row if k not in self.keys)
         self._rewrite_history()

@@ -520,7 +520,8 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
         flow = pb.make_flow(**{**spec.flow_options,
                                **stored_control(cfg, pb.flow_options.get("boundary") is not None)})
 
-    def before_changes(ck: Checkpoint | None, status: dict[str, Any]) -> None:  # (RunWriter.resume calls it first)
+    def before_changes(ck: Checkpoint | None, row: dict[str, Any], status: dict[str, Any]) -> None:  # (RunWriter.
+        # resume calls it first)
         done_k, done_t = (0, 0.0) if ck is None else (ck.step, ck.t)
         if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
             raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
@@ -528,7 +529,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
         if (steps, t_end) == (None, None) and status.get("state") == "completed":
             # (relax=true ended the run before its length: resuming took a step past the rest and ended anew; a run
             # at its length said "resuming" and "wrote" and added a session to status.json: a new user's check)
-            relaxed = ck is not None and bool(float((ck.row or {}).get("relaxed") or 0))
+            relaxed = bool(float(row.get("relaxed") or 0))
             why = status.get("message", "relaxed") if relaxed else "its configured length"
             raise _NothingToResumeError(f"{d}: the run ended at step {done_k}, {why}; nothing to resume (--steps or "
                                         f"--t-end continue it{' past its rest' if relaxed else ''})")
