@@ -114,14 +114,15 @@ def clifford_nodes(V: np.ndarray) -> np.ndarray:
     """
     from willmore_nlp.analysis import torus_frame
 
-    c, centre, _, core, _, _ = torus_frame(V)
-    rho = np.hypot(c[:, 0], c[:, 1])
-    phi = np.arctan2(c[:, 1], c[:, 0])
-    theta = np.arctan2(c[:, 2], rho - core)
+    _, centre, axis, core, _, _ = torus_frame(V)
+    q = np.asarray(V, float) - centre
+    height = q @ axis
+    radial = q - np.outer(height, axis)  # (from the axis, its length rho; phi is its direction)
+    rho = np.linalg.norm(radial, axis=1)
+    theta = np.arctan2(height, rho - core)
     ring = np.sqrt(2.0) + np.cos(theta)
-    frame = np.linalg.lstsq(V - centre, c, rcond=None)[0]  # (the frame's rotation: c = (V - centre) @ frame)
-    # back in V's own frame (a triangle's orientation is compared with V's: references' folding check)
-    return np.column_stack([ring * np.cos(phi), ring * np.sin(phi), np.sin(theta)]) @ frame.T + centre
+    # (in V's own frame: references' folding check compares each triangle's orientation with V's)
+    return centre + (ring / rho)[:, None] * radial + np.outer(np.sin(theta), axis)
 
 
 RESOLUTION_GAP = 0.03
