@@ -1,10 +1,12 @@
 """Step solvers: the reduced-space methods (adjoint gradient, Hessian-vector products) against FD and IPOPT."""
 
+import warnings
+
 import numpy as np
 import pytest
 
 from willmore_nlp import WillmoreFlow, registry
-from willmore_nlp.analysis import fit_order
+from willmore_nlp.analysis import circle_step_radius, fit_order
 from willmore_nlp.fem.assembly import lumped_mass
 from willmore_nlp.mesh import shapes
 from willmore_nlp.model.build import build_step
@@ -85,6 +87,26 @@ def test_gradient_descent_error_follows_its_tolerance() -> None:
         err.append(np.abs(r.vertices - ref).max() / step)
         assert err[-1] <= 100 * tol
     assert fit_order(tols, err) == pytest.approx(1.0, abs=0.15)
+
+
+@pytest.mark.parametrize(("solver", "tol"), [("lbfgs", 1e-1), ("newton-krylov", 1e-2)])
+def test_a_step_accepted_at_its_start_by_a_loose_tol_is_warned_of(solver, tol) -> None:
+    """A loose ``tol`` can be met at a step's start: the step "converges" in 0 iterations and X does not move (a new
+    user's 64-gon: R(0.1) = 1.000000 against the exact 1.046635). The flow warns once, naming the tolerance; with
+    the default tolerance the same step moves as the time-discrete closed form says, without the warning."""
+    mesh = shapes.regular_polygon(64, radius=1.0)
+    flow = WillmoreFlow(mesh, mesh.h / 10, mesh.h**2 / 10, solver=solver, tol=tol)
+    said = rf"step 1: solver {solver} accepted the step at its start .* tol = {tol:g}"
+    with pytest.warns(UserWarning, match=said) as got:
+        steps = flow.run(steps=3)
+    assert sum("at its start" in str(w.message) for w in got) == 1
+    assert all(r.iterations == 0 for r in steps) and np.array_equal(flow.X, mesh.vertices)
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        r = WillmoreFlow(mesh, mesh.h / 10, mesh.h**2 / 10, solver=solver).step()
+    assert r.iterations >= 1 and not any("at its start" in str(w.message) for w in got)
+    motion = np.linalg.norm(r.vertices, axis=1).mean() - 1  # (the time-discrete closed form's, to O(h^2))
+    assert motion == pytest.approx(circle_step_radius(1.0, mesh.h / 10, mesh.h**2 / 10) - 1, rel=0.02)
 
 
 def test_solver_registry_and_options(octagon_evaluator) -> None:

@@ -33,7 +33,7 @@ from willmore_nlp.settings import (
     is_number,
     route_solver_options,
 )
-from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities
+from willmore_nlp.solvers import check_solver, make_solver, solver_capabilities, solver_settings
 from willmore_nlp.solvers.base import SolveResult
 from willmore_nlp.solvers.ipopt import UNIT_WIDTHS, length_unit
 from willmore_nlp.tangential import TangentialControl, default_weight, resolve_method
@@ -702,6 +702,7 @@ class WillmoreFlow:
         self._refined_at = -1  # the step after which the mesh was last refined (-1: never)
         self.initial_mesh = mesh
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
+        self._start_warned = False  # a step accepted at its start by a loose tol was warned of (once per flow)
         self.relaxed = False
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
         self._run_tau: float | None = None  # run(t_end=...): the nominal tau, which it caps by what is left
@@ -1412,6 +1413,7 @@ class WillmoreFlow:
             self._grow_tau(tau, tries)
             if self.solver.name == self.main_solver(self.mesh.n_vertices):  # (another solver's count is no measure)
                 self._accepted_iterations = [*self._accepted_iterations[-BUDGET_WINDOW + 1:], res.iterations]
+            self._warn_loose_start(res)
         solver_name = solver or self.solver.name
         t_control = time.perf_counter()
         action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
@@ -1464,6 +1466,24 @@ class WillmoreFlow:
                         new.relaxed = True
                     result = new
         return result
+
+    def _warn_loose_start(self, res: SolveResult) -> None:
+        """Warn (once per flow) when the step solver accepted a step at its start, in 0 iterations, only because its
+        ``tol`` is looser than its default: X did not move where the default test would have moved it (a new user's
+        64-gon circle: newton-krylov at ``tol = 1e-2`` and lbfgs at ``1e-1`` took 11 such steps, R(0.1) = 1.000000
+        against the exact 1.046635). The solvers that report their test (``kkt_residual`` <= ``gtol``, where ``gtol``
+        is ``tol`` times the step's scale) are judged; a state at rest, whose residual passes the default test too,
+        is not warned of."""
+        tol, residual, gtol = getattr(self.solver, "tol", None), res.stats.get("kkt_residual"), res.stats.get("gtol")
+        if self._start_warned or res.iterations or None in (tol, residual, gtol):
+            return
+        default = solver_settings(self.solver.name).defaults()["tol"]
+        if residual > gtol * default / tol:
+            self._start_warned = True
+            warnings.warn(f"step {self.k}: solver {self.solver.name} accepted the step at its start (0 iterations, "
+                          f"X did not move) because tol = {tol:g} is loose: its residual {residual:.2e} is above what "
+                          f"the default tol = {default:g} accepts; lower tol (--set tol=...) for a flow that moves",
+                          stacklevel=4)
 
     def _go_on(self, lowest: float, gap: float) -> bool:
         """Whether an ended relax window whose state has the lowest eigenvalue ``lowest`` and the gap ``gap`` on
