@@ -617,6 +617,30 @@ def test_a_noisy_first_step_that_both_passes_fail_is_taken_by_the_guarded_pass(t
         assert np.abs(steps["newton-krylov", k][0] - steps["ipopt", k][0]).max() <= 1e-6 * h
 
 
+@pytest.mark.parametrize("tau", [0.0125, pytest.param(0.05, marks=pytest.mark.slow)])
+def test_an_anisotropic_step_that_the_first_pass_fails_is_taken_by_the_guarded_pass(tau: float) -> None:
+    """A new user's check: the 642-vertex ellipsoid 1:1:1.4 with gamma1 (a nonlinear inner equation), tau_tilde =
+    h^2/100, the flow's options (tangential control "meanratio"). The reduced first pass fails: at tau = 0.0125 "too
+    indefinite", at 0.05 its Armijo steps crush a triangle (area 0.31 -> 0.0036 h^2, its Y triangle 1.7e-11 h^2: J_Y
+    up to 1.3e7, B's eigenvalues up to 6e22 against D's 0.011) and B's factorisation fails. Both had ended the solve
+    (no guarded pass for a nonlinear inner equation). The guarded pass takes both steps, to IPOPT's X (tol 1e-12;
+    1e-11 at 0.05, where 1e-12 ends at the acceptable level) to 1e-8 h: measured 3.1e-11 h and 4.4e-10 h, the
+    vertices moving up to 0.86 h and 2.6 h (0.05: about 25 s, the slow mark)."""
+    m = shapes.icosphere(3)
+    mesh = m.with_vertices(m.vertices * np.array([1.0, 1.0, 1.4]))
+    h = mesh.h
+    X = {}
+    for solver, tol in (("newton-krylov", 1e-10), ("ipopt", 1e-12 if tau < 0.05 else 1e-11)):
+        flow = WillmoreFlow(mesh, tau, h * h / 100, anisotropy="gamma1", solver=solver, tol=tol)
+        res = flow.solver.solve(flow.problem.pack_z(flow.X, flow.Y), flow.params(flow.X, tau), None)
+        assert res.converged, (solver, res.status)
+        X[solver] = flow.problem.unpack_z(res.z, flow.X)[0]
+        if solver == "newton-krylov":
+            assert res.stats["n_guarded"] == 1 and res.stats["n_full_space"] > 0
+    assert np.abs(X["newton-krylov"] - X["ipopt"]).max() <= 1e-8 * h < np.linalg.norm(X["ipopt"] - mesh.vertices,
+                                                                                       axis=1).max()
+
+
 def test_a_grown_step_runs_without_the_guarded_pass(tmp_path, monkeypatch) -> None:
     """Adaptive steps on the noisy torus above (the ``file`` problem's flow: newton-krylov, adaptive): the first step's
     attempts may run the guarded pass (its step at h/32 is the guarded pass's), an attempt above the last accepted

@@ -65,23 +65,30 @@ differs is the linear algebra and the globalisation:
   Hessian D + tau R is positive definite only below tau = h/1,291 on a noisy 640-vertex torus and h/38,606 on a
   trimesh cone, with local negative modes), and descent on W^ with Y = Y[X] crushes a triangle where IPOPT's
   infeasible iterates go round to a healthy solution 0.7-2.9 h away. A solve that met negative curvature and ended
-  "too indefinite" or with a failed line search (without outer constraints and with a linear inner equation: the
-  full-space iteration's domain) is therefore solved once more from X^k, in the full-space iteration from its first
-  step on, also where the first Newton system is positive definite (a clean trimesh torus 128 x 64 at h/2 meets
-  negative curvature only later: its guarded pass had then replayed the reduced iteration with the larger shifts,
-  crawling through 50 iterations in 75 s to a failure, where the full-space one converges in 24 at 0.3 h per step,
-  17 s for the attempt), staying there (no hand-back, no restart; shifts up to ``GUARD_SHIFT``), with trial points that
-  flip a triangle or put an angle below ``GUARD_ANGLE`` times the smallest angle of X^k halved in the merit search,
-  full-space steps of at most ``GUARD_STEP`` h and shifted systems after the first cut at ``GUARD_CG`` CG iterations
-  (the truncated direction taken when it descends); its iterations are bounded by ``max_iter`` alone, not by the
-  flow's first-step budget, and it ends as failed once the guard has refused ``GUARD_REFUSALS`` trial points
-  (converged passes needed 0-4, failed ones ran to 366-477). Measured (first steps, direct solves): it finds IPOPT's
-  solutions (the same smallest angle and largest move) on a noisy torus at h/32 (the first pass: h/64), on a
-  subdivided cylinder at h/8 (h/64) and on the cone at h/8 (the first pass fails at every tau), each solve in 1-5 s;
-  failing, it fails in 1-6 s at these sizes (600-800 vertices); a noisy 10,192-vertex torus's first step at h/32 in
-  192 s where IPOPT took 939 s (docs/guide/performance.md). Smooth inputs never reach it (the first pass converges):
-  their steps are unchanged bit for bit. The flow allows it per attempt (``guard_allowed``): not for an attempt above
-  the last accepted step size (an adaptive doubling), which is retried at that size instead.
+  "too indefinite", with a failed line search or with the preconditioner's factorisation failed at an iterate (its
+  triangles crushed; without outer constraints: the full-space iteration's domain) is therefore solved once more from
+  X^k, in the full-space iteration from its first step on, also where the first Newton system is positive definite (a
+  clean trimesh torus 128 x 64 at h/2 meets negative curvature only later: its guarded pass had then replayed the
+  reduced iteration with the larger shifts, crawling through 50 iterations in 75 s to a failure, where the full-space
+  one converges in 24 at 0.3 h per step, 17 s for the attempt), staying there (no hand-back, no restart; shifts up to
+  ``GUARD_SHIFT``), with trial points that flip a triangle or put an angle below ``GUARD_ANGLE`` times the smallest
+  angle of X^k halved in the merit search, full-space steps of at most ``GUARD_STEP`` h and shifted systems after the
+  first cut at ``GUARD_CG`` CG iterations (the truncated direction taken when it descends); its iterations are bounded
+  by ``max_iter`` alone, not by the flow's first-step budget, and it ends as failed once the guard has refused
+  ``GUARD_REFUSALS`` trial points (converged passes needed 0-4, failed ones ran to 366-477). Measured (first steps,
+  direct solves): it finds IPOPT's solutions (the same smallest angle and largest move) on a noisy torus at h/32 (the
+  first pass: h/64), on a subdivided cylinder at h/8 (h/64) and on the cone at h/8 (the first pass fails at every
+  tau), each solve in 1-5 s; failing, it fails in 1-6 s at these sizes (600-800 vertices); a noisy 10,192-vertex
+  torus's first step at h/32 in 192 s where IPOPT took 939 s (docs/guide/performance.md). A nonlinear (anisotropic)
+  inner equation runs it too, while its first pass stays in the reduced iteration (a full-space first pass there
+  converged no further on the gamma1 ellipsoid below and needed the guarded pass at tau = 0.00625 where the reduced
+  one converges): the 642-vertex ellipsoid 1:1:1.4 with gamma1 and tau_tilde = h^2/100 (a new user's check) had failed
+  at tau = 0.05 (the reduced iteration crushed a triangle, area 0.31 -> 0.0036 h^2, its Y triangle to 1.7e-11 h^2, and
+  B = D + GN, eigenvalues up to 6e22 against D's 0.011, failed its Cholesky factorisation) and at 0.0125 ("too
+  indefinite"), where IPOPT took 0.05; the guarded pass takes both, to IPOPT's X within 4.4e-10 h. Smooth inputs never
+  reach it (the first pass converges): their steps are unchanged bit for bit. The flow allows it per attempt
+  (``guard_allowed``): not for an attempt above the last accepted step size (an adaptive doubling), which is retried
+  at that size instead.
 * Globalisation (reduced iteration). Backtracking (halving) line search with the Armijo condition on W^. A step whose
   predicted decrease is below the rounding level of W^ (100 eps |W^|) is accepted when it reduces
   |grad W^|_inf instead, whatever W^ does there (the last, quadratically convergent iterations:
@@ -508,7 +515,8 @@ class NewtonKrylovSolver(ReducedSolver):
         scipy's BLAS on one thread meanwhile (:func:`~willmore_nlp.solvers.cholesky.other_blas_one_thread`). A
         Cholesky factor found not positive definite (the preconditioner or J_Y at an iterate whose triangles
         degenerate: the h = 0.07 double torus of reports/genus2_handles_study.py crashed on one) ends the solve
-        unconverged, with the reason, so that the flow retries it like any failed solve."""
+        unconverged, with the reason, so that the flow retries it like any failed solve; the preconditioner's, in the
+        first pass after negative curvature, runs the guarded pass first (module docstring)."""
         with other_blas_one_thread():
             try:
                 return self._solve(z0, p)
@@ -540,10 +548,10 @@ class NewtonKrylovSolver(ReducedSolver):
         self._delta = self._delta_max = 0.0
         stats: dict[str, Any] = {}
         z, f, lam, it, status, res = self._iterate(pt, p, D, h, gtol)
-        if (self.guarded and self.guard_allowed and self._delta_max > 0 and not (P.nh or P.nonlinear_inner)
-                and status.startswith(("reduced Hessian too indefinite", "line search failed"))):
+        if (self.guarded and self.guard_allowed and self._delta_max > 0 and not P.nh and status.startswith(
+                ("reduced Hessian too indefinite", "line search failed", "factorisation failed"))):
             # indefinite and not solved: the guarded pass from the same start (module docstring; not with outer
-            # constraints or a nonlinear inner equation: no full space there)
+            # constraints: no full space there)
             self._guard = self._mesh_guard(Xk)
             self._count("n_guarded")
             self._delta = self._delta_max = 0.0
@@ -598,8 +606,12 @@ class NewtonKrylovSolver(ReducedSolver):
             with self._timed("eval"):
                 pt.H = self.ev.hess_lag_operator(pt.z, p, 1.0, pt.lam)  # (half the memory of the mirrored matrix)
             self._count("n_eval_hess")
-            first = it == 0 and not (P.nh or P.nonlinear_inner)
-            d, shifted = self._direction(pt, p, D, h, first)
+            first = it == 0 and not P.nh and (self._guard is not None or not P.nonlinear_inner)  # (nonlinear: guarded)
+            try:
+                d, shifted = self._direction(pt, p, D, h, first)
+            except np.linalg.LinAlgError as exc:  # B at an iterate whose triangles degenerate: the pass failed
+                status = f"factorisation failed ({exc})"
+                break
             if d is None:
                 status = f"reduced Hessian too indefinite (shift {self._delta_max:.0e} D > max_shift)"
                 break
