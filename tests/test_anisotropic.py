@@ -273,7 +273,8 @@ def test_a_clamped_anisotropic_patch_keeps_its_mesh_without_remeshing() -> None:
     steps = [flow.step() for _ in range(4)]
     assert [(r.retries, r.tau) for r in steps] == [(0, pb.tau)] * 4
     assert not any("remesh" in r.remeshed for r in steps)
-    assert min(r.stats["min_angle_before_remesh"] for r in steps) > 30.0
+    assert min(r.stats.get("min_angle_before_remesh", r.quality["min_angle"]) for r in steps) > 30.0  # (a paused
+    # step, flow.REST_SPEED, has no mesh control)
     before = pb.make_flow(anisotropy="gamma1", tangential_control_weight=1.0)
     slid = [before.step() for _ in range(2)]
     assert all("remesh" in r.remeshed and r.stats["min_angle_before_remesh"] < 15.0 for r in slid)

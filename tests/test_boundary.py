@@ -127,9 +127,11 @@ def test_planar_disk_in_planar_ring_is_stationary(variant) -> None:
     assert np.abs(res[-1].vertices - mesh.vertices).max() <= 1e-12
     assert np.abs(res[-1].Y - mesh.vertices).max() <= 1e-12
     assert res[-1].energy <= 1e-24
-    # the default in-step control slides the nodes within the plane toward a lower summed mean-ratio distortion
-    # (measured: 226.78, 223.25, 222.93, 222.88 over three steps, at rest at 222.86 by step 10; smallest angle
-    # 46.1 -> 39.0 deg: the mean ratio trades the smallest angle for the sum); nothing leaves the plane
+    # the default in-step control slides the nodes within the plane toward a lower summed mean-ratio distortion in
+    # the first step (226.78 -> 223.25); the step did not move them off the plane, so the controls pause
+    # (flow.REST_SPEED) and the disk stays bit for bit (before the pause: 223.25, 222.93, 222.88 over the next steps,
+    # at rest at 222.86 by step 10, smallest angle 46.1 -> 39.0 deg: the mean ratio traded the smallest angle for the
+    # sum); nothing leaves the plane
     flow = WillmoreFlow(mesh, mesh.h, mesh.h**2 / 10, lam=0.0, boundary=bd, codegen=False)
     assert flow._control.method == "meanratio"
     res = [flow.state(), *flow.run(steps=3)]
@@ -139,8 +141,9 @@ def test_planar_disk_in_planar_ring_is_stationary(variant) -> None:
         assert np.abs((s.vertices - mesh.vertices) @ normal).max() <= 1e-12
         np.testing.assert_array_equal(s.vertices[~bd.free], mesh.vertices[~bd.free])
         assert np.abs(s.Y - s.vertices).max() <= 1e-12 and s.energy <= 1e-24
-    assert np.abs(res[-1].vertices - mesh.vertices).max() > 0.1 * mesh.h
-    assert distortion[0] > distortion[1] > distortion[2] > distortion[3]
+    assert np.abs(res[1].vertices - mesh.vertices).max() > 0.05 * mesh.h  # measured 0.055 h
+    assert all(np.array_equal(s.vertices, res[1].vertices) for s in res[2:])
+    assert distortion[0] > distortion[1] == distortion[2] == distortion[3]
 
 
 def test_reversed_conormal_is_not_stationary() -> None:

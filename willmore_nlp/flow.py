@@ -304,6 +304,18 @@ LOCAL_RINGS = 2
 """A local refinement's region, and that of a threshold remeshing of a locally refined mesh, grows by this many rings
 of triangles around its start (the rim, which stays fixed, is then away from the edges it mends)."""
 
+REST_SPEED = 3e-3
+"""A clamped or open surface at rest on a healthy mesh keeps its mesh (:meth:`WillmoreFlow._pauses`): after a step
+that moved no moving node along its vertex normal faster than this many L per unit of the surface's own time L^4
+(L: :func:`geometry.length_scale`), the light repair and the in-step tangential control pause. Each paused step is
+the paper's step and stands if it moves no moving node, tangentially included, faster than this; otherwise it is
+taken again with the control and the controls stay on for the rest of the flow (the scheme's own tangential drift,
+which they exist to follow). Measured at tau = h (docs/guide/mesh_quality.md, "Clamped and open surfaces at rest"):
+the first step's normal motion 5e-7 (helicoid, 325 v) and 1.9e-3 (catenoid, 816 v, settling on its discrete
+minimum), 6e-5 and 1.3e-3 in later steps with the controls; paused steps 2e-5 and 2e-4; the clamped hemisphere
+(``sphere_cap``, angle 90) and 45-degree cap pause at 2.9e-3 and 3.6e-4 while their normal motion dies out, and their
+paper's step then moves the nodes at 0.1 and 3e-2, so the controls stay on from there."""
+
 CONTROL_OFF = TangentialControlTerm.scalars
 """``off`` of :meth:`WillmoreFlow.params` for the evaluations the tangential control does not enter (an outer term):
 the inner solve, the outer constraints, the energy e(X); its per-node data are then not computed."""
@@ -443,10 +455,10 @@ class StepResult:
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
                   "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard",
                   "drift_share", "dilation_undone", "stability", "stability_gap", "energy_before_move",
-                  "willmore_before_move", "stability_gap_before_move"):
+                  "willmore_before_move", "stability_gap_before_move", "mesh_pause"):
             # (n_cg to n_guard: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
-            # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS; the last two: the
-            # drift rule's, DRIFT_SHARE)
+            # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS; drift_share and
+            # dilation_undone: the drift rule's, DRIFT_SHARE; mesh_pause: REST_SPEED's)
             if k in self.stats:
                 r[k] = self.stats[k]
         return r
@@ -799,6 +811,8 @@ class WillmoreFlow:
         self._saddle_mode = self._newton = np.zeros_like(self.X)
         self._relax_start(self._relax_value(self.X, self.Y))
         self._X_prev = self.X
+        self._paused = False  # a healthy state at rest: light repair and in-step control paused (REST_SPEED)
+        self._drifting = False  # a paused step moved the nodes: no more pauses (REST_SPEED)
         # the scheme's drift of closed surfaces with mesh control and no outer constraint (a scale to drift along)
         drifts = self.remesh and boundary is None and mesh.is_closed and not self.problem.nh
         # rest_tau_tilde: at rest (see _rest_tau_tilde)
@@ -1297,13 +1311,29 @@ class WillmoreFlow:
         runs without the iteration budget) and the post-processing of its solution: redistribution (curves), the
         outer constraints' restoration, the conformal gauge and Y[X].
 
+        While the mesh controls pause at a healthy state at rest (:data:`REST_SPEED`) the attempt is the paper's step,
+        without the in-step tangential control. It stands when it is accepted and moves no moving node faster than
+        ``REST_SPEED``; otherwise the pause ends for the rest of the flow and the attempt is made with the control.
+
         Returns
         -------
         (X, Y, res, reason, moved): X (N, m) and Y (N, m) the new state, ``res`` the solver's result (None when
         the solver raised), ``reason`` why the attempt is rejected (None: accepted), ``moved`` the statistics of
         the post-processing (history columns).
         """
-        p = self.params(self.X, tau)
+        if self._paused:
+            X, Y, res, reason, moved = self._attempt_with(tau, last, CONTROL_OFF)
+            still = reason is None and self._speed(X, self.X, tau) < REST_SPEED
+            if not still:
+                self._paused, self._drifting = False, True
+            if still or not self._control.enabled:  # (without an in-step control the attempt would be the same)
+                return X, Y, res, reason, moved
+        return self._attempt_with(tau, last, ())
+
+    def _attempt_with(self, tau: float, last: bool, off: Collection[str]
+                      ) -> tuple[np.ndarray, np.ndarray, Any, str | None, dict[str, float]]:
+        """:meth:`_attempt` with the terms ``off`` left out (:meth:`params`)."""
+        p = self.params(self.X, tau, off)
         z0 = self.problem.pack_z(self.X, self.Y)
         f0 = self.evaluator.f(z0, p)
         if hasattr(self.solver, "iteration_limit"):
@@ -1418,6 +1448,8 @@ class WillmoreFlow:
         t_control = time.perf_counter()
         action, mstats = self._control_mesh(tau) if self.remesh else ("", {})
         mstats["t_wall_control"] = time.perf_counter() - t_control
+        if self._paused or self._drifting:  # (REST_SPEED; read back by restart)
+            mstats["mesh_pause"] = 2 if self._drifting else 1
         result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
         drift = moved.get("drift_share", 0.0) >= DRIFT_SHARE
         if self._rest and self._rest_tau_tilde(tries, tau, result.willmore, result.measure, drift):
@@ -1692,6 +1724,32 @@ class WillmoreFlow:
         """:meth:`_below_thresholds` of the patch of (X, F)."""
         return self._below_thresholds(self._patch_quality(X, F, self.free), margin)
 
+    def _speed(self, X: np.ndarray, Xk: np.ndarray, tau: float, normal: bool = False) -> float:
+        """Largest motion of a moving node in the step of size tau from Xk to X (``normal``: along its vertex normal
+        at Xk), in L per unit of the surface's own time L^4 (L: :func:`geometry.length_scale` of X's area)."""
+        D = X - Xk
+        if normal:
+            D = np.einsum("ij,ij->i", D, geometry.vertex_normals(self.mesh.with_vertices(Xk)))[:, None]
+        moved = np.linalg.norm(D, axis=1) if self.free is None else np.linalg.norm(D, axis=1)[self.free]
+        L = geometry.length_scale(geometry.measure(self.mesh, X), 2, self.mesh.is_closed)
+        return float(moved.max()) * L**3 / tau
+
+    def _pauses(self, X: np.ndarray, Xk: np.ndarray | None, tau: float, needs: bool) -> bool:
+        """Whether the mesh controls pause after the step of size tau from Xk to X (:data:`REST_SPEED`): the light
+        repair after it and the in-step tangential control of the next steps (:meth:`_attempt`).
+
+        They pause on a clamped or open surface when the patch is not below the thresholds (``needs``) and the state
+        is at rest: a paused step stood (:meth:`_attempt`), or a step with the controls moved no moving node along its
+        vertex normal faster than ``REST_SPEED``. Never before a first step (Xk None) or once a paused step moved the
+        nodes, nor on closed surfaces, which the paper's scheme does not hold at rest (its O(tau_tilde) drift, met by
+        ``rest_tau_tilde`` and ``rest_dilation``). The history column ``mesh_pause`` records the outcome (1 paused, 2
+        ended for good) for :meth:`restart`.
+        """
+        rest = Xk is not None and not self._drifting and (self.boundary is not None or not self.mesh.is_closed) and (
+            self._paused or self._speed(X, Xk, tau, normal=True) < REST_SPEED)
+        self._paused = rest and not needs
+        return self._paused
+
     def _control_mesh(self, tau: float) -> tuple[str, dict[str, float]]:
         """Repair the mesh of the accepted state when its quality dropped (see ``remesh``).
 
@@ -1719,7 +1777,8 @@ class WillmoreFlow:
         # the light repair moves each vertex by at most REPAIR_SPEED times what the step moved it: the mesh
         # follows the surface at its own speed, and a state that the flow does not move (an equilibrium)
         # is left alone, so the fixed points are those of the paper's scheme
-        light = repair and moved is not None and bool(moved.max() > 0)
+        # (and none at a healthy state at rest, whose in-step control pauses too: REST_SPEED)
+        light = not self._pauses(X, Xk, tau, needs) and repair and moved is not None and bool(moved.max() > 0)
         if not light and not needs and not refine:
             return "", {}
         free = self.free
@@ -2385,6 +2444,7 @@ class WillmoreFlow:
             raise ValueError("restart: the state has non-finite values")
         self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
         self._X_prev = self.X
+        self._paused = self._drifting = False  # (REST_SPEED: from the state's history row below)
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         w0 = self._relax_value(X, Y)  # (W, the rest rule's, whenever that rule runs: it runs without relax)
@@ -2397,6 +2457,9 @@ class WillmoreFlow:
         column = self._relax_column
         for r in history or []:
             replayed = "willmore_energy" in r and int(float(r["step"])) == self.k
+            if replayed:
+                pause = float(r.get("mesh_pause") or 0)
+                self._paused, self._drifting = pause == 1, pause == 2
             if "willmore_energy" not in r:  # a checkpoint without its history row: the window starts after it
                 self._relax_window = []
             elif int(float(r["step"])) == 0:
