@@ -369,3 +369,28 @@ def test_a_failed_case_keeps_its_errors_hint_in_the_summary(tmp_path) -> None:
     (hint,) = [w for w in rec["warnings"] if w.startswith("failed: ")]
     assert "convex at this state only below tau" in hint and "adaptive = true" in hint
     assert hint in (write_study(tmp_path)).read_text()
+
+
+def test_a_case_stuck_at_its_start_by_a_loose_tol_is_not_ok_nor_stable(tmp_path, capsys) -> None:
+    """lbfgs at ``tol = 0.1`` on the 64-gon circle accepts every step at its start (0 iterations, the circle does not
+    grow: ``flow.LooseToleranceWarning``). The case was listed "ok" with 0.0 mean iterations and its tau counted as
+    the largest stable one (a new user's check); it is now "loose tol" and out of that table, while the same case at
+    the default tol, run into the same study, is "ok" and stable."""
+    from willmore_nlp.apps.study import LOOSE_TOL
+    from willmore_nlp.cli import main
+
+    out = tmp_path / "study"
+    for extra in (["--option", "tol=0.1"], []):
+        assert main(["compare", "circle", "--solvers", "lbfgs", "--set", "n=64", "--taus", "0.1h", "--steps", "3",
+                     *extra, "--out", str(out), "--workers", "1"]) == 0
+    capsys.readouterr()
+    recs = {json.loads(f.read_text())["case"]["options"].get("tol"): json.loads(f.read_text())
+            for f in (out / "cases").glob("*")}
+    loose, default = recs[0.1], recs[None]
+    assert loose["status"] == LOOSE_TOL and default["status"] == "ok"
+    assert all(r.get("iterations", 0) == 0 for r in loose["rows"]) and any(r["iterations"] for r in default["rows"][1:])
+    assert any("accepted the step at its start" in w for w in loose["warnings"]) and not default["warnings"]
+    summary = (out / "summary.md").read_text()
+    assert sum(f"| {LOOSE_TOL} |" in ln for ln in summary.splitlines()) == 1
+    stable = summary.split("| solver | h | largest stable tau | tau / h |")[1].split("\n\n")[0]
+    assert stable.count("| lbfgs |") == 1  # (the default tol's case alone)

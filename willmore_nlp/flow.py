@@ -143,6 +143,10 @@ class StepSizeWarning(UserWarning):
     """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (docs/theory/tau_tilde.md)."""
 
 
+class LooseToleranceWarning(UserWarning):
+    """A step solver accepted a step at its start, X unmoved, only because its ``tol`` is looser than its default."""
+
+
 class InputRepairWarning(UserWarning):
     """``input_repair`` changed the input before the first step (a resume past that step does not repeat it)."""
 
@@ -1512,10 +1516,10 @@ class WillmoreFlow:
         default = solver_settings(self.solver.name).defaults()["tol"]
         if residual > gtol * default / tol:
             self._start_warned = True
-            warnings.warn(f"step {self.k}: solver {self.solver.name} accepted the step at its start (0 iterations, "
-                          f"X did not move) because tol = {tol:g} is loose: its residual {residual:.2e} is above what "
-                          f"the default tol = {default:g} accepts; lower tol (--set tol=...) for a flow that moves",
-                          stacklevel=4)
+            warnings.warn(LooseToleranceWarning(
+                f"step {self.k}: solver {self.solver.name} accepted the step at its start (0 iterations, X did not "
+                f"move) because tol = {tol:g} is loose: its residual {residual:.2e} is above what the default tol = "
+                f"{default:g} accepts; lower tol (--set tol=...) for a flow that moves"), stacklevel=4)
 
     def _go_on(self, lowest: float, gap: float) -> bool:
         """Whether an ended relax window whose state has the lowest eigenvalue ``lowest`` and the gap ``gap`` on

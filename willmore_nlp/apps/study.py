@@ -42,6 +42,10 @@ from willmore_nlp.errors import UserInputError
 STUDY_FILE = "study.json"
 """Marks a study directory; holds the grid."""
 
+LOOSE_TOL = "loose tol"
+"""A case's status when the flow warned that a step was accepted at its start only because the solver's ``tol`` is
+loose (``flow.LooseToleranceWarning``): not "ok", so not a stable step size either."""
+
 
 class StudyError(UserInputError):
     """A study specification is invalid (names the option and value)."""
@@ -128,12 +132,12 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
 
     Returns
     -------
-    dict with ``case``, ``status`` ("ok" or "failed"), ``error``, ``h``, ``tau``, ``control`` (the resolved
-    in-step tangential control, e.g. "meanratio 1" or "off"; absent when the flow was not built), ``wall`` and
-    ``rows`` (one dict per accepted step, step 0 first).
+    dict with ``case``, ``status`` ("ok", "failed" or :data:`LOOSE_TOL`), ``error``, ``h``, ``tau``, ``control``
+    (the resolved in-step tangential control, e.g. "meanratio 1" or "off"; absent when the flow was not built),
+    ``wall`` and ``rows`` (one dict per accepted step, step 0 first).
     """
     from willmore_nlp import registry
-    from willmore_nlp.flow import FlowError, StepResult
+    from willmore_nlp.flow import FlowError, LooseToleranceWarning, StepResult
     from willmore_nlp.rundir import write_text_atomic
 
     rows: list[dict[str, Any]] = []
@@ -171,6 +175,9 @@ def run_case(case: Case, out: str) -> dict[str, Any]:
         except Exception as exc:
             rec.update(status="failed", error=f"{type(exc).__name__}: {exc}"[:500],
                        traceback=traceback.format_exc(limit=5))
+    if rec["status"] == "ok" and any(issubclass(w.category, LooseToleranceWarning) for w in caught):
+        rec["status"] = LOOSE_TOL  # (a step that never moved: listed "ok" with 0.0 mean iterations and counted as
+        # the largest stable tau before; a new user's check)
     rec["warnings"] = list(dict.fromkeys([*rec.get("warnings", []),  # (the hint first: the summary shows five)
                                           *(str(w.message) for w in caught
                                             if not issubclass(w.category, DeprecationWarning))]))
@@ -437,11 +444,11 @@ SHOWN_WARNINGS = 5
 
 
 def outcome(rec: dict[str, Any]) -> str:
-    """A case's status as the summary shows it: ``failed``; ``energy rose`` for a case that ran every step but whose
-    discrete energy rose by more than :data:`ENERGY_RISE_TOL` (relative) in a step, without the in-step tangential
-    control (with it a step lowers the energy plus the control's term, and the energy alone may rise by the control's
-    share); ``ok`` otherwise. (A semi-implicit case whose energy grew from 7.154 to 7.248 at a large tau was listed
-    ``ok``: a new user's check.)"""
+    """A case's status as the summary shows it: ``failed``; :data:`LOOSE_TOL`; ``energy rose`` for a case that ran
+    every step but whose discrete energy rose by more than :data:`ENERGY_RISE_TOL` (relative) in a step, without the
+    in-step tangential control (with it a step lowers the energy plus the control's term, and the energy alone may
+    rise by the control's share); ``ok`` otherwise. (A semi-implicit case whose energy grew from 7.154 to 7.248 at a
+    large tau was listed ``ok``: a new user's check.)"""
     if rec["status"] != "ok":
         return str(rec["status"])
     controlled = str(rec.get("control", "off")) not in ("off", "")
