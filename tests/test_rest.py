@@ -107,3 +107,28 @@ def test_a_paused_run_resumes_bit_for_bit(tmp_path, straight_and_resumed) -> Non
     assert len(full.states) == len(part.states) == 6
     for ya, yb, sa, sb in zip(full.Y, part.Y, full.states, part.states, strict=True):
         assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(ya, yb)
+
+
+def test_a_rejected_paused_attempt_ends_that_pause_only(monkeypatch) -> None:
+    """A paused attempt that the flow rejects (here forced, as a solver failure would) says nothing of drift: the step
+    is taken with the control and the controls may pause again after it (``mesh_pause`` 1), where a paused step that
+    moved the nodes ends the pauses for good (2). Before, any rejection ended them for good."""
+    from willmore_nlp.flow import CONTROL_OFF
+
+    mesh = _helicoid()
+    flow = WillmoreFlow(mesh, mesh.h, mesh.h**2 / 100, boundary=Boundary.outer_strip(mesh, "conormal"),
+                        tangential_weight=100)
+    assert flow.step().stats["mesh_pause"] == 1
+    attempt, forced = flow._attempt_with, []
+
+    def reject_paused(tau, last, off):
+        got = attempt(tau, last, off)
+        if off is CONTROL_OFF and not forced:
+            forced.append(tau)
+            return (*got[:3], "forced rejection", got[4])
+        return got
+
+    monkeypatch.setattr(flow, "_attempt_with", reject_paused)
+    r = flow.step()
+    assert forced and r.retries == 0 and r.stats["mesh_pause"] == 1 and not flow._drifting
+    assert flow.step().stats["mesh_pause"] == 1  # (paused again, and standing)

@@ -314,7 +314,7 @@ that moved no moving node along its vertex normal faster than this many L per un
 (L: :func:`geometry.length_scale`), the light repair and the in-step tangential control pause. Each paused step is
 the paper's step and stands if it moves no moving node, tangentially included, faster than this; otherwise it is
 taken again with the control and the controls stay on for the rest of the flow (the scheme's own tangential drift,
-which they exist to follow). Measured at tau = h (docs/guide/mesh_quality.md, "Clamped and open surfaces at rest"):
+which they exist to follow; a rejected paused attempt is taken again with the control too, and ends that pause only). Measured at tau = h (docs/guide/mesh_quality.md, "Clamped and open surfaces at rest"):
 the first step's normal motion 5e-7 (helicoid, 325 v) and 1.9e-3 (catenoid, 816 v, settling on its discrete
 minimum), 6e-5 and 1.3e-3 in later steps with the controls; paused steps 2e-5 and 2e-4; the clamped hemisphere
 (``sphere_cap``, angle 90) and 45-degree cap pause at 2.9e-3 and 3.6e-4 while their normal motion dies out, and their
@@ -1317,7 +1317,8 @@ class WillmoreFlow:
 
         While the mesh controls pause at a healthy state at rest (:data:`REST_SPEED`) the attempt is the paper's step,
         without the in-step tangential control. It stands when it is accepted and moves no moving node faster than
-        ``REST_SPEED``; otherwise the pause ends for the rest of the flow and the attempt is made with the control.
+        ``REST_SPEED``; otherwise the attempt is made with the control, and the pause ends: for the rest of the flow
+        when the paused attempt moved the nodes, for this step when it was rejected.
 
         Returns
         -------
@@ -1328,8 +1329,8 @@ class WillmoreFlow:
         if self._paused:
             X, Y, res, reason, moved = self._attempt_with(tau, last, CONTROL_OFF)
             still = reason is None and self._speed(X, self.X, tau) < REST_SPEED
-            if not still:
-                self._paused, self._drifting = False, True
+            if not still:  # (a rejected attempt ends this pause only: the step with the control may pause again)
+                self._paused, self._drifting = False, reason is None
             if still or not self._control.enabled:  # (without an in-step control the attempt would be the same)
                 return X, Y, res, reason, moved
         return self._attempt_with(tau, last, ())
