@@ -309,16 +309,17 @@ LOCAL_RINGS = 2
 of triangles around its start (the rim, which stays fixed, is then away from the edges it mends)."""
 
 REST_SPEED = 3e-3
-"""A clamped or open surface at rest on a healthy mesh keeps its mesh (:meth:`WillmoreFlow._pauses`): after a step
-that moved no moving node along its vertex normal faster than this many L per unit of the surface's own time L^4
-(L: :func:`geometry.length_scale`), the light repair and the in-step tangential control pause. Each paused step is
-the paper's step and stands if it moves no moving node, tangentially included, faster than this; otherwise it is
-taken again with the control and the controls stay on for the rest of the flow (the scheme's own tangential drift,
-which they exist to follow; a rejected paused attempt is taken again with the control too, and ends that pause only). Measured at tau = h (docs/guide/mesh_quality.md, "Clamped and open surfaces at rest"):
-the first step's normal motion 5e-7 (helicoid, 325 v) and 1.9e-3 (catenoid, 816 v, settling on its discrete
-minimum), 6e-5 and 1.3e-3 in later steps with the controls; paused steps 2e-5 and 2e-4; the clamped hemisphere
-(``sphere_cap``, angle 90) and 45-degree cap pause at 2.9e-3 and 3.6e-4 while their normal motion dies out, and their
-paper's step then moves the nodes at 0.1 and 3e-2, so the controls stay on from there."""
+"""A clamped or open surface at rest on a healthy mesh keeps its mesh (:meth:`WillmoreFlow._pauses`): after a step that
+moved no moving node along its vertex normal faster than this many L per unit of the surface's own time L^4 (L:
+:func:`geometry.length_scale`), the light repair and the in-step tangential control pause. Each paused step is the
+paper's step and stands if it moves no moving node, tangentially included, faster than this; otherwise it is taken
+again with the control and the controls stay on for the rest of the flow (the scheme's own tangential drift, which
+they exist to follow; a rejected paused attempt is taken again with the control too, and ends that pause only).
+Measured at tau = h (docs/guide/mesh_quality.md, "Clamped and open surfaces at rest"): the first step's normal motion
+5e-7 (helicoid, 325 v) and 1.9e-3 (catenoid, 816 v, settling on its discrete minimum), 6e-5 and 1.3e-3 in later steps
+with the controls; paused steps 2e-5 and 2e-4; the clamped hemisphere (``sphere_cap``, angle 90) and 45-degree cap
+pause at 2.9e-3 and 3.6e-4 while their normal motion dies out, and their paper's step then moves the nodes at 0.1 and
+3e-2, so the controls stay on from there."""
 
 CONTROL_OFF = TangentialControlTerm.scalars
 """``off`` of :meth:`WillmoreFlow.params` for the evaluations the tangential control does not enter (an outer term):
