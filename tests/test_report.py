@@ -380,3 +380,25 @@ def test_snapshots_follow_a_fast_start_in_energy() -> None:
     assert idx[0] == 0 and idx[-1] == len(t) - 1 and len(idx) == 4
     assert t[idx[1]] < 1e-6 and 31.0 < e[idx[1]] < 1076.0  # a state of the fast fall
     assert t[snapshot_indices(t)[1]] > 1e-3  # time alone: every panel after the first is a late state
+
+
+def test_the_warnings_a_run_showed_are_kept_in_its_directory_and_reported(tmp_path, capsys) -> None:
+    """A run's warnings were on the terminal only (a new user's check). They are kept in status.json's ``warnings``,
+    each text once, in the order shown, a resume adding its own: here the construction's tau_tilde warning, and the
+    loose tol's at step 1 and again at step 3 of the resumed flow. The report lists them."""
+    import json
+
+    from willmore_nlp.cli import main
+
+    run = tmp_path / "run"
+    sets = ["--set", "n=64", "--set", "solver=lbfgs", "--set", "tol=0.1", "--set", "tau_tilde=0.5"]
+    assert main(["run", "circle", "--out", str(run), *sets, "--steps", "2", "--quiet"]) == 0
+    assert main(["run", "--resume", str(run), "--steps", "4", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    kept = json.loads((run / "status.json").read_text())["warnings"]
+    assert [w.split(":")[0] for w in kept] == ["tau_tilde = 0.5 is 13 h^2 (h = 0.196, the mean edge length)",
+                                               "step 1", "step 3"]
+    assert all(w in err for w in kept) and "accepted the step at its start" in kept[1]
+    assert main(["report", str(run)]) == 0
+    md = (run / "report" / "report.md").read_text()
+    assert "Warnings of the run (3" in md and all(f"- `{w}`" in md for w in kept)

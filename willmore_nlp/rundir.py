@@ -664,6 +664,15 @@ class RunWriter:
             self.status["under_way"] = under_way
         self._write_status()
 
+    def warned(self, message: str) -> None:
+        """Keep a warning of the run in status.json's ``warnings`` (each text once, in the order first shown; a resume
+        adds its own): the terminal's lines were all a run left of them (a new user's check), and the report lists
+        them."""
+        kept = self.status.setdefault("warnings", [])
+        if message not in kept:
+            kept.append(message)
+            self._write_status()
+
     def _write_status(self) -> None:
         write_text_atomic(self.out / "status.json", json.dumps(self.status, indent=2, default=_json_default))
         self._written = time.monotonic()

@@ -253,9 +253,40 @@ class _Bar:
 
 
 # -- the loop ------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _kept_warnings(writer: RunWriter) -> Iterator[None]:
+    """Every warning shown meanwhile is also kept in the run's status.json (:meth:`RunWriter.warned`)."""
+    shown = warnings.showwarning
+
+    def keep(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None,
+             line: str | None = None) -> None:
+        writer.warned(str(message))
+        shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = keep
+    try:
+        yield
+    finally:
+        warnings.showwarning = shown
+
+
+def _warn(writer: RunWriter, text: str) -> None:
+    """A warning of the command line's own (``willmore-nlp: warning: TEXT`` on standard error), kept in the run."""
+    print(f"willmore-nlp: warning: {text}", file=sys.stderr)
+    writer.warned(text)
+
+
 def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: float | None,
              guard: SignalGuard, quiet: bool) -> int:
-    """Step to ``steps`` (total) or ``t_end``, writing every state; returns the exit code."""
+    """Step to ``steps`` (total) or ``t_end``, writing every state and keeping the warnings shown
+    (:func:`_kept_warnings`); returns the exit code."""
+    with _kept_warnings(writer):
+        return _advance_kept(flow, writer, steps, t_end, guard, quiet)
+
+
+def _advance_kept(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: float | None,
+                  guard: SignalGuard, quiet: bool) -> int:
+    """:func:`_advance`'s work."""
     out = writer.out
     again = f"continue with 'willmore-nlp run --resume {out}'"
     remaining = None if steps is None else steps - flow.k
@@ -291,11 +322,11 @@ def _advance(flow: WillmoreFlow, writer: RunWriter, steps: int | None, t_end: fl
                 bar.close()
                 print(f"wrote {out} ({flow.k} steps, t = {flow.t:.6g}{'; ' + relaxed if relaxed else ''})")
             elif cut:
-                print(f"willmore-nlp: warning: {relaxed}", file=sys.stderr)
+                _warn(writer, relaxed)
             last = flow.mesh.with_vertices(flow.X)
             coarse = resolution_warning(last, willmore_energy(last))
             if coarse:
-                print(f"willmore-nlp: warning: {coarse}", file=sys.stderr)
+                _warn(writer, coarse)
             return 0
         raise _StopRequestedError
     except (_StopRequestedError, StepInterrupted) as exc:
@@ -361,7 +392,10 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
     if not (overwrite and (o / "config.json").is_file()):
         check_new_run_dir(o)
     pb = spec.problem
-    flow = pb.make_flow(**spec.flow_options)
+    with warnings.catch_warnings(record=True) as built:  # (shown at once, and kept in the run once it is written)
+        flow = pb.make_flow(**spec.flow_options)
+    for w in built:
+        warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     if announce:
         print(f"willmore-nlp: writing the run to {o}", file=sys.stderr)
     if overwrite and (o / "config.json").is_file():
@@ -384,6 +418,8 @@ def start(spec: RunSpec, out: str | os.PathLike[str], *, quiet: bool = False, ov
         writer = RunWriter(out, cfg, pb.mesh, keep_foreign=overwrite)
         try:
             writer.set_status("running")
+            for w in built:
+                writer.warned(str(w.message))
             with guard.deferred():
                 writer.add(flow.state(), flow.lam_g, flow.warm_state())
                 writer.progress()  # (status.json names state 0 at once)
@@ -548,6 +584,7 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
             for w in built:  # (the input repair's only when the run is still before its first step)
                 if done_k == 0 or not issubclass(w.category, InputRepairWarning):
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+                    writer.warned(str(w.message))
             if (spec.steps, spec.t_end) != (cfg.get("steps"), cfg.get("t_end")):
                 cfg.update({"steps": spec.steps, "t_end": spec.t_end})
                 write_text_atomic(d / "config.json", json.dumps(cfg, indent=2, sort_keys=True, default=str))

@@ -183,7 +183,7 @@ FAILED_STATES = ("failed", "interrupted", "abandoned", "crashed")
 
 
 def status_lines(run: Run) -> list[str]:
-    """Markdown lines of the run's status: state, message, failed step, rejected attempts, ignored files."""
+    """Markdown lines of the run's status: state, message, failed step, rejected attempts, warnings, ignored files."""
     st = run.status
     state = str(st.get("state", "unknown (no status.json)"))
     last = run.history[-1]
@@ -204,6 +204,9 @@ def status_lines(run: Run) -> list[str]:
     if retried:
         lines += [f"Accepted steps that needed retries ({len(retried)}):", "",
                   _table(retried, ["step", "rejected attempts"]), ""]
+    if st.get("warnings"):
+        lines += [f"Warnings of the run ({len(st['warnings'])}, each once, as shown when it ran):", "",
+                  *[f"- `{w}`" for w in st["warnings"]], ""]
     if run.ignored:
         lines += ["Files not trusted (damaged, temporary, or after a gap):", "",
                   *[f"- `{f}`" for f in run.ignored], ""]
