@@ -1736,7 +1736,7 @@ class WillmoreFlow:
         D = X - Xk
         if normal:
             D = np.einsum("ij,ij->i", D, geometry.vertex_normals(self.mesh.with_vertices(Xk)))[:, None]
-        moved = np.linalg.norm(D, axis=1) if self.free is None else np.linalg.norm(D, axis=1)[self.free]
+        moved = np.linalg.norm(D if self.free is None else D[self.free], axis=1)
         L = geometry.length_scale(geometry.measure(self.mesh, X), 2, self.mesh.is_closed)
         return float(moved.max()) * L**3 / tau
 
