@@ -58,8 +58,8 @@ def bunny(gamma: str = "gamma1", n: int = 436, h: float = 0.05, tau: float | Non
     a square with rounded corners). Defaults: 436 nodes, tau = h, lam = 0.025 as in the paper, but
     the curve is scaled to h = 0.05 (about 6.6 wide) and tau_tilde = h^2 / 10, which runs at tau = h
     from the first step. At the paper's scale (``h=0.00865 tau_tilde=7.5e-5``) the first steps need
-    tau far below h; run it with the flow options ``adaptive=true max_retries=16`` (README,
-    "Anisotropic flow"). Fig. 11's third row runs as
+    tau far below h; run it with the flow options ``adaptive=true max_retries=16``
+    (docs/guide/anisotropy.md). Fig. 11's third row runs as
     ``gamma=gamma2:1e-2`` (with redistribution) or ``gamma=gamma2:0.1`` (without): the paper's
     eps = 1e-7 (``gamma2``) clusters the nodes within the first step. For gamma2 the defaults are
     ``tangential_weight`` (beta of the distance term) = 1000, since nodes otherwise slide into

@@ -4,7 +4,7 @@ Every factory has a ``variant`` parameter, "conormal" (prescribed co-normal, pap
 "ring" (fixed outer ring, paper (2.8)); see :mod:`willmore_nlp.boundary`. The fixed parts of the
 meshes carry one outer ring of simplices, from which the "conormal" variant takes its co-normal.
 Defaults use tau_tilde = h^2 / 100: the "ring" variant collapses the first row of patch triangles
-on curved surfaces for tau_tilde = h^2 / 10 (README, "Clamped boundaries").
+on curved surfaces for tau_tilde = h^2 / 10 (docs/guide/boundaries.md).
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ def sphere(subdivisions: int = 3, radius: float = 1.0, tau: float | None = None,
     """Round sphere, a stationary solution: long-time stability and mesh quality (Fig. 3).
 
     Icosphere with 10*4^s + 2 vertices (642 for s = 3), tau = h, tau_tilde = h^2 / 100 (the scheme
-    shrinks spheres at rate 16 tau_tilde / R^5, so tau_tilde must be small; see README).
+    shrinks spheres at rate 16 tau_tilde / R^5, so tau_tilde must be small; see docs/theory/tau_tilde.md).
     """
     mesh = shapes.icosphere(subdivisions, radius)
     tau_, tt_ = _steps(mesh.h, tau, tau_tilde, 0.01)

@@ -96,7 +96,7 @@ def from_file(path: str = "", tau: float | None = None, tau_tilde: float | None 
     failed, the same ellipsoid 28,000 wide).
 
     Surfaces get the surface defaults of the other surface problems: tau_tilde = h^2 / 100 (the
-    scheme shrinks spheres at rate 16 tau_tilde / R^5, see README) and the mesh control of
+    scheme shrinks spheres at rate 16 tau_tilde / R^5, see docs/theory/tau_tilde.md) and the mesh control of
     :class:`~willmore_nlp.WillmoreFlow` (``remesh = "auto"``, the flow's default for surfaces; set
     ``remesh=off`` or ``mesh_control=off`` for the paper's scheme), and ``adaptive = true``: tau = h L^3 is
     the largest step, and a step that fails at it continues from the step size that worked (a trimesh

@@ -49,7 +49,7 @@ def regularized_l1(eps: float = 1e-7) -> GammaFn:
 
     The kinks of the l1 norm are smoothed over normal angles of about sqrt(eps); where that is far
     below the angle between neighbouring element normals the discrete problem is effectively
-    non-smooth (see README, "Anisotropic flow").
+    non-smooth (see docs/guide/anisotropy.md).
     """
     if not (np.isfinite(eps) and eps > 0):
         raise AnisotropyError(f"gamma2: the regularisation eps must be > 0, got {eps!r}")

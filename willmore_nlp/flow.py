@@ -1682,8 +1682,9 @@ class WillmoreFlow:
         The first step of a noisy input can be far harder than the rest (the noisy capsule of
         ``reports/mesh_quality_study.py``: 200 iterations at tau, tau/2 and tau/4, then 16 at tau/8),
         while first steps that converge take 3-63 iterations on the measured meshes. A new user's relaxation of
-        the README's double torus (839 v) took 27 Newton steps, then its step 28 failed 9 newton-krylov attempts and
-        8 of the IPOPT fallback's, each of these 200 iterations with no budget (385 s for the step).
+        the double torus of docs/guide/defaults_measured.md (839 v) took 27 Newton steps, then its step 28 failed
+        9 newton-krylov attempts and 8 of the IPOPT fallback's, each of these 200 iterations with no budget
+        (385 s for the step).
         """
         if self._accepted_iterations or self.settings.iteration_budget == 0:
             return None

@@ -16,7 +16,7 @@ class Distance(Term):
 
     ``beta = 1`` is the paper's M[Xk](X-Xk).(X-Xk). ``beta > 1`` charges the tangential part of the
     displacement beta times: the normal velocity (the geometric flow as h -> 0) is unchanged, but
-    nodes can no longer slide to where the discrete energy rewards them (README, "Anisotropic flow").
+    nodes can no longer slide to where the discrete energy rewards them (docs/guide/anisotropy.md).
     ``patch`` (per element) is 0 on the fixed outer ring of a clamped boundary, where the term is constant.
     """
 
