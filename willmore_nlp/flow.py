@@ -763,6 +763,7 @@ class WillmoreFlow:
         self._compiled: dict[str, Any] | None = None
         self._kernel_maps: dict[tuple[str, bool], Any] = {}  # (the evaluators' mapped kernels, kept across rebuilds)
         self.stop_requested: Callable[[], bool] = _never
+        self._stop_seen = False  # stop_requested() returned True during the step under way (see _stop)
         self.on_retry: Callable[[str], None] = _ignore
         self._length_unit = length_unit(mesh.vertices)  # (IPOPT's, for every step: a scaled mesh scales it)
         self._build(mesh, boundary)
@@ -905,7 +906,7 @@ class WillmoreFlow:
     def _make_solver(self, name: str) -> None:
         """``self.solver``: the solver ``name`` for the current step problem, with the flow's stop and stall tests."""
         self.solver = make_solver(name, self.evaluator, self._solver_options(name))
-        self.solver.should_stop = lambda: self.stop_requested()
+        self.solver.should_stop = lambda: self._stop()
         if hasattr(self.solver, "stall_iterations"):
             self.solver.stall_iterations = self.settings.stall_iterations
         if hasattr(self.solver, "length"):
@@ -1221,6 +1222,15 @@ class WillmoreFlow:
                 f"deg > max_dihedral = {limit:g}")
 
     # -- stepping ----------------------------------------------------------------------
+    def _stop(self) -> bool:
+        """:attr:`stop_requested`, latched for the step under way: once it has returned True (say, in IPOPT's
+        iteration callback, which then cuts the solve), the step is abandoned even when a later call returns False (a
+        callable that is True once, e.g. a request read from a queue); before, the cut solve was taken for a failed one
+        and retried at tau / 2 (or its state was used by the first step's recovery), which changed the result."""
+        if not self._stop_seen and self.stop_requested():
+            self._stop_seen = True
+        return self._stop_seen
+
     def step(self) -> StepResult:
         """Advance by one step of size tau; retry with tau/2 (at most ``max_retries`` times), then, when every
         attempt failed and a ``fallback_solver`` is set, with that solver from the first tau again.
@@ -1238,6 +1248,7 @@ class WillmoreFlow:
             (no retry follows); the flow's state is unchanged.
         """
         t0 = time.perf_counter()
+        self._stop_seen = False
         if self.settings.relax:
             grown = self.tau if np.isinf(self._tau_adapt) else self._tau_adapt
             tau = min(self.relax_max_tau, self._time_left, grown)
@@ -1272,7 +1283,7 @@ class WillmoreFlow:
             tau = tau0 if start is None else start
             for attempt in range(self.settings.max_retries + 1):
                 tries += 1
-                if self.stop_requested():
+                if self._stop():
                     raise StepInterrupted(self.k + 1)
                 if tau < floor:
                     rejected.append(f"tau={tau:.6g}: {FLOOR_REASON} = {floor:.3g}")
@@ -1286,7 +1297,7 @@ class WillmoreFlow:
                 spent += res.iterations if res is not None else 0
                 if reason is None:
                     return self._accept(X, Y, tau, res, moved, t0, tries, rejected, spent)
-                if self.stop_requested():  # the solve was cut short (or failed): do not retry
+                if self._stop():  # the solve was cut short (or failed): do not retry
                     raise StepInterrupted(self.k + 1)
                 rejected.append(f"tau={tau:.6g}: {name + ': ' if len(solvers) > 1 else ''}{reason}")
                 last = attempt == self.settings.max_retries
@@ -1417,7 +1428,7 @@ class WillmoreFlow:
         (trimesh icosphere(5), 10,242 v, the ``file`` problem) failed without the control too, and the same step 1
         (tau / 4 after 2 retries) took 297 s instead of 160.
         """
-        if self.k or not self._control.enabled or self.solver.name != "ipopt" or self.stop_requested():
+        if self.k or not self._control.enabled or self.solver.name != "ipopt" or self._stop():
             return cold
         solves = [cold]
         try:
