@@ -9,6 +9,8 @@ the accepted states converge geometrically to a fixed point (to round-off), with
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 
 from willmore_nlp import WillmoreFlow, registry
@@ -132,3 +134,44 @@ def test_a_rejected_paused_attempt_ends_that_pause_only(monkeypatch) -> None:
     r = flow.step()
     assert forced and r.retries == 0 and r.stats["mesh_pause"] == 1 and not flow._drifting
     assert flow.step().stats["mesh_pause"] == 1  # (paused again, and standing)
+
+
+def _enneper(path) -> str:
+    """Enneper's minimal surface (u - u^3/3 + u v^2, v - v^3/3 + v u^2, u^2 - v^2) over the disk of radius 0.9 in
+    (u, v) (``shapes.disk(6)``, 127 v), written to ``path``/enneper.obj; returns that file's name."""
+    from willmore_nlp.mesh.io import save_mesh
+
+    d = shapes.disk(6, 0.9)
+    u, v = d.vertices[:, 0], d.vertices[:, 1]
+    E = np.c_[u - u**3 / 3 + u * v**2, v - v**3 / 3 + v * u**2, u**2 - v**2]
+    save_mesh(Mesh(E, d.simplices), path / "enneper.obj")
+    return str(path / "enneper.obj")
+
+
+def test_a_slide_that_dies_out_keeps_the_pause(tmp_path) -> None:
+    """A clamped Enneper patch (:func:`_enneper`, the ``file`` problem's defaults, ``clamp=conormal``) pauses after
+    step 2, and its paper's steps then slide the nodes tangentially, faster than REST_SPEED but slower each step
+    (``mesh_slide``: 8.2e-3 for the controlled step 2, then 6.6e-3, 6.0e-3, ...): the pause stands, and W at step 25
+    is 1.152e-3, below the paper's scheme's 1.192e-3 (``mesh_control = "off"``). When a paused step had to stay below
+    REST_SPEED, step 3 ended the pauses for good and the controls' W was 1.424e-3 at step 25."""
+    from willmore_nlp.flow import REST_SPEED
+
+    pb, _ = registry.build("file", path=_enneper(tmp_path), clamp="conormal")
+    out = {control: pb.make_flow(mesh_control=control).run(steps=25) for control in ("auto", "off")}
+    auto = out["auto"]
+    assert [r.stats.get("mesh_pause") for r in auto[1:]] == [1] * 24 and all(r.retries == 0 for r in auto)
+    slide = [r.stats["mesh_slide"] for r in auto[1:8]]
+    assert slide[1] > REST_SPEED and all(a > b for a, b in pairwise(slide))
+    assert auto[-1].willmore < out["off"][-1].willmore  # measured 1.152e-3 against 1.192e-3 (before: 1.424e-3)
+    assert min(r.quality["min_angle"] for r in auto) > 40.0  # measured 42.96 deg at step 25 (off: 41.96)
+
+
+def test_a_sliding_paused_run_resumes_bit_for_bit(tmp_path, straight_and_resumed) -> None:
+    """The speed that a paused step may reach (the step before it's, history column ``mesh_slide``) is part of the
+    state: the Enneper patch of :func:`_enneper`, 3 + 3 steps, resumed in its slide (step 4 at 6.0e-3, above
+    REST_SPEED), is the 6 steps of a run never interrupted, bit for bit."""
+    full, part = straight_and_resumed([_enneper(tmp_path), "--set", "clamp=conormal"], 6, 3, tmp_path)
+    assert [float(r["mesh_pause"]) for r in full.history[2:]] == [1.0] * 5
+    assert len(full.states) == len(part.states) == 7
+    for ya, yb, sa, sb in zip(full.Y, part.Y, full.states, part.states, strict=True):
+        assert np.array_equal(sa.vertices, sb.vertices) and np.array_equal(ya, yb)

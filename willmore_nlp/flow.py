@@ -312,14 +312,20 @@ REST_SPEED = 3e-3
 """A clamped or open surface at rest on a healthy mesh keeps its mesh (:meth:`WillmoreFlow._pauses`): after a step that
 moved no moving node along its vertex normal faster than this many L per unit of the surface's own time L^4 (L:
 :func:`geometry.length_scale`), the light repair and the in-step tangential control pause. Each paused step is the
-paper's step and stands if it moves no moving node, tangentially included, faster than this; otherwise it is taken
-again with the control and the controls stay on for the rest of the flow (the scheme's own tangential drift, which
-they exist to follow; a rejected paused attempt is taken again with the control too, and ends that pause only).
+paper's step and stands if it moves no moving node, tangentially included, faster than this or than the step before
+it (a slide that dies out: the scheme's own way to its discrete minimum); otherwise it is taken again with the control
+and the controls stay on for the rest of the flow (the scheme's own tangential drift, which they exist to follow; a
+rejected paused attempt is taken again with the control too, and ends that pause only).
 Measured at tau = h (docs/guide/mesh_quality.md, "Clamped and open surfaces at rest"): the first step's normal motion
 5e-7 (helicoid, 325 v) and 1.9e-3 (catenoid, 816 v, settling on its discrete minimum), 6e-5 and 1.3e-3 in later steps
 with the controls; paused steps 2e-5 and 2e-4; the clamped hemisphere (``sphere_cap``, angle 90) and 45-degree cap
 pause at 2.9e-3 and 3.6e-4 while their normal motion dies out, and their paper's step then moves the nodes at 0.1 and
-3e-2, so the controls stay on from there."""
+3e-2, so the controls stay on from there. The slide that dies out (2026-12-04): a 566-vertex clamped Enneper patch's
+paused steps move the nodes at 1.01e-2 after its controlled step's 1.05e-2, then 9.4e-3, 8.6e-3, ... (below this from
+step 16): W 1.35e-4 at step 150 instead of 4.31e-4 (the paper's scheme: 1.39e-4); the 45-degree cap's and the
+90-degree cap's (its bump start) first paused steps are faster than the controlled steps before them (1.92e-2 after
+1.65e-2, 7.5e-2 after 6.5e-2); from its flat and noisy starts the 90-degree cap keeps the pause, and its smallest
+angle ends at the paper's scheme's level, 5-11 deg below the controls'."""
 
 CONTROL_OFF = TangentialControlTerm.scalars
 """``off`` of :meth:`WillmoreFlow.params` for the evaluations the tangential control does not enter (an outer term):
@@ -460,10 +466,10 @@ class StepResult:
                   "energy_before_redistribution", "redistribution_shift", "rejected_iterations",
                   "n_cg", "n_factorizations", "t_wall_factor", "t_wall_cg", "n_guarded", "n_guard",
                   "drift_share", "dilation_undone", "stability", "stability_gap", "energy_before_move",
-                  "willmore_before_move", "stability_gap_before_move", "mesh_pause"):
+                  "willmore_before_move", "stability_gap_before_move", "mesh_pause", "mesh_slide"):
             # (n_cg to n_guard: newton-krylov's; n_guarded / n_guard: its guarded passes and the trial points their mesh
             # guard refused, which tell how many refusals a converged pass needs: GUARD_REFUSALS; drift_share and
-            # dilation_undone: the drift rule's, DRIFT_SHARE; mesh_pause: REST_SPEED's)
+            # dilation_undone: the drift rule's, DRIFT_SHARE; mesh_pause and mesh_slide: REST_SPEED's)
             if k in self.stats:
                 r[k] = self.stats[k]
         return r
@@ -818,7 +824,8 @@ class WillmoreFlow:
         self._relax_start(self._relax_value(self.X, self.Y))
         self._X_prev = self.X
         self._paused = False  # a healthy state at rest: light repair and in-step control paused (REST_SPEED)
-        self._drifting = False  # a paused step moved the nodes: no more pauses (REST_SPEED)
+        self._drifting = False  # a paused step moved the nodes too fast: no more pauses (REST_SPEED)
+        self._slide = 0.0  # while paused: the last step's speed, which a paused step may not exceed (REST_SPEED)
         # the scheme's drift of closed surfaces with mesh control and no outer constraint (a scale to drift along)
         drifts = self.remesh and boundary is None and mesh.is_closed and not self.problem.nh
         # rest_tau_tilde: at rest (see _rest_tau_tilde)
@@ -1329,8 +1336,9 @@ class WillmoreFlow:
 
         While the mesh controls pause at a healthy state at rest (:data:`REST_SPEED`) the attempt is the paper's step,
         without the in-step tangential control. It stands when it is accepted and moves no moving node faster than
-        ``REST_SPEED``; otherwise the attempt is made with the control, and the pause ends: for the rest of the flow
-        when the paused attempt moved the nodes, for this step when it was rejected.
+        ``REST_SPEED`` or than the step before it (a slide that dies out); otherwise the attempt is made with the
+        control, and the pause ends: for the rest of the flow when the paused attempt moved the nodes, for this step
+        when it was rejected.
 
         Returns
         -------
@@ -1340,7 +1348,7 @@ class WillmoreFlow:
         """
         if self._paused:
             X, Y, res, reason, moved = self._attempt_with(tau, last, CONTROL_OFF)
-            still = reason is None and self._speed(X, self.X, tau) < REST_SPEED
+            still = reason is None and self._speed(X, self.X, tau) < max(REST_SPEED, self._slide)
             if not still:  # (a rejected attempt ends this pause only: the step with the control may pause again)
                 self._paused, self._drifting = False, reason is None
             if still or not self._control.enabled:  # (without an in-step control the attempt would be the same)
@@ -1467,6 +1475,8 @@ class WillmoreFlow:
         mstats["t_wall_control"] = time.perf_counter() - t_control
         if self._paused or self._drifting:  # (REST_SPEED; read back by restart)
             mstats["mesh_pause"] = 2 if self._drifting else 1
+        if self._paused:
+            mstats["mesh_slide"] = self._slide
         result = self._result(self.X, self.Y, tau, res.f, res, time.perf_counter() - t0, tries, rejected)
         drift = moved.get("drift_share", 0.0) >= DRIFT_SHARE
         if self._rest and self._rest_tau_tilde(tries, tau, result.willmore, result.measure, drift):
@@ -1759,13 +1769,16 @@ class WillmoreFlow:
         They pause on a clamped or open surface when the patch is not below the thresholds (``needs``) and the state
         is at rest: a paused step stood (:meth:`_attempt`), or a step with the controls moved no moving node along its
         vertex normal faster than ``REST_SPEED``. Never before a first step (Xk None) or once a paused step moved the
-        nodes, nor on closed surfaces, which the paper's scheme does not hold at rest (its O(tau_tilde) drift, met by
-        ``rest_tau_tilde`` and ``rest_dilation``). The history column ``mesh_pause`` records the outcome (1 paused, 2
-        ended for good) for :meth:`restart`.
+        nodes too fast, nor on closed surfaces, which the paper's scheme does not hold at rest (its O(tau_tilde)
+        drift, met by ``rest_tau_tilde`` and ``rest_dilation``). The history column ``mesh_pause`` records the outcome
+        (1 paused, 2 ended for good) and ``mesh_slide`` the speed of the step, which the next (paused) step may reach,
+        for :meth:`restart`.
         """
         rest = Xk is not None and not self._drifting and (self.boundary is not None or not self.mesh.is_closed) and (
             self._paused or self._speed(X, Xk, tau, normal=True) < REST_SPEED)
         self._paused = rest and not needs
+        if self._paused:  # (Xk is not None)
+            self._slide = self._speed(X, Xk, tau)
         return self._paused
 
     def _control_mesh(self, tau: float) -> tuple[str, dict[str, float]]:
@@ -2463,6 +2476,7 @@ class WillmoreFlow:
         self.X, self.Y, self.t, self.k = X, Y, float(t), int(k)
         self._X_prev = self.X
         self._paused = self._drifting = False  # (REST_SPEED: from the state's history row below)
+        self._slide = 0.0
         self.lam_g = None if lam_g is None else np.array(lam_g, dtype=float)
         self._accepted_iterations = [int(n) for n in (iterations or [])][-BUDGET_WINDOW:]
         w0 = self._relax_value(X, Y)  # (W, the rest rule's, whenever that rule runs: it runs without relax)
@@ -2478,6 +2492,7 @@ class WillmoreFlow:
             if replayed:
                 pause = float(r.get("mesh_pause") or 0)
                 self._paused, self._drifting = pause == 1, pause == 2
+                self._slide = float(r.get("mesh_slide") or 0)
             if "willmore_energy" not in r:  # a checkpoint without its history row: the window starts after it
                 self._relax_window = []
             elif int(float(r["step"])) == 0:
