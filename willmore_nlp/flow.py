@@ -320,7 +320,7 @@ Measured at tau = h (docs/guide/mesh_quality.md, "Clamped and open surfaces at r
 5e-7 (helicoid, 325 v) and 1.9e-3 (catenoid, 816 v, settling on its discrete minimum), 6e-5 and 1.3e-3 in later steps
 with the controls; paused steps 2e-5 and 2e-4; the clamped hemisphere (``sphere_cap``, angle 90) and 45-degree cap
 pause at 2.9e-3 and 3.6e-4 while their normal motion dies out, and their paper's step then moves the nodes at 0.1 and
-3e-2, so the controls stay on from there. The slide that dies out (2026-12-04): a 566-vertex clamped Enneper patch's
+3e-2, so the controls stay on from there. The slide that dies out (2026-12-03): a 566-vertex clamped Enneper patch's
 paused steps move the nodes at 1.01e-2 after its controlled step's 1.05e-2, then 9.4e-3, 8.6e-3, ... (below this from
 step 16): W 1.35e-4 at step 150 instead of 4.31e-4 (the paper's scheme: 1.39e-4); the 45-degree cap's and the
 90-degree cap's (its bump start) first paused steps are faster than the controlled steps before them (1.92e-2 after
