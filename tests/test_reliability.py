@@ -631,7 +631,8 @@ def test_resume_with_a_shorter_length_is_refused_and_changes_nothing(tmp_path: P
                                                                       capsys: pytest.CaptureFixture[str]) -> None:
     """The refusal leaves every file as it was, history.csv byte for byte with a line the user added to it (it was
     rewritten from the states, the line dropped; a new user's check), and so does resuming the completed run with no
-    new length: "nothing to resume" (it said "resuming" and "wrote" and added a session to status.json)."""
+    new length or the length it has: "nothing to resume" (it said "resuming" and "wrote" and added a session to
+    status.json)."""
     out = tmp_path / "run"
     assert cli.main(["run", *ARGS, "--steps", "3", "--out", str(out)]) == 0
     with (out / "history.csv").open("a") as f:
@@ -643,10 +644,11 @@ def test_resume_with_a_shorter_length_is_refused_and_changes_nothing(tmp_path: P
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "holds 3 steps" in err and "cannot be shorter" in err
         assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
-    assert cli.main(["run", "--resume", str(out)]) == 0
-    said = capsys.readouterr().out
-    assert "ended at step 3" in said and "nothing to resume" in said and "resuming" not in said
-    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
+    for length in ([], ["--steps", "3"]):  # (no new length, or the one it has: a new user's check)
+        assert cli.main(["run", "--resume", str(out), *length]) == 0
+        said = capsys.readouterr().out
+        assert "ended at step 3" in said and "nothing to resume" in said and "resuming" not in said
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
 
 
 def test_a_signal_during_an_atomic_write_is_delivered_after_it(tmp_path: Path) -> None:

@@ -562,13 +562,17 @@ def resume(run_dir: str | os.PathLike[str], *, steps: int | None = None, t_end: 
         if (steps is not None and steps < done_k) or (t_end is not None and t_end < done_t):
             raise RunError(f"{d}: holds {done_k} steps up to t = {done_t:.6g} already; --steps/--t-end give the "
                            f"new total length, which cannot be shorter (the run is unchanged)")
-        if (steps, t_end) == (None, None) and status.get("state") == "completed":
+        relaxed = bool(float(row.get("relaxed") or 0))
+        same = (spec.steps, spec.t_end) == (cfg.get("steps"), cfg.get("t_end"))  # (the length given again: a new
+        # user's --steps 3 on a completed 3-step run said "resuming" and added an empty session to status.json)
+        ended = status.get("state") == "completed" and status.get("step") == done_k  # (its last state is the end's)
+        if ended and ((steps, t_end) == (None, None) or (same and not relaxed)):
             # (relax=true ended the run before its length: resuming took a step past the rest and ended anew; a run
             # at its length said "resuming" and "wrote" and added a session to status.json: a new user's check)
-            relaxed = bool(float(row.get("relaxed") or 0))
             why = status.get("message", "relaxed") if relaxed else "its configured length"
-            raise _NothingToResumeError(f"{d}: the run ended at step {done_k}, {why}; nothing to resume (--steps or "
-                                        f"--t-end continue it{' past its rest' if relaxed else ''})")
+            raise _NothingToResumeError(f"{d}: the run ended at step {done_k}, {why}; nothing to resume (a "
+                                        f"{'' if relaxed else 'larger '}--steps or --t-end continues it"
+                                        f"{' past its rest' if relaxed else ''})")
 
     with SignalGuard(ignore_late_signals) as guard:
         try:
