@@ -490,6 +490,18 @@ def test_tau_tilde_far_above_h2_warns(tmp_path: Path) -> None:
     assert len(warn) == 1 and warn[0].startswith("willmore-nlp: warning: tau_tilde = ") and "10 h^2" in warn[0]
 
 
+def test_tau_tilde_far_below_h2_warns_where_ipopt_takes_the_steps() -> None:
+    """A new user's tau_tilde = 1e-8 (1e-7 h^2 on a 162-vertex ellipsoid) failed every attempt with an IPOPT message
+    that did not name it; below TAU_TILDE_LOW_FACTOR h^2 the flow now says so, when IPOPT is its solver."""
+    mesh = shapes.icosphere(2)
+    with pytest.warns(StepSizeWarning, match=r"tau_tilde = .* is 1e-06 h\^2 .*below about 0.0001 h\^2 IPOPT"):
+        WillmoreFlow(mesh, mesh.h, 1e-6 * mesh.h**2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StepSizeWarning)
+        WillmoreFlow(mesh, mesh.h, mesh.h**2 / 100)  # the default
+        WillmoreFlow(mesh, mesh.h, 1e-6 * mesh.h**2, solver="newton-krylov")  # (measured: it takes such steps)
+
+
 def test_resume_of_a_file_outside_a_run_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Found by a new-user check (2026-12-01): ``run --resume in/ok.txt`` (a mesh file) said "(the run directory is
     in)"; only a file inside a run directory (its config.json) names that directory."""

@@ -333,6 +333,12 @@ the inner solve, the outer constraints, the energy e(X); its per-node data are t
 
 TAU_TILDE_WARN_FACTOR = 2.0
 """WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde > this factor times h^2 (h = mean edge)."""
+TAU_TILDE_LOW_FACTOR = 1e-4
+"""WillmoreFlow warns (:class:`StepSizeWarning`) when tau_tilde < this factor times h^2 and its steps are IPOPT's.
+Measured (2026-12-03, two steps at tau = h, 4 retries): IPOPT failed the first or second step from 1e-5 h^2 down on a
+162- and a 642-vertex ellipsoid and a 64-gon (at tau = h^4), and took them at 1e-4 h^2; newton-krylov, whose stopping
+test is relative to the step's own scale, took every one down to 1e-8 h^2 (a new user's tau_tilde = 1e-8 had failed
+with an IPOPT message that did not name it)."""
 ANISOTROPY_INNER_MAX = 1e4
 """An anisotropy of scale s (the largest gamma(n) on unit normals; gamma0: 1, gamma1: 2) makes the inner step act as
 tau_tilde s (gamma -> s gamma is tau_tilde -> s tau_tilde, the energies scaled): above this many h^2 the flow is
@@ -2116,6 +2122,12 @@ class WillmoreFlow:
                 f"clusters nodes (docs/theory/tau_tilde.md); use {'an effective ' if what else ''}tau_tilde <= h^2 "
                 "and take large steps in tau instead"),
                 stacklevel=3)
+        if self.tau_tilde * scale < TAU_TILDE_LOW_FACTOR * h * h and self.main_solver(mesh.n_vertices) == "ipopt":
+            warnings.warn(StepSizeWarning(
+                f"tau_tilde = {self.tau_tilde:.3g}{what} is {self.tau_tilde * scale / (h * h):.3g} h^2 (h = {h:.3g}, "
+                f"the mean edge length): below about {TAU_TILDE_LOW_FACTOR:g} h^2 IPOPT's steps fail "
+                "(docs/theory/tau_tilde.md); use tau_tilde near h^2/100, or solver=newton-krylov, whose stopping "
+                "test is relative"), stacklevel=3)
         self._min_tau = 1e-2 * h**4 if s.min_tau is None else s.min_tau
         self.relax_max_tau = 100 * self.tau if s.relax_max_tau is None else s.relax_max_tau
         if self.relax_max_tau < self.tau:
