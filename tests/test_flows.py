@@ -166,3 +166,23 @@ def test_a_failed_run_keeps_the_steps_it_took(monkeypatch) -> None:
         flow.run(steps=5)
     assert [r.step for r in err.value.results] == [1, 2]
     np.testing.assert_array_equal(err.value.results[-1].vertices, flow.X)
+
+
+def test_a_run_to_t_end_ends_on_it() -> None:
+    """A new user's ``--t-end 1.1`` at tau = 0.1 ended at t = 1.0999999999999999 (eleven steps of 0.1 summed); the
+    step that ends within round-off of t_end now ends on it, and the steps before keep their sums."""
+    mesh = shapes.regular_polygon(16)
+    flow = WillmoreFlow(mesh, 0.1, mesh.h**2 / 10)
+    steps = flow.run(t_end=1.1)
+    assert len(steps) == 11 and steps[-1].t == 1.1 == flow.t
+    assert steps[-2].t == sum([0.1] * 10)  # (0.9999999999999999: only the end is set)
+    assert flow.run(t_end=1.25)[-1].t == 1.25 and flow.run(steps=1)[-1].t == 1.25 + 0.1
+
+
+def test_a_rejection_shows_its_value_apart_from_the_limit() -> None:
+    """A rejection read "mesh quality: min angle 0.5 deg < 0.5" (3 digits of 0.49996): the value now shows as many
+    digits as tell it from the limit."""
+    from willmore_nlp.flow import _past
+
+    assert _past(0.49996, 0.5) == "0.49996" and _past(0.3, 0.5) == "0.3" and _past(10.00004, 10.0) == "10.00004"
+    assert float(_past(0.5 - 1e-12, 0.5)) < 0.5

@@ -193,6 +193,8 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     # -- npz --------------------------------------------------------------------------------
     ("npz-missing-array", _npz_case("m.npz", vertices=np.zeros((3, 2))), ["m.npz", "lacks array(s) ['simplices']"]),
     ("npz-corrupt", _write("m.npz", b"PK\x03\x04 this is not a zip archive"), ["m.npz", "not a readable npz file"]),
+    ("npz-text", _write("m.npz", "0 0 0\n1 0 0\n"), ["m.npz: not an npz file (an npz file is a zip archive",
+                                                 "give the file the suffix of its format"]),
     ("npz-unreferenced-vertex",
      _npz_case("m.npz", vertices=[[0, 0], [1, 0], [0, 1], [5, 5]], simplices=[[0, 1], [1, 2], [2, 0]]),
      ["m.npz", "vertex 3 is not used by any simplex"]),
@@ -316,7 +318,8 @@ CASES: list[tuple[str, Callable[[Path], list[str]], list[str]]] = [
     ("obj-clamped-without-free-vertex",
      lambda d: [*_saved(d, "grid.obj", np.c_[np.mgrid[0:3, 0:3].reshape(2, -1).T, np.zeros(9)],
                         [[0, 3, 4], [0, 4, 1], [1, 4, 5], [1, 5, 2], [3, 6, 7], [3, 7, 4], [4, 7, 8], [4, 8, 5]]),
-                "--set", "clamp=conormal"], ["grid.obj: empty patch: no free vertex selected"]),
+                "--set", "clamp=conormal"],
+     ["grid.obj: no free vertex: every one of the 9 vertices lies in the clamped outer strip", "use a finer mesh"]),
     ("xyz-point-cloud", _write("cloud.xyz", "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in
                                                     np.random.default_rng(1).standard_normal((30, 3)))),
      ["cloud.xyz: its 30 points joined in file order turn by", "not a sampled curve (a point cloud?)",

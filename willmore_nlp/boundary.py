@@ -149,6 +149,10 @@ class Boundary:
         on_bd[mesh.boundary_vertices] = True
         fixed = np.zeros(mesh.n_vertices, bool)
         fixed[S[on_bd[S].any(axis=1)].ravel()] = True
+        if fixed.all():  # (the general check's "empty patch: no free vertex selected" did not say why: a new user's)
+            raise BoundaryError(f"{mesh.source}: no free vertex: every one of the {mesh.n_vertices} vertices lies in "
+                                f"the clamped outer strip (the {'triangles' if mesh.d == 2 else 'segments'} that touch "
+                                "the boundary); use a finer mesh")
         return cls(~fixed, variant)
 
     @classmethod

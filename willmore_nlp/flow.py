@@ -139,6 +139,16 @@ def _ignore(text: str) -> None:
     return None
 
 
+def _past(x: float, limit: float) -> str:
+    """``x`` to 3 significant digits, or to as many as show it apart from the ``limit`` it is past (a rejection read
+    "min angle 0.5 deg < 0.5": a new user's check)."""
+    for digits in (3, 6, 17):
+        text = f"{x:.{digits}g}"
+        if float(text) != limit:
+            break
+    return text
+
+
 class StepSizeWarning(UserWarning):
     """tau_tilde far above h^2: the step loses tangential convexity and nodes cluster (docs/theory/tau_tilde.md)."""
 
@@ -734,6 +744,7 @@ class WillmoreFlow:
         self._start_warned = False  # a step accepted at its start by a loose tol was warned of (once per flow)
         self.relaxed = False
         self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
+        self._t_end = float("inf")  # run(t_end=...): a step that ends within round-off of it ends on it
         self._run_tau: float | None = None  # run(t_end=...): the nominal tau, which it caps by what is left
         self._cut = False  # the step under way was shortened to land on t_end (the step-size control ignores it)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
@@ -1175,9 +1186,11 @@ class WillmoreFlow:
         except MeshError as exc:
             return f"mesh collapsed: {exc}"
         if q["edge_ratio"] > self.settings.max_edge_ratio:
-            return f"{EDGE_RATIO_REASON} {q['edge_ratio']:.3g} > {self.settings.max_edge_ratio:g}"
+            return f"{EDGE_RATIO_REASON} {_past(q['edge_ratio'], self.settings.max_edge_ratio)} > " \
+                   f"{self.settings.max_edge_ratio:g}"
         if "min_angle" in q and q["min_angle"] < self.settings.min_angle:
-            return f"mesh quality: min angle {q['min_angle']:.3g} deg < {self.settings.min_angle:g}"
+            return f"mesh quality: min angle {_past(q['min_angle'], self.settings.min_angle)} deg < " \
+                   f"{self.settings.min_angle:g}"
         return self._fold(X, q)
 
     def _grown(self, tau: float) -> bool:
@@ -1464,7 +1477,12 @@ class WillmoreFlow:
         reasons; ``spent``: the solver iterations of all its attempts; ``solver``: the state's maker when it is not
         the step solver (a Newton step on normal motions), whose iteration count then stays out of the budget's
         median and which leaves the step size as it was)."""
-        self.X, self.Y, self.t, self.k = X, Y, self.t + tau, self.k + 1
+        # (the step to t_end lands on it: t + (t_end - t) was 1 ulp off, a new user's --t-end 1.1 ended at
+        # t = 1.0999999999999999)
+        t, end = self.t + tau, self._t_end
+        if math.isfinite(end) and abs(t - end) <= 1e-12 * max(1.0, abs(end)):  # (run's own test of the end)
+            t = end
+        self.X, self.Y, self.t, self.k = X, Y, t, self.k + 1
         self.lam_g = res.lam_g
         # (a Newton step leaves the step size: doubled by three of them, a new user's noisy 2,562-v ellipsoid began
         # its next time step at 32 h, which failed five times, 29 s instead of 18.5 s)
@@ -2577,7 +2595,7 @@ class WillmoreFlow:
                     if remaining <= 1e-12 * max(1.0, abs(t_end)):
                         break
                     self.tau = min(nominal, remaining)
-                    self._time_left = remaining
+                    self._time_left, self._t_end = remaining, float(t_end)
                 try:
                     r = self.step()
                 except FlowError as exc:
@@ -2590,6 +2608,6 @@ class WillmoreFlow:
                     break
         finally:
             self.tau = nominal
-            self._time_left = float("inf")
+            self._time_left = self._t_end = float("inf")
             self._run_tau = None
         return out

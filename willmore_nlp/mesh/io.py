@@ -452,6 +452,10 @@ def _read_off(path: Path) -> Mesh:
 
 
 def _read_npz(path: Path) -> Mesh:
+    with path.open("rb") as f:
+        if f.read(4) != b"PK\x03\x04":  # (numpy's message for a text file named .npz spoke of unpickling it)
+            raise MeshError(f"{path}: not an npz file (an npz file is a zip archive of numpy arrays; this one does not "
+                            "begin like one): give the file the suffix of its format")
     try:
         with np.load(path, allow_pickle=False) as data:
             missing = [k for k in ("vertices", "simplices") if k not in data.files]
