@@ -87,6 +87,26 @@ def test_evolver_bad_target() -> None:
         evolver_equilibrium(shapes.icosphere(1), volume=-1.0)
 
 
+def test_evolver_refuses_inward_and_open_meshes() -> None:
+    """An inward mesh flips c0's sign in Evolver (the 642-vertex icosphere of radius 1.5 with c0 = 2/R gave 100.4
+    for the outward mesh's 0.008, silently) and its volume 'initial' was refused as a target that is not positive;
+    an open mesh's as well. Both now name the problem (a new user's check)."""
+    from willmore_nlp.evolver import evolver_equilibrium
+    from willmore_nlp.mesh.core import Mesh, MeshError
+
+    _evolver()
+    mesh = shapes.icosphere(1)
+    inward = Mesh(mesh.vertices, mesh.simplices[:, ::-1])
+    for kw in ({"volume": None, "area": None, "c0": 1.0}, {}):
+        with pytest.raises(MeshError, match=r"oriented inward .*evolver_equilibrium"):
+            evolver_equilibrium(inward, schedule=(), **kw)
+    opened = Mesh(mesh.vertices, mesh.simplices[:-3])
+    with pytest.raises(ValueError, match="needs a closed triangulated surface"):
+        evolver_equilibrium(opened, schedule=())
+    r = evolver_equilibrium(inward, volume=None, area="initial", schedule=())  # c0 = 0: the orientation is moot
+    assert abs(r["energy"] - evolver_equilibrium(mesh, volume=None, area="initial", schedule=())["energy"]) < 1e-9
+
+
 
 def test_evolver_equilibrium_says_whether_it_converged() -> None:
     """The 162-vertex oblate start of v = 0.65: with c0 = 0 the default schedule stops early (measured after

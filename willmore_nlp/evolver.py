@@ -266,15 +266,23 @@ def evolver_equilibrium(mesh: Mesh, *, volume: float | str | None = "initial", a
     FileNotFoundError
         When Surface Evolver is not installed.
     ValueError
-        For a mesh that is not a closed surface in R^3; :class:`~willmore_nlp.errors.UserInputError` (a ValueError)
+        For a mesh that is not a closed surface in R^3, or (with a volume target or c0 != 0) one oriented inward
+        (:class:`~willmore_nlp.mesh.core.MeshError`); :class:`~willmore_nlp.errors.UserInputError` (a ValueError)
         for a target that is not positive and finite, a c0 or tol that is not finite (tol >= 0), a timeout that is
         not a positive finite number.
     RuntimeError
         When Evolver fails (its output tail is in the message), prints NaN or an unreadable number (that
         line is in the message), or does not finish within ``timeout`` seconds.
     """
-    from willmore_nlp.geometry import enclosed_volume, measure, min_angles
+    from willmore_nlp.geometry import enclosed_volume, measure, min_angles, require_outward
 
+    if mesh.d != 2 or mesh.m != 3 or not mesh.is_closed:  # (an open mesh's "initial" volume, NaN, was refused as
+        # 'volume target must be positive and finite, got 'initial'': a new user's check)
+        raise ValueError(f"{mesh.source}: the Surface Evolver reference needs a closed triangulated surface in R^3")
+    if volume is not None or (is_number(c0) and c0 != 0):
+        # (an inward mesh with c0 = 2/R, the sphere's own curvature, gave 100.4 for ~0.008: c0's sign flipped with
+        # the normals, silently; with volume="initial" it was 'volume target must be positive': a new user's check)
+        require_outward(mesh, "evolver_equilibrium (the volume body and c0's sign)")
     # (c0 = nan reached Evolver, whose RuntimeError carried its raw output; a new-user check)
     numbers = (("c0", c0, "a finite number", True),
                ("tol", tol, "a finite number >= 0", is_number(tol) and tol >= 0),
