@@ -118,6 +118,11 @@ def test_mesh_matched_references() -> None:
     t = np.zeros(1)
     (ref,), note = references(shapes.icosphere(3), 0.0, 1e-4, t, {})
     assert note == "sphere" and ref.smooth == pytest.approx(8 * np.pi)
+    # volume and area held: the note points to the Vesicle section only where the report has one (c0 = 0)
+    held = {"volume": "initial", "area": "initial"}
+    assert "Vesicle section" in references(shapes.icosphere(2), 0.0, 1e-4, t, held)[1]
+    refs, note = references(shapes.icosphere(2), 0.0, 1e-4, t, {**held, "c0": 0.5})
+    assert refs == [] and "no closed-form or axisymmetric reference" in note and "is for c0 = 0" in note
     assert ref.matched == pytest.approx(25.0212, abs=1e-4)
     # a moved and scaled icosphere projected back onto the unit sphere is the icosphere again
     ico = shapes.icosphere(2)

@@ -195,6 +195,10 @@ def references(mesh: Mesh, lam: float, tau_tilde: float, times: np.ndarray,
     if anisotropy != "gamma0":
         return _wulff(mesh, lam, anisotropy, held, float(flow_options.get("c0") or 0.0))
     if len(held) == 2:  # (a vesicle's report showed "Target: sphere", 8 pi and a gap of +19.6: a new-user check)
+        if float(flow_options.get("c0") or 0.0) != 0.0:  # (a c0 = 0.5 vesicle's report named a Vesicle section it has
+            # not: that section is for c0 = 0; a new user's check)
+            return [], ("volume and area held fixed and spontaneous curvature c0: no closed-form or axisymmetric "
+                        "reference (the Vesicle section's is for c0 = 0; docs/guide/vesicles.md)")
         return [], ("volume and area held fixed: the sphere is not reachable (a vesicle run's report has an "
                     "axisymmetric reference in its Vesicle section; docs/guide/vesicles.md)")
     if float(flow_options.get("c0") or 0.0) != 0.0:
