@@ -152,13 +152,26 @@ def _check_reduced_volume(v: float, start: str, subdivisions: int, bend: float) 
     lows, other = MIN_REDUCED_VOLUME[start], start == "cup" and bend != CUP_BEND
     if other:  # (measured at CUP_BEND and at bend 0, the oblate start)
         lows = tuple(map(min, lows, MIN_REDUCED_VOLUME["oblate"]))
-    if v >= lows[k]:
+    # (the cup's upper end, its bent sphere's v: each end's error named only its own end, [0.157, 1) and (0, 0.755),
+    # and at bend 5 no v was left: a new user's check)
+    top = shapes.cup_max_reduced_volume(subdivisions, bend) if start == "cup" else 1.0
+    if lows[k] >= top:
+        raise UserInputError(f"parameter bend: no reduced volume builds {_start_name(start, subdivisions, bend)}: "
+                             f"its bent sphere's v = {top:.6f} is below {lows[k]:g}, where its cups fold; use a "
+                             f"smaller bend (the default {CUP_BEND:g} allows [{MIN_REDUCED_VOLUME['cup'][k]:g}, "
+                             f"{shapes.cup_max_reduced_volume(subdivisions, CUP_BEND):.6f}))")
+    if lows[k] <= v < top:
         return
+    bound = " (the lower of bend 0's and 1.2's: another bend may need more)" if other else ""
+    if v >= top:
+        raise UserInputError(f"parameter reduced_volume: must be in [{lows[k]:g}, {top:.6f}) for "
+                             f"{_start_name(start, subdivisions, bend)}{bound}, got {v:g}: the upper end is the "
+                             "bent sphere's (a cup flattened no further)")
     finer = [f"{x:g} at subdivisions={j}" for j, x in enumerate(lows, 1) if j > subdivisions and x < lows[k]]
     flat = MIN_REDUCED_VOLUME["oblate"][k]
-    bound = " (the lower of bend 0's and 1.2's: another bend may need more)" if other else ""
     raise UserInputError(
-        f"parameter reduced_volume: must be in [{lows[k]:g}, 1) for {_start_name(start, subdivisions, bend)}{bound}, "
+        f"parameter reduced_volume: must be in [{lows[k]:g}, {'1' if top == 1 else f'{top:.6f}'}) for "
+        f"{_start_name(start, subdivisions, bend)}{bound}, "
         f"got {v:g}: below it the start mesh folds (the normals of adjacent triangles turn by more than max_dihedral "
         "= 120 deg) or has angles below min_angle = 0.5 deg"
         + (f"; more subdivisions reach lower ({finer[0]})" if finer else "")

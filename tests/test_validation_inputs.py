@@ -502,6 +502,8 @@ def test_tau_tilde_far_below_h2_warns_where_ipopt_takes_the_steps() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error", StepSizeWarning)
         WillmoreFlow(mesh, mesh.h, mesh.h**2 / 100)  # the default
+        WillmoreFlow(mesh, mesh.h, mesh.h**2 / 1e4)  # (at the threshold; one ulp below 1e-4 h^2 it said "1e-4 h^2 is
+        # below about 1e-4 h^2": a new user's check)
         WillmoreFlow(mesh, mesh.h, 1e-6 * mesh.h**2, solver="newton-krylov")  # (measured: it takes such steps)
 
 

@@ -232,6 +232,7 @@ def test_vesicle_problem_start() -> None:
     """The registered `vesicle` problem: its start polyhedron has the requested reduced volume (to 1e-12),
     the flow options ask for fixed V and A and pass c0 through; bad parameters name the option."""
     from willmore_nlp.errors import UserInputError
+    from willmore_nlp.mesh.core import MeshError
     from willmore_nlp.registry import build
 
     for start in ("prolate", "oblate"):
@@ -251,8 +252,17 @@ def test_vesicle_problem_start() -> None:
     # bend = 0 is the oblate start's mesh, as the cup's generator and docs/guide/vesicles.md say (it was refused)
     flat = build("vesicle", start="cup", bend=0.0, subdivisions=2)[0].mesh.vertices
     np.testing.assert_allclose(flat, build("vesicle", start="oblate", subdivisions=2)[0].mesh.vertices, atol=1e-12)
-    with pytest.raises(UserInputError, match=r"parameter reduced_volume: .* v must be in"):
-        build("vesicle", start="cup", reduced_volume=0.95, bend=1.2)
+    # both ends in each refusal (a new user's check: [0.157, 1) below, (0, 0.755462) above), and a bend that leaves none
+    for v in (0.95, 0.1):
+        with pytest.raises(UserInputError, match=r"parameter reduced_volume: must be in \[0.157, 0.755462\) for the "
+                                                 r"cup start \(bend 1.2\)"):
+            build("vesicle", start="cup", reduced_volume=v, bend=1.2)
+    assert shapes.cup_max_reduced_volume(3, 1.2) == pytest.approx(0.755462, abs=1e-6)
+    with pytest.raises(MeshError, match="v must be in"):  # (the generator's own end is the same number)
+        shapes.cup_of_reduced_volume(0.7555, 3, 1.2)
+    with pytest.raises(UserInputError, match=r"parameter bend: no reduced volume builds the cup start \(bend 50\).*"
+                                             r"its bent sphere's v = 0.005213 is below 0.0817"):
+        build("vesicle", start="cup", bend=50.0)
     with pytest.raises(UserInputError, match="parameter reduced_volume"):
         build("vesicle", reduced_volume=1.5)
 
@@ -363,7 +373,8 @@ def test_the_smallest_reduced_volume_of_each_start_is_measured(start: str) -> No
         with pytest.raises(UserInputError) as err:
             build("vesicle", start=start, reduced_volume=v)
         lo = MIN_REDUCED_VOLUME[start][2]
-        assert str(err.value).startswith(f"parameter reduced_volume: must be in [{lo:g}, 1) for the {start} start")
+        top = "0.755462" if start == "cup" else "1"  # (the cup's: its bent sphere's v, shapes.cup_max_reduced_volume)
+        assert str(err.value).startswith(f"parameter reduced_volume: must be in [{lo:g}, {top}) for the {start} start")
         assert f"at subdivisions=3 (642 vertices), got {v:g}: below it the start mesh folds" in str(err.value)
     # a cup of a larger bend folds above the table's value: refused once built (at 642 v, bend 2 folds up to v = 0.7)
     with pytest.raises(UserInputError, match=r"the cup start \(bend 2\) at subdivisions=3 \(642 vertices\) is not a "

@@ -2140,7 +2140,8 @@ class WillmoreFlow:
                 f"clusters nodes (docs/theory/tau_tilde.md); use {'an effective ' if what else ''}tau_tilde <= h^2 "
                 "and take large steps in tau instead"),
                 stacklevel=3)
-        if self.tau_tilde * scale < TAU_TILDE_LOW_FACTOR * h * h and self.main_solver(mesh.n_vertices) == "ipopt":
+        low = TAU_TILDE_LOW_FACTOR * h * h * (1 - 1e-9)  # (h^2 / 1e4, one ulp below 1e-4 h^2, warned of itself)
+        if self.tau_tilde * scale < low and self.main_solver(mesh.n_vertices) == "ipopt":
             warnings.warn(StepSizeWarning(
                 f"tau_tilde = {self.tau_tilde:.3g}{what} is {self.tau_tilde * scale / (h * h):.3g} h^2 (h = {h:.3g}, "
                 f"the mean edge length): below about {TAU_TILDE_LOW_FACTOR:g} h^2 IPOPT's steps fail "

@@ -462,6 +462,22 @@ def ellipsoid_of_reduced_volume(v: float, kind: str = "prolate", subdivisions: i
                 f"{kind} spheroid(v={v}, c/a={ratio:.6g}, {exact}, {U.shape[0]} vertices)")
 
 
+def _bent(ico: Mesh, ratio: float, bend: float) -> Mesh:
+    """The unit icosphere ``ico``'s vertices (x, y, z) moved to (x, y, ratio z + bend (x^2 + y^2)): a cup."""
+    U = ico.vertices
+    return Mesh(np.column_stack([U[:, 0], U[:, 1], ratio * U[:, 2] + bend * (U[:, 0] ** 2 + U[:, 1] ** 2)]),
+                ico.simplices, "cup")
+
+
+def cup_max_reduced_volume(subdivisions: int = 3, bend: float = 0.6) -> float:
+    """The supremum of the reduced volumes :func:`cup_of_reduced_volume` builds at ``subdivisions`` and ``bend``: that
+    of the bent sphere (aspect ratio 1)."""
+    from willmore_nlp.geometry import enclosed_volume, measure
+
+    M = _bent(icosphere(subdivisions), 1.0, bend)
+    return reduced_volume(measure(M), enclosed_volume(M))
+
+
 def cup_of_reduced_volume(v: float, subdivisions: int = 3, bend: float = 0.6, *, area: float | None = None) -> Mesh:
     """An oblate spheroid bent into a cup, with the polyhedron's reduced volume exactly ``v``.
 
@@ -493,17 +509,12 @@ def cup_of_reduced_volume(v: float, subdivisions: int = 3, bend: float = 0.6, *,
     if not bend >= 0:
         raise MeshError(f"cup_of_reduced_volume: bend must be >= 0, got {bend}")
     ico = icosphere(subdivisions)
-    U = ico.vertices
-
-    def shaped(ratio: float) -> Mesh:
-        X = np.column_stack([U[:, 0], U[:, 1], ratio * U[:, 2] + bend * (U[:, 0] ** 2 + U[:, 1] ** 2)])
-        return Mesh(X, ico.simplices, "cup")
 
     def v_of(t: float) -> float:
-        M = shaped(float(np.exp(t)))
+        M = _bent(ico, float(np.exp(t)), bend)
         return reduced_volume(measure(M), enclosed_volume(M))
 
-    v_max = v_of(0.0)  # the bent sphere
+    v_max = v_of(0.0)  # the bent sphere: cup_max_reduced_volume
     if not 0 < v < v_max:
         raise MeshError(f"cup_of_reduced_volume: v must be in (0, {v_max:.6f}) for bend={bend} at "
                         f"subdivisions={subdivisions}, got {v}")
@@ -512,7 +523,7 @@ def cup_of_reduced_volume(v: float, subdivisions: int = 3, bend: float = 0.6, *,
     except (ValueError, ArithmeticError) as exc:
         raise MeshError(f"cup_of_reduced_volume: no cup of reduced volume {v} found for bend={bend} at "
                         f"subdivisions={subdivisions} (its aspect ratio would be extreme; {exc})") from None
-    M = shaped(ratio)
+    M = _bent(ico, ratio, bend)
     s = np.sqrt((4 * np.pi if area is None else area) / measure(M))
     return Mesh(s * M.vertices, ico.simplices,
-                f"cup(v={v}, c/a={ratio:.6g}, bend={bend}, {U.shape[0]} vertices)")
+                f"cup(v={v}, c/a={ratio:.6g}, bend={bend}, {ico.n_vertices} vertices)")
