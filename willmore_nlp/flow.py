@@ -743,8 +743,8 @@ class WillmoreFlow:
         self._accepted_iterations: list[int] = []  # iteration counts of the last accepted steps
         self._start_warned = False  # a step accepted at its start by a loose tol was warned of (once per flow)
         self.relaxed = False
-        self._time_left = float("inf")  # run(t_end=...): what is left to t_end (caps relax steps)
-        self._t_end = float("inf")  # run(t_end=...): a step that ends within round-off of it ends on it
+        self._t_end = float("inf")  # run(t_end=...): caps relax steps by what is left to it; a step that ends within
+        # round-off of it ends on it
         self._run_tau: float | None = None  # run(t_end=...): the nominal tau, which it caps by what is left
         self._cut = False  # the step under way was shortened to land on t_end (the step-size control ignores it)
         self.remesh = (s.remesh == "auto" and s.mesh_control == "auto" and mesh.d == 2 and mesh.m == 3)
@@ -1277,7 +1277,7 @@ class WillmoreFlow:
         self._stop_seen = False
         if self.settings.relax:
             grown = self.tau if np.isinf(self._tau_adapt) else self._tau_adapt
-            tau = min(self.relax_max_tau, self._time_left, grown)
+            tau = min(self.relax_max_tau, self._t_end - self.t, grown)
             if self.relax_newton and self._spectrum_fits():
                 newton = self._newton_relax_step(tau, t0)
                 if newton is not None:
@@ -2596,7 +2596,7 @@ class WillmoreFlow:
                     if remaining <= 1e-12 * max(1.0, abs(t_end)):
                         break
                     self.tau = min(nominal, remaining)
-                    self._time_left, self._t_end = remaining, float(t_end)
+                    self._t_end = float(t_end)
                 try:
                     r = self.step()
                 except FlowError as exc:
@@ -2609,6 +2609,6 @@ class WillmoreFlow:
                     break
         finally:
             self.tau = nominal
-            self._time_left = self._t_end = float("inf")
+            self._t_end = float("inf")
             self._run_tau = None
         return out
