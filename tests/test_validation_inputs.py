@@ -507,6 +507,30 @@ def test_tau_tilde_far_below_h2_warns_where_ipopt_takes_the_steps() -> None:
         WillmoreFlow(mesh, mesh.h, 1e-6 * mesh.h**2, solver="newton-krylov")  # (measured: it takes such steps)
 
 
+def test_tau_tilde_far_below_h2_fails_ipopt_not_newton_krylov() -> None:
+    """What TAU_TILDE_LOW_FACTOR's warning says, measured on a 162-vertex ellipsoid 1.5 : 1 : 0.8 (one step at tau =
+    h, no retry, a move of 1.0 h): at 1e-4 h^2 IPOPT and newton-krylov take the step to the same X; at 1e-6 h^2 IPOPT
+    fails it (about 10 s at its iteration limit) and newton-krylov, whose stopping test is relative, still takes it,
+    to an X that differs from the 1e-4 h^2 step's by the O(tau_tilde) change only."""
+    from willmore_nlp.flow import FlowError
+
+    mesh = shapes.icosphere(2)
+    mesh = mesh.with_vertices(mesh.vertices * [1.5, 1.0, 0.8])
+    h = mesh.h
+
+    def step(ratio: float, solver: str) -> np.ndarray:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", StepSizeWarning)
+            flow = WillmoreFlow(mesh, h, ratio * h * h, solver=solver, max_retries=0)
+        return flow.run(steps=1)[0].vertices
+
+    X4 = step(1e-4, "ipopt")
+    assert np.abs(X4 - step(1e-4, "newton-krylov")).max() < 1e-5 * h  # (measured 1.5e-6 h, in a move of 1.0 h)
+    assert np.abs(step(1e-6, "newton-krylov") - X4).max() < 1e-3 * h  # (the O(tau_tilde) change: measured 1.6e-4 h)
+    with pytest.raises(FlowError, match="step 1 at t=0 failed"):
+        step(1e-6, "ipopt")
+
+
 def test_resume_of_a_file_outside_a_run_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Found by a new-user check (2026-12-01): ``run --resume in/ok.txt`` (a mesh file) said "(the run directory is
     in)"; only a file inside a run directory (its config.json) names that directory."""
